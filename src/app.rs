@@ -1,0 +1,283 @@
+//! The application core, independent of the browser: one world (seed + settings), the camera
+//! and its controller, streaming and node selection per frame, and the statistics the overlay
+//! and the tests read. The wasm shell feeds it input and draws what it returns.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+
+use glam::DVec3;
+
+use crate::render::camera::{Camera, CameraController, ControlInput};
+use crate::render::gpu::{FrameParams, sun_direction};
+use crate::share::ShareState;
+use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
+use crate::world::schedule::{mix64, tile_seed};
+use crate::world::{ProceduralSource, TILE_SIZE_M, WorldStream};
+
+/// Milliseconds per frame that tile generation may use before it waits for the next frame.
+pub const TILE_BUDGET_MS: f64 = 4.0;
+
+/// Quadtree nodes built per frame at most (each is a 35² gather plus a mesh upload).
+pub const NODE_BUILD_BUDGET: usize = 24;
+
+/// Frames a node mesh stays on the GPU after it was last drawn.
+pub const MESH_KEEP_FRAMES: u64 = 240;
+
+/// Numbers shown in the overlay and exported to the end-to-end test (all counts are totals
+/// since the world was created unless stated).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct AppStats {
+    /// Frames drawn.
+    pub frames: u64,
+    /// Tiles generated (dependencies included).
+    pub tiles_generated: u64,
+    /// Tiles in the cache now.
+    pub tiles_cached: usize,
+    /// Most tiles the cache may hold.
+    pub tiles_capacity: usize,
+    /// Wanted tiles still missing.
+    pub tiles_pending: usize,
+    /// Tiles evicted.
+    pub tiles_evicted: u64,
+    /// Mean generation time per tile (milliseconds).
+    pub ms_per_tile: f64,
+    /// Quadtree nodes drawn in the last frame.
+    pub nodes_drawn: usize,
+    /// Quadtree nodes cached.
+    pub nodes_cached: usize,
+    /// Deepest quadtree depth drawn in the last frame.
+    pub max_depth_drawn: u8,
+    /// Median frame time over the recent window (milliseconds).
+    pub frame_ms_median: f64,
+    /// Worst frame time over the recent window (milliseconds).
+    pub frame_ms_worst: f64,
+    /// Eye position (world metres).
+    pub eye_m: [f64; 3],
+    /// Order-independent hash (hex) of the contents and coordinates of the tiles drawn: equal
+    /// on two pages exactly when they show bit-identical tiles.
+    pub view_checksum: String,
+}
+
+/// The application state of one page.
+pub struct TerrainApp {
+    settings: ShareState,
+    world: WorldStream,
+    nodes: NodeCache,
+    /// The camera.
+    pub camera: Camera,
+    /// The camera controller.
+    pub controller: CameraController,
+    /// Tint nodes by quadtree depth.
+    pub show_lod: bool,
+    frame_ms: VecDeque<f64>,
+    stats: AppStats,
+    time_s: f64,
+}
+
+impl TerrainApp {
+    /// An app showing the world and view described by `s`.
+    pub fn new(s: ShareState) -> Self {
+        let world = Self::make_world(&s);
+        let mut app = Self {
+            settings: s.clone(),
+            world,
+            nodes: NodeCache::new(),
+            camera: Camera::default(),
+            controller: CameraController::default(),
+            show_lod: false,
+            frame_ms: VecDeque::new(),
+            stats: AppStats::default(),
+            time_s: 0.0,
+        };
+        app.set_view(&s);
+        app
+    }
+
+    fn make_world(s: &ShareState) -> WorldStream {
+        WorldStream::new(s.seed, Box::new(ProceduralSource::new(s.noise)), s.radius_tiles)
+    }
+
+    fn set_view(&mut self, s: &ShareState) {
+        self.camera.position_m = DVec3::from_array(s.position_m);
+        self.camera.yaw = s.yaw;
+        self.camera.pitch = s.pitch;
+        self.camera.far_m = ((s.radius_tiles + 0.5) * TILE_SIZE_M) as f32;
+    }
+
+    /// Applies settings (and the view) from `s`: a new seed or noise rebuilds the world, a new
+    /// radius resizes the cache; camera pose is taken over as is.
+    pub fn apply(&mut self, s: ShareState) {
+        let world_changed = s.seed != self.settings.seed || s.noise != self.settings.noise || s.radius_tiles != self.settings.radius_tiles;
+        if world_changed {
+            self.world = Self::make_world(&s);
+            self.nodes = NodeCache::new();
+        }
+        self.set_view(&s);
+        self.settings = s;
+    }
+
+    /// Applies settings from `s` but keeps the current camera pose (for the settings panel).
+    pub fn apply_settings(&mut self, mut s: ShareState) {
+        let now = self.share_state();
+        s.position_m = now.position_m;
+        s.yaw = now.yaw;
+        s.pitch = now.pitch;
+        self.apply(s);
+    }
+
+    /// The current world, view and settings, as a share link carries them.
+    pub fn share_state(&self) -> ShareState {
+        ShareState { position_m: self.camera.position_m.to_array(), yaw: self.camera.yaw, pitch: self.camera.pitch, ..self.settings.clone() }
+    }
+
+    /// The settings in force (the camera pose in it is the one last applied).
+    pub fn settings(&self) -> &ShareState {
+        &self.settings
+    }
+
+    /// Name of the tile source.
+    pub fn source_name(&self) -> String {
+        self.world.source_name()
+    }
+
+    /// Current statistics.
+    pub fn stats(&self) -> &AppStats {
+        &self.stats
+    }
+
+    /// Records the duration (milliseconds) of the previous frame, keeping the last 2 seconds'
+    /// worth (120 frames) for median and worst.
+    pub fn record_frame_time(&mut self, ms: f64) {
+        self.frame_ms.push_back(ms);
+        while self.frame_ms.len() > 120 {
+            self.frame_ms.pop_front();
+        }
+        let mut v: Vec<f64> = self.frame_ms.iter().copied().collect();
+        v.sort_by(f64::total_cmp);
+        self.stats.frame_ms_median = v[v.len() / 2];
+        self.stats.frame_ms_worst = *v.last().unwrap_or(&0.0);
+    }
+
+    /// Ground height (metres) under (x, z), where the tile is generated.
+    pub fn ground_at(&self, x_m: f64, z_m: f64) -> Option<f32> {
+        self.world.height_at(x_m, z_m)
+    }
+
+    /// Advances one frame of `dt_s` seconds: moves the camera (input, autopilot), streams
+    /// tiles within the time budget, selects nodes for a viewport of `size_px` pixels and
+    /// returns what to draw.
+    pub fn frame(&mut self, input: &ControlInput, dt_s: f64, size_px: [u32; 2]) -> (Vec<Arc<NodeData>>, FrameParams) {
+        let dt_s = dt_s.clamp(0.0, 0.25);
+        self.time_s += dt_s;
+        self.autopilot(dt_s);
+        let world = &self.world;
+        self.controller.update(&mut self.camera, input, dt_s, |x, z| world.height_at(x, z));
+
+        let eye = self.camera.position_m;
+        self.world.update(eye.x, eye.z, TILE_BUDGET_MS);
+        let world = &self.world;
+        self.nodes.retain_tiles(|t| world.contains(t));
+        let tiles = self.world.drawable(eye.x, eye.z);
+        let aspect = size_px[0].max(1) as f32 / size_px[1].max(1) as f32;
+        let view = self.camera.lod_view(aspect, size_px[1].max(1) as f32, self.settings.lod_px, BASE_DATA_DEPTH);
+        let mut budget = NODE_BUILD_BUDGET;
+        let nodes = self.nodes.select(&tiles, &self.world, &view, &mut budget);
+
+        let ws = self.world.stats();
+        self.stats.frames += 1;
+        self.stats.tiles_generated = ws.generated;
+        self.stats.tiles_cached = ws.cached;
+        self.stats.tiles_capacity = self.world.capacity();
+        self.stats.tiles_pending = ws.pending;
+        self.stats.tiles_evicted = ws.evicted;
+        self.stats.ms_per_tile = ws.ms_per_tile();
+        self.stats.nodes_drawn = nodes.len();
+        self.stats.nodes_cached = self.nodes.len();
+        self.stats.max_depth_drawn = nodes.iter().map(|n| n.id.depth).max().unwrap_or(0);
+        self.stats.eye_m = eye.to_array();
+        let sum = tiles.iter().filter_map(|&c| self.world.get(c)).fold(0u64, |acc, t| acc.wrapping_add(mix64(t.checksum ^ tile_seed(0, t.coord))));
+        self.stats.view_checksum = format!("{sum:016x}");
+
+        let n = &self.settings.noise;
+        let far = self.camera.far_m;
+        let params = FrameParams {
+            camera: self.camera,
+            size: size_px,
+            sun_dir: sun_direction(2.3, 0.45),
+            fog_start_m: far * 0.35,
+            fog_end_m: far,
+            water_level_m: 0.0,
+            amplitude_m: (n.amplitude_m + n.base_m).max(100.0),
+            show_lod: self.show_lod,
+            time_s: self.time_s as f32,
+        };
+        (nodes, params)
+    }
+
+    /// Autopilot: fly level along the heading at the link's speed, following the terrain
+    /// 400 m above the highest ground within the next kilometre.
+    fn autopilot(&mut self, dt_s: f64) {
+        let v = self.settings.autopilot_mps;
+        if v <= 0.0 {
+            return;
+        }
+        let (s, c) = (self.camera.yaw as f64).sin_cos();
+        let dir = DVec3::new(s, 0.0, -c);
+        self.camera.position_m += dir * v * dt_s;
+        let p = self.camera.position_m;
+        let ahead = (0..=4).filter_map(|k| self.world.height_at(p.x + dir.x * 250.0 * k as f64, p.z + dir.z * 250.0 * k as f64)).fold(f32::NEG_INFINITY, f32::max);
+        if ahead.is_finite() {
+            let target = ahead as f64 + 400.0;
+            let blend = (dt_s * 1.5).min(1.0);
+            self.camera.position_m.y += (target - p.y) * blend;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_stream_tiles_and_select_nodes() {
+        let mut app = TerrainApp::new(ShareState { radius_tiles: 2.0, ..ShareState::default() });
+        let mut drawn = 0;
+        for _ in 0..200 {
+            let (nodes, p) = app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+            drawn = nodes.len();
+            assert_eq!(p.size, [800, 600]);
+            if app.stats().tiles_pending == 0 && drawn > 0 {
+                break;
+            }
+        }
+        let s = app.stats();
+        assert_eq!(s.tiles_pending, 0);
+        assert!(drawn > 0 && s.tiles_generated >= 25, "{s:?}");
+        assert!(s.max_depth_drawn == BASE_DATA_DEPTH, "near nodes reach 32 m: {s:?}");
+        let ground = app.ground_at(app.camera.position_m.x, app.camera.position_m.z).unwrap() as f64;
+        assert!(app.camera.position_m.y > ground);
+    }
+
+    #[test]
+    fn autopilot_flies_and_reaches_new_tiles() {
+        let mut app = TerrainApp::new(ShareState { radius_tiles: 2.0, autopilot_mps: 2000.0, ..ShareState::default() });
+        let start = app.camera.position_m;
+        for _ in 0..300 {
+            app.frame(&ControlInput::default(), 1.0 / 30.0, [640, 480]);
+        }
+        let moved = (app.camera.position_m - start).length();
+        assert!(moved > 15_000.0, "moved {moved} m");
+        assert!(app.stats().tiles_evicted > 0 || app.stats().tiles_generated > 40, "{:?}", app.stats());
+        assert!(app.stats().tiles_cached <= app.stats().tiles_capacity);
+    }
+
+    #[test]
+    fn share_state_reproduces_the_view() {
+        let mut a = TerrainApp::new(ShareState::default());
+        a.frame(&ControlInput { look_px: glam::Vec2::new(40.0, 10.0), movement: glam::Vec3::Z, ..Default::default() }, 0.1, [320, 200]);
+        let link = a.share_state().to_fragment();
+        let b = TerrainApp::new(ShareState::from_fragment(&link).unwrap());
+        assert_eq!(a.camera.position_m, b.camera.position_m);
+        assert_eq!((a.camera.yaw, a.camera.pitch), (b.camera.yaw, b.camera.pitch));
+    }
+}

@@ -1,0 +1,19 @@
+//! Terrain: an endless world grown around the camera, drawn with a per-tile quadtree level of
+//! detail, shared by link. The same core runs in the page (wasm + WebGPU) and natively (CLI
+//! and tests).
+//!
+//! Data flows one way: seed → tile ([`world`]) → quadtree node ([`world::quadtree`]) → GPU
+//! buffer ([`render`]) → frame. [`app`] drives it per frame, [`ui`] draws the overlay,
+//! [`share`] reads and writes links, [`dem`] reads and writes heightfields, [`models`] hosts
+//! the neural networks' runtime.
+
+pub mod app;
+pub mod dem;
+pub mod models;
+pub mod render;
+pub mod share;
+pub mod ui;
+pub mod world;
+
+#[cfg(target_arch = "wasm32")]
+mod web;

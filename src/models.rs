@@ -1,0 +1,107 @@
+//! Neural-network runtime: burn on a wgpu device shared with the renderer (WebGPU in the page,
+//! Vulkan natively), and a start-up self-check that runs a real convolution kernel on it and
+//! compares it with a CPU reference. The TEM and TCM modules build on this device.
+
+use burn::tensor::module::conv2d;
+use burn::tensor::ops::ConvOptions;
+use burn::tensor::{Device, Tensor, TensorData};
+
+pub use burn::tensor::wgpu::{WgpuSetup, wgpu as burn_wgpu};
+
+/// Side of the self-check image (pixels).
+const CHECK_SIZE: usize = 32;
+
+/// Registers an existing wgpu setup (the renderer's) with burn, so inference and rendering
+/// share one device and queue.
+pub fn device_from_setup(setup: WgpuSetup) -> Result<Device, String> {
+    Device::wgpu_options().setup(setup).init().map_err(|e| format!("burn could not use the GPU device: {e}"))
+}
+
+/// The self-check input: a height ramp with a checker pattern (metres).
+fn check_input() -> Vec<f32> {
+    (0..CHECK_SIZE * CHECK_SIZE)
+        .map(|k| {
+            let (x, y) = (k % CHECK_SIZE, k / CHECK_SIZE);
+            x as f32 * 1.5 + y as f32 * 0.25 + if (x / 4 + y / 4) % 2 == 0 { 10.0 } else { -10.0 }
+        })
+        .collect()
+}
+
+/// The self-check kernel: a 3×3 edge-weighted blur.
+const CHECK_KERNEL: [f32; 9] = [0.0625, 0.125, 0.0625, 0.125, 0.25, 0.125, 0.0625, 0.125, 0.0625];
+
+/// CPU reference of the self-check: 3×3 convolution with zero padding.
+pub fn reference_output() -> Vec<f32> {
+    let x = check_input();
+    let n = CHECK_SIZE as i32;
+    let mut out = vec![0f32; x.len()];
+    for r in 0..n {
+        for c in 0..n {
+            let mut acc = 0f32;
+            for kr in -1..=1 {
+                for kc in -1..=1 {
+                    let (rr, cc) = (r + kr, c + kc);
+                    if (0..n).contains(&rr) && (0..n).contains(&cc) {
+                        acc += x[(rr * n + cc) as usize] * CHECK_KERNEL[((kr + 1) * 3 + kc + 1) as usize];
+                    }
+                }
+            }
+            out[(r * n + c) as usize] = acc;
+        }
+    }
+    out
+}
+
+/// Builds the self-check convolution on `device` (not yet read back).
+fn check_tensor(device: &Device) -> Tensor<4> {
+    let x = Tensor::<4>::from_data(TensorData::new(check_input(), [1, 1, CHECK_SIZE, CHECK_SIZE]), device);
+    let w = Tensor::<4>::from_data(TensorData::new(CHECK_KERNEL.to_vec(), [1, 1, 3, 3]), device);
+    conv2d(x, w, None, ConvOptions::new([1, 1], [1, 1], [1, 1], 1))
+}
+
+/// Largest absolute difference (metres) between a device result and the CPU reference.
+fn max_error(data: TensorData) -> Result<f32, String> {
+    let got: Vec<f32> = data.to_vec().map_err(|e| format!("unexpected result type: {e:?}"))?;
+    let want = reference_output();
+    if got.len() != want.len() {
+        return Err(format!("result has {} values, expected {}", got.len(), want.len()));
+    }
+    Ok(got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max))
+}
+
+/// Runs the self-check on `device` (async readback, as browsers require) and returns the
+/// largest error against the CPU reference (metres).
+pub async fn self_check(device: &Device) -> Result<f32, String> {
+    let data = check_tensor(device).into_data_async().await.map_err(|e| format!("GPU readback failed: {e:?}"))?;
+    max_error(data)
+}
+
+/// Blocking variant of [`self_check`] for native code.
+#[cfg(not(target_arch = "wasm32"))]
+pub fn self_check_blocking(device: &Device) -> Result<f32, String> {
+    max_error(check_tensor(device).into_data())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reference_blur_preserves_the_mean_inside() {
+        let out = reference_output();
+        let x = check_input();
+        // Away from the zero-padded border a normalised blur of a ramp keeps the ramp.
+        let k = 10 * CHECK_SIZE + 12; // a cell centre whose 3×3 lies in one checker square
+        assert!((out[k] - x[k]).abs() < 1e-4, "{} vs {}", out[k], x[k]);
+        assert!(out[0] < x[0], "zero padding pulls the corner down");
+    }
+
+    /// Natively burn's wgpu backend runs on Vulkan (Mesa's lavapipe on a machine without a
+    /// GPU): the kernel must agree with the CPU to well under a millimetre.
+    #[test]
+    fn burn_wgpu_convolution_matches_the_cpu() {
+        let device = Device::wgpu_options().init().expect("a Vulkan device (install mesa-vulkan-drivers for lavapipe)");
+        let err = self_check_blocking(&device).unwrap();
+        assert!(err < 1e-3, "max |Δ| {err} m");
+    }
+}

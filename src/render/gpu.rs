@@ -1,0 +1,331 @@
+//! The wgpu renderer: draws the selected quadtree nodes, the sky and the water into an
+//! offscreen colour target (which the UI shows), with reverse-Z depth.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use wgpu::util::DeviceExt;
+
+use super::camera::Camera;
+use super::mesh::{Vertex, node_indices, node_vertices};
+use crate::world::quadtree::{NodeData, NodeId};
+
+/// Colour format of the offscreen target (linear values, stored sRGB).
+pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+/// Depth format (reverse-Z: 1 at the near plane, 0 at infinity).
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
+const SKY_WGSL: &str = include_str!("../../shaders/sky.wgsl");
+const TERRAIN_WGSL: &str = include_str!("../../shaders/terrain.wgsl");
+const WATER_WGSL: &str = include_str!("../../shaders/water.wgsl");
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Globals {
+    view_proj: [[f32; 4]; 4],
+    inv_view_proj: [[f32; 4]; 4],
+    eye: [f32; 4],
+    sun: [f32; 4],
+    fog: [f32; 4],
+    params: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Instance {
+    offset: [f32; 3],
+    depth: f32,
+}
+
+/// Everything about a frame that is not geometry.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameParams {
+    /// The camera.
+    pub camera: Camera,
+    /// Target size (pixels).
+    pub size: [u32; 2],
+    /// Unit vector towards the sun.
+    pub sun_dir: Vec3,
+    /// Distance where fog starts (metres).
+    pub fog_start_m: f32,
+    /// Distance where fog is complete (metres).
+    pub fog_end_m: f32,
+    /// Height of the water plane (metres).
+    pub water_level_m: f32,
+    /// Terrain height range, for colouring by elevation (metres).
+    pub amplitude_m: f32,
+    /// Tint nodes by quadtree depth.
+    pub show_lod: bool,
+    /// Seconds since start (animates the water).
+    pub time_s: f32,
+}
+
+/// What one frame drew.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RenderStats {
+    /// Nodes drawn.
+    pub nodes: usize,
+    /// Node meshes uploaded this frame.
+    pub uploads: usize,
+    /// Triangles submitted.
+    pub triangles: usize,
+    /// Node meshes resident on the GPU.
+    pub resident: usize,
+}
+
+struct GpuMesh {
+    buffer: wgpu::Buffer,
+    /// Address of the node data it was built from: a refined replacement gets a new mesh.
+    source: usize,
+    last_used: u64,
+}
+
+struct Target {
+    size: [u32; 2],
+    color: wgpu::TextureView,
+    depth: wgpu::TextureView,
+}
+
+/// GPU state of the terrain renderer.
+pub struct TerrainRenderer {
+    globals: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    sky: wgpu::RenderPipeline,
+    terrain: wgpu::RenderPipeline,
+    water: wgpu::RenderPipeline,
+    indices: wgpu::Buffer,
+    index_count: u32,
+    instances: wgpu::Buffer,
+    instance_capacity: usize,
+    meshes: HashMap<NodeId, GpuMesh>,
+    target: Option<Target>,
+    frame: u64,
+}
+
+impl TerrainRenderer {
+    /// Creates pipelines and shared buffers on `device`.
+    pub fn new(device: &wgpu::Device) -> Self {
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("terrain globals"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
+                count: None,
+            }],
+        });
+        let globals = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("terrain globals"),
+            size: std::mem::size_of::<Globals>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("terrain globals"),
+            layout: &layout,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: globals.as_entire_binding() }],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("terrain"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let module = |name: &str, src: &str| {
+            device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(name),
+                source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{src}").into()),
+            })
+        };
+        let pipeline = |name: &str, src: &str, buffers: &[wgpu::VertexBufferLayout<'_>], depth_write: bool, compare: wgpu::CompareFunction, blend: Option<wgpu::BlendState>| {
+            let m = module(name, src);
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(name),
+                layout: Some(&pipeline_layout),
+                vertex: wgpu::VertexState { module: &m, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers },
+                primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, cull_mode: None, ..Default::default() },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH_FORMAT,
+                    depth_write_enabled: Some(depth_write),
+                    depth_compare: Some(compare),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &m,
+                    entry_point: Some("fs_main"),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend, write_mask: wgpu::ColorWrites::ALL })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let vertex_layout = wgpu::VertexBufferLayout {
+            array_stride: std::mem::size_of::<Vertex>() as u64,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3],
+        };
+        let instance_layout = wgpu::VertexBufferLayout {
+            array_stride: std::mem::size_of::<Instance>() as u64,
+            step_mode: wgpu::VertexStepMode::Instance,
+            attributes: &wgpu::vertex_attr_array![2 => Float32x3, 3 => Float32],
+        };
+        let sky = pipeline("sky", SKY_WGSL, &[], false, wgpu::CompareFunction::Always, None);
+        let terrain = pipeline("terrain", TERRAIN_WGSL, &[vertex_layout, instance_layout], true, wgpu::CompareFunction::Greater, None);
+        let water = pipeline("water", WATER_WGSL, &[], true, wgpu::CompareFunction::Greater, Some(wgpu::BlendState::ALPHA_BLENDING));
+        let idx = node_indices();
+        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("node indices"),
+            contents: bytemuck::cast_slice(&idx),
+            usage: wgpu::BufferUsages::INDEX,
+        });
+        let instance_capacity = 256;
+        let instances = Self::instance_buffer(device, instance_capacity);
+        Self { globals, bind_group, sky, terrain, water, indices, index_count: idx.len() as u32, instances, instance_capacity, meshes: HashMap::new(), target: None, frame: 0 }
+    }
+
+    fn instance_buffer(device: &wgpu::Device, n: usize) -> wgpu::Buffer {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("node instances"),
+            size: (n * std::mem::size_of::<Instance>()) as u64,
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Makes sure the offscreen target has `size` pixels; returns true if it was (re)created,
+    /// in which case the view from `color_view` changed.
+    pub fn ensure_target(&mut self, device: &wgpu::Device, size: [u32; 2]) -> bool {
+        let size = [size[0].max(1), size[1].max(1)];
+        if self.target.as_ref().is_some_and(|t| t.size == size) {
+            return false;
+        }
+        let make = |format, usage, label| {
+            device
+                .create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage,
+                    view_formats: &[],
+                })
+                .create_view(&Default::default())
+        };
+        self.target = Some(Target {
+            size,
+            color: make(COLOR_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING, "terrain colour"),
+            depth: make(DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, "terrain depth"),
+        });
+        true
+    }
+
+    /// The offscreen colour target (after `ensure_target`).
+    pub fn color_view(&self) -> Option<&wgpu::TextureView> {
+        self.target.as_ref().map(|t| &t.color)
+    }
+
+    /// Draws `nodes` for `params` into the offscreen target and submits the work. Node meshes
+    /// are uploaded on first use and kept while drawn; meshes unused for `keep_frames` frames
+    /// are dropped.
+    pub fn render(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, nodes: &[Arc<NodeData>], params: &FrameParams, keep_frames: u64) -> RenderStats {
+        self.frame += 1;
+        self.ensure_target(device, params.size);
+        let mut stats = RenderStats { nodes: nodes.len(), ..Default::default() };
+        let cam = &params.camera;
+        let aspect = params.size[0].max(1) as f32 / params.size[1].max(1) as f32;
+        let vp = cam.view_proj(aspect);
+        let g = Globals {
+            view_proj: vp.to_cols_array_2d(),
+            inv_view_proj: vp.inverse().to_cols_array_2d(),
+            eye: [cam.position_m.x as f32, cam.position_m.y as f32, cam.position_m.z as f32, 0.0],
+            sun: params.sun_dir.normalize().extend(0.0).to_array(),
+            fog: [params.fog_start_m, params.fog_end_m, params.water_level_m, params.amplitude_m],
+            params: [if params.show_lod { 1.0 } else { 0.0 }, params.time_s, 0.0, 0.0],
+        };
+        queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&g));
+
+        let mut inst = Vec::with_capacity(nodes.len());
+        for n in nodes {
+            let source = Arc::as_ptr(n) as usize;
+            let fresh = self.meshes.get(&n.id).is_none_or(|m| m.source != source);
+            if fresh {
+                let verts = node_vertices(n);
+                let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("node mesh"),
+                    contents: bytemuck::cast_slice(&verts),
+                    usage: wgpu::BufferUsages::VERTEX,
+                });
+                self.meshes.insert(n.id, GpuMesh { buffer, source, last_used: self.frame });
+                stats.uploads += 1;
+            }
+            if let Some(m) = self.meshes.get_mut(&n.id) {
+                m.last_used = self.frame;
+            }
+            let (x, z) = n.id.origin_m();
+            inst.push(Instance { offset: [(x - cam.position_m.x) as f32, -cam.position_m.y as f32, (z - cam.position_m.z) as f32], depth: n.id.depth as f32 });
+        }
+        if inst.len() > self.instance_capacity {
+            self.instance_capacity = inst.len().next_power_of_two();
+            self.instances = Self::instance_buffer(device, self.instance_capacity);
+        }
+        if !inst.is_empty() {
+            queue.write_buffer(&self.instances, 0, bytemuck::cast_slice(&inst));
+        }
+        let frame = self.frame;
+        self.meshes.retain(|_, m| frame - m.last_used <= keep_frames);
+        stats.resident = self.meshes.len();
+
+        let target = self.target.as_ref().expect("target ensured above");
+        let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("terrain") });
+        {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("terrain"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &target.color,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &target.depth,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Discard }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_bind_group(0, &self.bind_group, &[]);
+            pass.set_pipeline(&self.sky);
+            pass.draw(0..3, 0..1);
+            pass.set_pipeline(&self.terrain);
+            pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
+            pass.set_vertex_buffer(1, self.instances.slice(..));
+            for (k, n) in nodes.iter().enumerate() {
+                if let Some(m) = self.meshes.get(&n.id) {
+                    pass.set_vertex_buffer(0, m.buffer.slice(..));
+                    pass.draw_indexed(0..self.index_count, 0, k as u32..k as u32 + 1);
+                    stats.triangles += self.index_count as usize / 3;
+                }
+            }
+            pass.set_pipeline(&self.water);
+            pass.draw(0..6, 0..1);
+        }
+        queue.submit([enc.finish()]);
+        stats
+    }
+}
+
+/// The sun direction for an azimuth and elevation (radians).
+pub fn sun_direction(azimuth: f32, elevation: f32) -> Vec3 {
+    let (se, ce) = elevation.sin_cos();
+    let (sa, ca) = azimuth.sin_cos();
+    Vec3::new(sa * ce, se, -ca * ce)
+}

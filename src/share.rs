@@ -1,0 +1,214 @@
+//! Share links: the URL fragment that holds the seed, the camera pose and the settings, so the
+//! receiver sees the same world from the same place, bit for bit.
+//!
+//! Format (version 1): `#v=1&seed=S&cam=X,Y,Z,YAW,PITCH&r=R&lod=PX&noise=KIND,OCT,PERS,LAC,WAVE,AMP,BASE&auto=V`
+//! with metres for positions, radians for angles, tiles for R, pixels for PX and m/s for V.
+//! Unknown keys are ignored so older pages can open newer links.
+
+use crate::world::{NoiseKind, NoiseParams};
+
+/// Everything a link carries.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShareState {
+    /// World seed.
+    pub seed: u64,
+    /// Camera position (world metres: x east, y up, z south).
+    pub position_m: [f64; 3],
+    /// Camera heading (radians; 0 looks towards −z, positive turns towards +x).
+    pub yaw: f32,
+    /// Camera pitch (radians; positive looks up).
+    pub pitch: f32,
+    /// Relevance radius (tiles).
+    pub radius_tiles: f64,
+    /// Level-of-detail target: projected vertex spacing in pixels (smaller = more detail).
+    pub lod_px: f64,
+    /// Procedural noise parameters.
+    pub noise: NoiseParams,
+    /// Autopilot speed (m/s); 0 when off.
+    pub autopilot_mps: f64,
+}
+
+impl Default for ShareState {
+    fn default() -> Self {
+        Self {
+            seed: 1,
+            position_m: [2048.0, 1600.0, 2048.0],
+            yaw: 0.6,
+            pitch: -0.25,
+            radius_tiles: 4.0,
+            lod_px: 6.0,
+            noise: NoiseParams::default(),
+            autopilot_mps: 0.0,
+        }
+    }
+}
+
+/// Why a fragment could not be read.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShareError(pub String);
+
+impl std::fmt::Display for ShareError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "broken share link: {}", self.0)
+    }
+}
+
+impl std::error::Error for ShareError {}
+
+fn numbers<const N: usize>(key: &str, value: &str) -> Result<[f64; N], ShareError> {
+    let parts: Vec<&str> = value.split(',').collect();
+    if parts.len() != N {
+        return Err(ShareError(format!("'{key}' needs {N} numbers, got {}", parts.len())));
+    }
+    let mut out = [0f64; N];
+    for (slot, p) in out.iter_mut().zip(parts) {
+        let v: f64 = p.trim().parse().map_err(|_| ShareError(format!("'{key}' has a bad number '{p}'")))?;
+        if !v.is_finite() {
+            return Err(ShareError(format!("'{key}' has a non-finite number")));
+        }
+        *slot = v;
+    }
+    Ok(out)
+}
+
+impl ShareState {
+    /// The fragment (without '#') for this state.
+    pub fn to_fragment(&self) -> String {
+        let n = &self.noise;
+        let kind = match n.kind {
+            NoiseKind::Fbm => "fbm",
+            NoiseKind::Ridged => "ridged",
+        };
+        let [x, y, z] = self.position_m;
+        format!(
+            "v=1&seed={}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}",
+            self.seed, self.yaw, self.pitch, self.radius_tiles, self.lod_px, n.octaves, n.persistence, n.lacunarity, n.wavelength_m, n.amplitude_m, n.base_m, self.autopilot_mps
+        )
+    }
+
+    /// Reads a fragment (with or without the leading '#'). An empty fragment is the default
+    /// world; anything malformed is an error naming the bad part, never a panic.
+    pub fn from_fragment(fragment: &str) -> Result<ShareState, ShareError> {
+        let f = fragment.strip_prefix('#').unwrap_or(fragment);
+        let mut s = ShareState::default();
+        if f.trim().is_empty() {
+            return Ok(s);
+        }
+        for pair in f.split('&').filter(|p| !p.is_empty()) {
+            let (key, value) = pair.split_once('=').ok_or_else(|| ShareError(format!("'{pair}' is not key=value")))?;
+            match key {
+                "v" if value != "1" => return Err(ShareError(format!("unknown link version '{value}'"))),
+                "v" => {}
+                "seed" => s.seed = value.parse().map_err(|_| ShareError(format!("seed '{value}' is not a whole number")))?,
+                "cam" => {
+                    let [x, y, z, yaw, pitch] = numbers::<5>(key, value)?;
+                    if [x, y, z].iter().any(|c| c.abs() > 1e9) {
+                        return Err(ShareError("camera is too far out (over 10⁹ m)".into()));
+                    }
+                    s.position_m = [x, y, z];
+                    s.yaw = yaw as f32;
+                    s.pitch = (pitch as f32).clamp(-1.55, 1.55);
+                }
+                "r" => {
+                    let [r] = numbers::<1>(key, value)?;
+                    if !(1.0..=16.0).contains(&r) {
+                        return Err(ShareError(format!("radius {r} is outside 1..16 tiles")));
+                    }
+                    s.radius_tiles = r;
+                }
+                "lod" => {
+                    let [px] = numbers::<1>(key, value)?;
+                    if !(0.5..=64.0).contains(&px) {
+                        return Err(ShareError(format!("lod {px} is outside 0.5..64 px")));
+                    }
+                    s.lod_px = px;
+                }
+                "noise" => {
+                    let (kind, rest) = value.split_once(',').ok_or_else(|| ShareError("'noise' needs a kind and 6 numbers".into()))?;
+                    let kind = match kind {
+                        "fbm" => NoiseKind::Fbm,
+                        "ridged" => NoiseKind::Ridged,
+                        other => return Err(ShareError(format!("unknown noise kind '{other}'"))),
+                    };
+                    let [oct, pers, lac, wave, amp, base] = numbers::<6>(key, rest)?;
+                    if oct.fract() != 0.0 || !(0.0..=64.0).contains(&oct) {
+                        return Err(ShareError(format!("octaves '{oct}' is not a small whole number")));
+                    }
+                    let noise = NoiseParams { kind, octaves: oct as u32, persistence: pers as f32, lacunarity: lac as f32, wavelength_m: wave as f32, amplitude_m: amp as f32, base_m: base as f32 };
+                    noise.validate().map_err(ShareError)?;
+                    s.noise = noise;
+                }
+                "auto" => {
+                    let [v] = numbers::<1>(key, value)?;
+                    if !(0.0..=5000.0).contains(&v) {
+                        return Err(ShareError(format!("autopilot speed {v} is outside 0..5000 m/s")));
+                    }
+                    s.autopilot_mps = v;
+                }
+                _ => {}
+            }
+        }
+        Ok(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_is_exact() {
+        let s = ShareState {
+            seed: 18_446_744_073_709_551_615,
+            position_m: [-123_456.789_012_345, 1234.5, 0.1 + 0.2],
+            yaw: -2.123_456_7,
+            pitch: 0.333_333_34,
+            radius_tiles: 5.5,
+            lod_px: 3.25,
+            noise: NoiseParams { kind: NoiseKind::Fbm, octaves: 11, persistence: 0.47, lacunarity: 2.13, wavelength_m: 15_000.5, amplitude_m: 1999.9, base_m: -10.1 },
+            autopilot_mps: 250.0,
+        };
+        let back = ShareState::from_fragment(&format!("#{}", s.to_fragment())).unwrap();
+        assert_eq!(back, s);
+        assert_eq!(back.position_m[2].to_bits(), (0.1f64 + 0.2).to_bits());
+    }
+
+    #[test]
+    fn empty_fragment_is_the_default_world() {
+        assert_eq!(ShareState::from_fragment("").unwrap(), ShareState::default());
+        assert_eq!(ShareState::from_fragment("#").unwrap(), ShareState::default());
+    }
+
+    #[test]
+    fn malformed_links_are_errors_not_panics() {
+        for bad in [
+            "seed=abc",
+            "seed=-1",
+            "cam=1,2,3",
+            "cam=1,2,3,4,NaN",
+            "cam=1e300,0,0,0,0",
+            "r=0",
+            "r=1000",
+            "lod=-3",
+            "noise=perlin,8,0.5,2,20000,2400,0",
+            "noise=fbm,0,0.5,2,20000,2400,0",
+            "noise=fbm,8,0.5,2",
+            "noise=fbm,2.5,0.5,2,20000,2400,0",
+            "v=2&seed=1",
+            "justtext",
+            "auto=inf",
+            "%%%&&==",
+        ] {
+            let r = ShareState::from_fragment(bad);
+            assert!(r.is_err(), "'{bad}' should be rejected, got {r:?}");
+            assert!(!r.unwrap_err().to_string().is_empty());
+        }
+    }
+
+    #[test]
+    fn unknown_keys_are_ignored_and_partial_links_keep_defaults() {
+        let s = ShareState::from_fragment("seed=9&future=thing").unwrap();
+        assert_eq!(s.seed, 9);
+        assert_eq!(s.position_m, ShareState::default().position_m);
+    }
+}

@@ -1,0 +1,174 @@
+//! The egui overlay: statistics, progress, settings, camera mode, share-link button and
+//! messages. It edits a copy of the settings and reports what the user asked for; the shell
+//! applies it.
+
+use crate::app::AppStats;
+use crate::render::camera::CameraMode;
+use crate::share::ShareState;
+use crate::world::NoiseKind;
+
+/// What the page tells the overlay besides the app's own numbers.
+#[derive(Clone, Debug, Default)]
+pub struct Environment {
+    /// Graphics backend and adapter, e.g. "WebGPU · SwiftShader".
+    pub adapter: String,
+    /// State of the neural-network backend (burn), e.g. "burn wgpu ready (3.1 ms self-check)".
+    pub ml_status: String,
+    /// Name of the tile source.
+    pub source: String,
+    /// Node meshes uploaded in the last frame.
+    pub uploads: usize,
+    /// Triangles drawn in the last frame.
+    pub triangles: usize,
+}
+
+/// What the user asked for this frame.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct UiActions {
+    /// New settings to apply (camera pose untouched).
+    pub settings: Option<ShareState>,
+    /// Copy the share link to the clipboard.
+    pub copy_link: bool,
+    /// Switch camera mode.
+    pub mode: Option<CameraMode>,
+    /// Close the message banner.
+    pub dismiss_message: bool,
+}
+
+/// Overlay state that lives between frames.
+#[derive(Clone, Debug)]
+pub struct Overlay {
+    /// Settings being edited.
+    pub draft: ShareState,
+    /// The settings last handed to the app.
+    applied: ShareState,
+    /// Whether the settings section is open.
+    pub show_settings: bool,
+}
+
+impl Overlay {
+    /// An overlay editing `s`.
+    pub fn new(s: ShareState) -> Self {
+        Self { draft: s.clone(), applied: s, show_settings: false }
+    }
+
+    /// Replaces the draft with settings that came from elsewhere (e.g. a link opened in the
+    /// same page).
+    pub fn reset(&mut self, s: ShareState) {
+        *self = Self { show_settings: self.show_settings, ..Self::new(s) };
+    }
+
+    /// Draws the overlay. `speed_mps` and `show_lod` are edited in place.
+    #[allow(clippy::too_many_arguments)]
+    pub fn show(&mut self, ctx: &egui::Context, stats: &AppStats, env: &Environment, mode: CameraMode, speed_mps: &mut f64, show_lod: &mut bool, message: Option<&str>, link_copied: bool) -> UiActions {
+        let mut act = UiActions::default();
+        if let Some(msg) = message {
+            egui::Window::new("Notice").anchor(egui::Align2::CENTER_TOP, [0.0, 8.0]).collapsible(false).resizable(false).title_bar(false).show(ctx, |ui| {
+                ui.horizontal(|ui| {
+                    ui.label(egui::RichText::new(msg).color(egui::Color32::from_rgb(255, 200, 120)));
+                    if ui.button("OK").clicked() {
+                        act.dismiss_message = true;
+                    }
+                });
+            });
+        }
+        egui::Window::new("Terrain").anchor(egui::Align2::LEFT_TOP, [8.0, 8.0]).resizable(false).default_width(260.0).show(ctx, |ui| {
+            let fps = if stats.frame_ms_median > 0.0 { 1000.0 / stats.frame_ms_median } else { 0.0 };
+            ui.monospace(format!("{fps:5.1} FPS   {:5.1} ms (worst {:.1})", stats.frame_ms_median, stats.frame_ms_worst));
+            ui.monospace(format!("tiles {} generated, {}/{} cached", stats.tiles_generated, stats.tiles_cached, stats.tiles_capacity));
+            ui.monospace(format!("{:.2} ms per tile   {} evicted", stats.ms_per_tile, stats.tiles_evicted));
+            ui.monospace(format!("nodes {} drawn (depth ≤ {}), {} cached", stats.nodes_drawn, stats.max_depth_drawn, stats.nodes_cached));
+            ui.monospace(format!("{} k triangles, {} uploads", env.triangles / 1000, env.uploads));
+            ui.monospace(format!("eye {:.0}, {:.0}, {:.0} m", stats.eye_m[0], stats.eye_m[1], stats.eye_m[2]));
+            ui.label(format!("GPU: {}", env.adapter));
+            ui.label(format!("ML: {}", env.ml_status));
+            ui.label(format!("Source: {}", env.source));
+            if stats.tiles_pending > 0 {
+                let total = stats.tiles_pending + stats.tiles_cached.min(1000);
+                ui.horizontal(|ui| {
+                    ui.spinner();
+                    ui.add(egui::ProgressBar::new(1.0 - stats.tiles_pending as f32 / total.max(1) as f32).text(format!("generating {} tiles", stats.tiles_pending)));
+                });
+            }
+            ui.separator();
+            ui.horizontal(|ui| {
+                let mut m = mode;
+                ui.selectable_value(&mut m, CameraMode::Fly, "Fly");
+                ui.selectable_value(&mut m, CameraMode::Orbit, "Orbit");
+                if m != mode {
+                    act.mode = Some(m);
+                }
+                ui.checkbox(show_lod, "LOD colours");
+            });
+            ui.add(egui::Slider::new(speed_mps, 5.0..=20_000.0).logarithmic(true).text("speed m/s"));
+            ui.horizontal(|ui| {
+                if ui.button("Copy link").clicked() {
+                    act.copy_link = true;
+                }
+                if link_copied {
+                    ui.label("copied ✔");
+                }
+                ui.toggle_value(&mut self.show_settings, "Settings");
+            });
+            if self.show_settings {
+                if let Some(s) = self.settings_ui(ui) {
+                    act.settings = Some(s);
+                }
+            }
+            ui.collapsing("Controls", |ui| {
+                ui.label("Drag: look · WASD: move · Q/E: down/up · Shift: faster · wheel: speed (fly) or zoom (orbit)");
+                ui.label("Touch: drag to look · two fingers to move · pinch to fly forward/zoom");
+            });
+        });
+        act
+    }
+
+    fn settings_ui(&mut self, ui: &mut egui::Ui) -> Option<ShareState> {
+        let d = &mut self.draft;
+        egui::Grid::new("settings").num_columns(2).show(ui, |ui| {
+            ui.label("Seed");
+            ui.add(egui::DragValue::new(&mut d.seed));
+            ui.end_row();
+            ui.label("Radius (tiles)");
+            ui.add(egui::Slider::new(&mut d.radius_tiles, 1.0..=8.0).step_by(0.5));
+            ui.end_row();
+            ui.label("LOD target (px)");
+            ui.add(egui::Slider::new(&mut d.lod_px, 1.0..=32.0).logarithmic(true));
+            ui.end_row();
+            ui.label("Noise");
+            ui.horizontal(|ui| {
+                ui.selectable_value(&mut d.noise.kind, NoiseKind::Ridged, "ridged");
+                ui.selectable_value(&mut d.noise.kind, NoiseKind::Fbm, "fBm");
+            });
+            ui.end_row();
+            ui.label("Octaves");
+            ui.add(egui::Slider::new(&mut d.noise.octaves, 1..=12));
+            ui.end_row();
+            ui.label("Persistence");
+            ui.add(egui::Slider::new(&mut d.noise.persistence, 0.2..=0.8));
+            ui.end_row();
+            ui.label("Lacunarity");
+            ui.add(egui::Slider::new(&mut d.noise.lacunarity, 1.5..=3.0));
+            ui.end_row();
+            ui.label("Wavelength (m)");
+            ui.add(egui::Slider::new(&mut d.noise.wavelength_m, 1000.0..=100_000.0).logarithmic(true));
+            ui.end_row();
+            ui.label("Amplitude (m)");
+            ui.add(egui::Slider::new(&mut d.noise.amplitude_m, 0.0..=6000.0));
+            ui.end_row();
+            ui.label("Base (m)");
+            ui.add(egui::Slider::new(&mut d.noise.base_m, -2000.0..=2000.0));
+            ui.end_row();
+            ui.label("Autopilot (m/s)");
+            ui.add(egui::Slider::new(&mut d.autopilot_mps, 0.0..=2000.0));
+            ui.end_row();
+        });
+        // Apply once a drag ends (or a value is typed), not on every intermediate value: each
+        // change of seed or noise regenerates the world.
+        if ui.ctx().is_using_pointer() || self.draft == self.applied {
+            return None;
+        }
+        self.applied = self.draft.clone();
+        Some(self.draft.clone())
+    }
+}

@@ -1,0 +1,69 @@
+//! A generated tile and the interface every tile source (procedural noise now, the TCM next)
+//! implements.
+
+use super::coord::{TILE_SAMPLES, TileCoord};
+
+/// One tile of the world at the coarsest scale: `TILE_SAMPLES`² heights in metres, row-major
+/// with rows along +z (index `v * TILE_SAMPLES + u`, u along +x).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tile {
+    /// Which tile this is.
+    pub coord: TileCoord,
+    /// Heights above sea level (metres), `TILE_SAMPLES`² of them.
+    pub heights: Vec<f32>,
+    /// Lowest height in the tile (metres).
+    pub min_m: f32,
+    /// Highest height in the tile (metres).
+    pub max_m: f32,
+    /// FNV-1a hash of the heights' bits: equal checksums mean bit-identical tiles.
+    pub checksum: u64,
+}
+
+impl Tile {
+    /// Wraps `heights` (metres, `TILE_SAMPLES`² row-major) as tile `coord`.
+    ///
+    /// # Panics
+    /// If `heights` does not hold exactly `TILE_SAMPLES`² values: that is a bug in a source.
+    pub fn new(coord: TileCoord, heights: Vec<f32>) -> Self {
+        assert_eq!(heights.len(), TILE_SAMPLES * TILE_SAMPLES, "a tile holds {0}×{0} samples", TILE_SAMPLES);
+        let (min_m, max_m) = heights
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &h| (lo.min(h), hi.max(h)));
+        let checksum = heights.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, v| (h ^ v.to_bits() as u64).wrapping_mul(0x0000_0100_0000_01b3));
+        Self { coord, heights, min_m, max_m, checksum }
+    }
+
+    /// Height (metres) of sample (u, v), u along +x and v along +z, both in 0..TILE_SAMPLES.
+    pub fn at(&self, u: usize, v: usize) -> f32 {
+        self.heights[v * TILE_SAMPLES + u]
+    }
+}
+
+/// The neighbours a tile is generated from: a 3×3 window in row-major order (dj = −1, 0, 1;
+/// di = −1, 0, 1) with `None` where a neighbour is not an input (the centre is always `None`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Neighbourhood<'a> {
+    /// The window's tiles; index `(dj + 1) * 3 + (di + 1)`.
+    pub tiles: [Option<&'a Tile>; 9],
+}
+
+impl<'a> Neighbourhood<'a> {
+    /// The neighbour at offset (di, dj), each in −1..=1, if it is an input.
+    pub fn get(&self, di: i32, dj: i32) -> Option<&'a Tile> {
+        self.tiles[((dj + 1) * 3 + (di + 1)) as usize]
+    }
+}
+
+/// A generator of tiles. `generate` must be a pure function of (seed, coordinate, neighbours):
+/// the world's reproducibility and share links rest on it.
+pub trait TileSource: Send + Sync {
+    /// Short human-readable name, shown in the overlay (e.g. "procedural fBm").
+    fn name(&self) -> String;
+
+    /// Whether `generate` reads its neighbours; if not, the streamer skips the schedule's
+    /// dependency resolution.
+    fn uses_neighbours(&self) -> bool;
+
+    /// Generates tile `coord` of world `seed` from the neighbours the schedule names.
+    fn generate(&self, seed: u64, coord: TileCoord, neighbours: &Neighbourhood<'_>) -> Tile;
+}

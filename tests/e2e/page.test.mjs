@@ -1,0 +1,215 @@
+// End-to-end test of the trunk-built page in headless Chromium with real WebGPU (SwiftShader).
+// Serves ../../dist on loopback, drives the page like a person (links, keyboard, autopilot),
+// reads the app's own statistics through the exported `terrain_stats()` and checks what is on
+// screen. Writes screenshots and a report with the measured numbers to ./out.
+
+import { test, before, after } from 'node:test';
+import assert from 'node:assert/strict';
+import http from 'node:http';
+import fs from 'node:fs';
+import path from 'node:path';
+import os from 'node:os';
+import { fileURLToPath } from 'node:url';
+import { chromium } from 'playwright-core';
+import { PNG } from 'pngjs';
+
+const here = path.dirname(fileURLToPath(import.meta.url));
+const dist = process.env.TERRAIN_DIST ?? path.resolve(here, '../../dist');
+const out = path.join(here, 'out');
+fs.mkdirSync(out, { recursive: true });
+const report = {};
+
+const MIME = { '.html': 'text/html', '.js': 'text/javascript', '.wasm': 'application/wasm', '.css': 'text/css', '.png': 'image/png', '.json': 'application/json' };
+let server;
+let base;
+let browser;
+
+function serve() {
+  return new Promise((resolve) => {
+    server = http.createServer((req, res) => {
+      const url = new URL(req.url, 'http://localhost');
+      let file = path.join(dist, decodeURIComponent(url.pathname));
+      if (!file.startsWith(dist)) { res.writeHead(403).end(); return; }
+      if (fs.existsSync(file) && fs.statSync(file).isDirectory()) file = path.join(file, 'index.html');
+      if (!fs.existsSync(file)) { res.writeHead(404).end(); return; }
+      res.writeHead(200, { 'content-type': MIME[path.extname(file)] ?? 'application/octet-stream' });
+      fs.createReadStream(file).pipe(res);
+    });
+    server.listen(0, '127.0.0.1', () => resolve(`http://127.0.0.1:${server.address().port}/`));
+  });
+}
+
+before(async () => {
+  assert.ok(fs.existsSync(path.join(dist, 'index.html')), `no built page at ${dist}: run trunk build first`);
+  base = await serve();
+  browser = await chromium.launch({
+    executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium',
+    headless: false,
+    args: [
+      '--headless=new', '--no-sandbox', '--enable-unsafe-webgpu',
+      '--enable-features=Vulkan,CDPScreenshotNewSurface', '--use-vulkan=swiftshader',
+      '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--disable-background-networking',
+      '--disable-component-update', '--disable-sync', '--no-first-run', '--disable-quic',
+      `--user-data-dir=${fs.mkdtempSync(path.join(os.tmpdir(), 'terrain-chromium-'))}`,
+    ],
+  });
+});
+
+after(async () => {
+  await browser?.close();
+  server?.close();
+  fs.writeFileSync(path.join(out, 'report.json'), JSON.stringify(report, null, 2));
+  console.log('E2E REPORT ' + JSON.stringify(report));
+});
+
+/** Opens the page at `fragment`, collecting console errors and uncaught exceptions. */
+async function open(fragment = '') {
+  const page = await browser.newPage({ viewport: { width: 960, height: 600 } });
+  const errors = [];
+  page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
+  page.on('pageerror', (e) => errors.push(String(e)));
+  await page.goto(base + (fragment ? '#' + fragment : ''));
+  return { page, errors };
+}
+
+const stats = (page) => page.evaluate(() => (window.wasmBindings?.terrain_stats ? JSON.parse(window.wasmBindings.terrain_stats()) : null));
+
+async function waitFor(page, pred, what, timeoutMs = 180_000) {
+  const t0 = Date.now();
+  let s = null;
+  while (Date.now() - t0 < timeoutMs) {
+    s = await stats(page);
+    if (s && s.stats && pred(s)) return s;
+    await page.waitForTimeout(250);
+  }
+  throw new Error(`timed out waiting for ${what}; last stats: ${JSON.stringify(s)}`);
+}
+
+/** Luminance spread and colour count of a PNG screenshot region. */
+function imageSpread(buf, x0 = 0) {
+  const png = PNG.sync.read(buf);
+  const lum = [];
+  const colours = new Set();
+  for (let y = 0; y < png.height; y += 2) {
+    for (let x = x0; x < png.width; x += 2) {
+      const i = (y * png.width + x) * 4;
+      const [r, g, b] = [png.data[i], png.data[i + 1], png.data[i + 2]];
+      lum.push(0.2126 * r + 0.7152 * g + 0.0722 * b);
+      colours.add((r >> 3) << 10 | (g >> 3) << 5 | (b >> 3));
+    }
+  }
+  const mean = lum.reduce((a, b) => a + b, 0) / lum.length;
+  const sd = Math.sqrt(lum.reduce((a, b) => a + (b - mean) ** 2, 0) / lum.length);
+  return { mean, sd, colours: colours.size };
+}
+
+const VIEW = 'v=1&seed=7&cam=3000,1500,9000,0.9,-0.3&r=3&lod=6';
+
+test('the default world renders terrain, with no console errors', async () => {
+  const t0 = Date.now();
+  const { page, errors } = await open();
+  const s = await waitFor(page, (s) => s.stats.frames > 20 && s.stats.nodes_drawn > 0 && s.stats.tiles_pending === 0, 'the first world to stream in');
+  report.first_complete_view_s = (Date.now() - t0) / 1000;
+  report.adapter = s.adapter;
+  await page.waitForTimeout(500);
+  const shot = await page.screenshot({ path: path.join(out, 'default.png') });
+  const spread = imageSpread(shot, 380); // right of the overlay window
+  report.default_image = spread;
+  assert.ok(spread.sd > 8, `canvas looks uniform (luminance sd ${spread.sd})`);
+  assert.ok(spread.colours > 100, `canvas has only ${spread.colours} colours`);
+  assert.ok(s.stats.tiles_generated >= 9, `tiles generated ${s.stats.tiles_generated}`);
+  assert.match(s.adapter, /WebGPU/);
+  const ml = await waitFor(page, (s) => !/starting/.test(s.ml_status), 'the burn self-check', 120_000);
+  report.ml_status = ml.ml_status;
+  assert.match(ml.ml_status, /burn wgpu ready/, ml.ml_status);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
+test('a scripted 20-second autopilot flight streams new tiles with flat memory', async () => {
+  const { page, errors } = await open(VIEW + '&auto=400');
+  const s0 = await waitFor(page, (s) => s.stats.frames > 10 && s.stats.nodes_drawn > 0, 'the flight view');
+  // Frame times as the page sees them: intervals between animation frames.
+  await page.evaluate(() => {
+    window.__frames = [];
+    let last = performance.now();
+    const tick = (t) => { window.__frames.push(t - last); last = t; if (window.__frames.length < 100000) requestAnimationFrame(tick); };
+    requestAnimationFrame(tick);
+  });
+  const t0 = Date.now();
+  let maxCached = 0;
+  while (Date.now() - t0 < 20_000) {
+    await page.waitForTimeout(1000);
+    const s = await stats(page);
+    maxCached = Math.max(maxCached, s.stats.tiles_cached);
+    assert.ok(s.stats.tiles_cached <= s.stats.tiles_capacity, 'cache over capacity');
+  }
+  const s1 = await stats(page);
+  const frames = (await page.evaluate(() => window.__frames)).slice(1).sort((a, b) => a - b);
+  const moved = Math.hypot(s1.stats.eye_m[0] - s0.stats.eye_m[0], s1.stats.eye_m[2] - s0.stats.eye_m[2]);
+  report.flight = {
+    seconds: 20,
+    frames: frames.length,
+    frame_ms_median: frames[Math.floor(frames.length / 2)],
+    frame_ms_p95: frames[Math.floor(frames.length * 0.95)],
+    frame_ms_worst: frames[frames.length - 1],
+    moved_m: moved,
+    tiles_generated: s1.stats.tiles_generated - s0.stats.tiles_generated,
+    ms_per_tile: s1.stats.ms_per_tile,
+    tiles_cached_end: s1.stats.tiles_cached,
+    tiles_cached_max: maxCached,
+    tiles_capacity: s1.stats.tiles_capacity,
+    tiles_evicted: s1.stats.tiles_evicted,
+    nodes_drawn_end: s1.stats.nodes_drawn,
+  };
+  await page.screenshot({ path: path.join(out, 'flight_end.png') });
+  assert.ok(moved > 2000, `autopilot moved only ${moved} m`);
+  assert.ok(s1.stats.tiles_generated > s0.stats.tiles_generated, 'no new tiles during the flight');
+  assert.ok(frames.length > 20, `only ${frames.length} frames in 20 s`);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
+test('keyboard flight moves the camera', async () => {
+  const { page, errors } = await open(VIEW);
+  const s0 = await waitFor(page, (s) => s.stats.frames > 10 && s.stats.nodes_drawn > 0, 'the view');
+  await page.mouse.click(700, 300);
+  await page.keyboard.down('w');
+  await page.waitForTimeout(2500);
+  await page.keyboard.up('w');
+  const s1 = await stats(page);
+  const moved = Math.hypot(s1.stats.eye_m[0] - s0.stats.eye_m[0], s1.stats.eye_m[2] - s0.stats.eye_m[2]);
+  report.keyboard_moved_m = moved;
+  assert.ok(moved > 50, `W moved the camera only ${moved} m`);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
+test('a share link reproduces the same view and the same tiles', async () => {
+  const a = await open(VIEW);
+  const sa = await waitFor(a.page, (s) => s.stats.tiles_pending === 0 && s.stats.frames > 30, 'view A to settle');
+  const link = sa.link;
+  const b = await open(link);
+  const sb = await waitFor(b.page, (s) => s.stats.tiles_pending === 0 && s.stats.frames > 30, 'view B to settle');
+  const sa2 = await stats(a.page);
+  report.share = { link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum };
+  assert.deepEqual(sb.stats.eye_m, sa2.stats.eye_m);
+  assert.equal(sb.stats.view_checksum, sa2.stats.view_checksum, 'different tile contents for the same link');
+  assert.match(sb.stats.view_checksum, /^[0-9a-f]{16}$/);
+  assert.notEqual(sb.stats.view_checksum, '0000000000000000');
+  assert.equal(sb.stats.nodes_drawn, sa2.stats.nodes_drawn);
+  assert.deepEqual(a.errors, []);
+  assert.deepEqual(b.errors, []);
+  await a.page.close();
+  await b.page.close();
+});
+
+test('a malformed link shows a message and the default world', async () => {
+  const { page, errors } = await open('seed=banana&cam=1,2');
+  const s = await waitFor(page, (s) => s.stats.frames > 10 && s.stats.nodes_drawn > 0, 'the default world');
+  assert.match(s.message ?? '', /broken share link/);
+  assert.equal(s.link.includes('seed=1&'), true, `default seed expected, link ${s.link}`);
+  await page.screenshot({ path: path.join(out, 'malformed_link.png') });
+  assert.deepEqual(errors, []);
+  await page.close();
+});
