@@ -165,7 +165,7 @@ impl Overlay {
         });
         // Apply once a drag ends (or a value is typed), not on every intermediate value: each
         // change of seed or noise regenerates the world.
-        if ui.ctx().is_using_pointer() || self.draft == self.applied {
+        if ui.ctx().egui_is_using_pointer() || self.draft == self.applied {
             return None;
         }
         self.applied = self.draft.clone();

@@ -139,7 +139,7 @@ impl TerrainRenderer {
                 source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{src}").into()),
             })
         };
-        let pipeline = |name: &str, src: &str, buffers: &[wgpu::VertexBufferLayout<'_>], depth_write: bool, compare: wgpu::CompareFunction, blend: Option<wgpu::BlendState>| {
+        let pipeline = |name: &str, src: &str, buffers: &[Option<wgpu::VertexBufferLayout<'_>>], depth_write: bool, compare: wgpu::CompareFunction, blend: Option<wgpu::BlendState>| {
             let m = module(name, src);
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(name),
@@ -175,7 +175,7 @@ impl TerrainRenderer {
             attributes: &wgpu::vertex_attr_array![2 => Float32x3, 3 => Float32],
         };
         let sky = pipeline("sky", SKY_WGSL, &[], false, wgpu::CompareFunction::Always, None);
-        let terrain = pipeline("terrain", TERRAIN_WGSL, &[vertex_layout, instance_layout], true, wgpu::CompareFunction::Greater, None);
+        let terrain = pipeline("terrain", TERRAIN_WGSL, &[Some(vertex_layout), Some(instance_layout)], true, wgpu::CompareFunction::Greater, None);
         let water = pipeline("water", WATER_WGSL, &[], true, wgpu::CompareFunction::Greater, Some(wgpu::BlendState::ALPHA_BLENDING));
         let idx = node_indices();
         let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {

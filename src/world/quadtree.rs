@@ -321,7 +321,7 @@ mod tests {
     fn view_from(eye: DVec3, target: DVec3) -> LodView {
         let v = Mat4::look_at_rh(Vec3::ZERO, (target - eye).as_vec3(), Vec3::Y);
         let p = Mat4::perspective_rh(60f32.to_radians(), 1.5, 1.0, 60_000.0);
-        LodView { eye_m: eye, frustum: Frustum::from_view_proj(p * v), pixels_per_radian: 400.0 / (30f64.to_radians().tan()), target_px: 6.0, max_depth: BASE_DATA_DEPTH }
+        LodView { eye_m: eye, frustum: Frustum::from_view_proj(p * v), pixels_per_radian: 400.0 / (30f64.to_radians().tan()), target_px: 20.0, max_depth: BASE_DATA_DEPTH }
     }
 
     #[test]

@@ -50,8 +50,8 @@ pub fn dependencies(c: TileCoord) -> impl Iterator<Item = TileCoord> {
 /// A 64-bit seed for tile `c` of world `seed`: a strong integer hash, identical on every
 /// platform (no floating point involved).
 pub fn tile_seed(seed: u64, c: TileCoord) -> u64 {
-    let mut h = seed ^ 0x9E37_79B9_7F4A_7C15;
-    h = mix64(h ^ (c.i as u32 as u64));
+    let h = mix64(seed ^ 0x9E37_79B9_7F4A_7C15);
+    let h = mix64(h ^ (c.i as u32 as u64));
     mix64(h ^ ((c.j as u32 as u64) << 32))
 }
 

@@ -308,10 +308,12 @@ mod tests {
     #[test]
     fn time_budget_limits_work_per_update() {
         let mut w = WorldStream::new(5, Box::new(ProceduralSource::default()), 3.0);
-        let made = w.update(0.0, 0.0, 0.0);
-        assert_eq!(made.len(), 1, "a zero budget still makes progress, one tile per call");
+        let made = w.update(100.0, 100.0, 0.0);
+        assert_eq!(made, vec![TileCoord::new(0, 0)], "a zero budget still makes progress, one tile per call, nearest first");
         assert!(w.stats().pending > 10);
-        assert_eq!(w.wanted(0.0, 0.0)[0], TileCoord::new(0, 0));
+        let made = w.update(100.0, 100.0, 1e9);
+        assert_eq!(made.len(), w.stats().cached - 1, "an ample budget makes all the rest");
+        assert_eq!(w.stats().pending, 0);
     }
 
     #[test]

@@ -213,3 +213,28 @@ test('a malformed link shows a message and the default world', async () => {
   assert.deepEqual(errors, []);
   await page.close();
 });
+
+test('without WebGPU the page says so instead of failing silently', async () => {
+  const plain = await chromium.launch({
+    executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium',
+    headless: false,
+    args: [
+      '--headless=new', '--no-sandbox', '--disable-gpu', '--disable-features=WebGPU', '--disable-background-networking',
+      '--disable-component-update', '--disable-sync', '--no-first-run', '--disable-quic',
+      `--user-data-dir=${fs.mkdtempSync(path.join(os.tmpdir(), 'terrain-chromium-'))}`,
+    ],
+  });
+  try {
+    const page = await plain.newPage();
+    const errors = [];
+    page.on('pageerror', (e) => errors.push(String(e)));
+    await page.goto(base);
+    await page.waitForSelector('#message', { state: 'visible', timeout: 60_000 });
+    const text = await page.textContent('#message');
+    assert.match(text, /WebGPU/);
+    await page.screenshot({ path: path.join(out, 'no_webgpu.png') });
+    assert.deepEqual(errors, []);
+  } finally {
+    await plain.close();
+  }
+});
