@@ -38,7 +38,7 @@ fn terrain_albedo(h: f32, n: vec3<f32>) -> vec3<f32> {
     let snow = vec3<f32>(0.95, 0.96, 0.98);
     var c = mix(grass, forest, smoothstep(0.05, 0.25, rel_h));
     c = mix(sand, c, smoothstep(0.0, 0.012, rel_h));
-    c = mix(c, rock, smoothstep(0.30, 0.50, rel_h));
+    c = mix(c, rock, smoothstep(0.40, 0.60, rel_h));
     c = mix(c, rock, smoothstep(0.25, 0.45, slope));
     let snow_line = 0.62 + slope * 0.5;
     c = mix(c, snow, smoothstep(snow_line, snow_line + 0.06, rel_h) * (1.0 - smoothstep(0.45, 0.6, slope)));

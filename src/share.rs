@@ -32,9 +32,9 @@ impl Default for ShareState {
     fn default() -> Self {
         Self {
             seed: 1,
-            position_m: [2048.0, 1600.0, 2048.0],
+            position_m: [2048.0, 2900.0, 2048.0],
             yaw: 0.6,
-            pitch: -0.25,
+            pitch: -0.3,
             radius_tiles: 4.0,
             lod_px: 6.0,
             noise: NoiseParams::default(),

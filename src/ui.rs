@@ -20,6 +20,8 @@ pub struct Environment {
     pub uploads: usize,
     /// Triangles drawn in the last frame.
     pub triangles: usize,
+    /// CPU time of the last frame's streaming, selection and draw encoding (milliseconds).
+    pub cpu_ms: f64,
 }
 
 /// What the user asked for this frame.
@@ -78,7 +80,7 @@ impl Overlay {
             ui.monospace(format!("tiles {} generated, {}/{} cached", stats.tiles_generated, stats.tiles_cached, stats.tiles_capacity));
             ui.monospace(format!("{:.2} ms per tile   {} evicted", stats.ms_per_tile, stats.tiles_evicted));
             ui.monospace(format!("nodes {} drawn (depth ≤ {}), {} cached", stats.nodes_drawn, stats.max_depth_drawn, stats.nodes_cached));
-            ui.monospace(format!("{} k triangles, {} uploads", env.triangles / 1000, env.uploads));
+            ui.monospace(format!("{} k triangles, {} uploads, CPU {:.1} ms", env.triangles / 1000, env.uploads, env.cpu_ms));
             ui.monospace(format!("eye {:.0}, {:.0}, {:.0} m", stats.eye_m[0], stats.eye_m[1], stats.eye_m[2]));
             ui.label(format!("GPU: {}", env.adapter));
             ui.label(format!("ML: {}", env.ml_status));

@@ -89,7 +89,8 @@ async fn run() -> Result<(), String> {
         .await
         .map_err(|e| format!("Could not open the GPU device: {e}"))?;
     let info = adapter.get_info();
-    let adapter_name = format!("WebGPU · {}", if info.name.is_empty() { info.vendor.to_string() } else { info.name.clone() });
+    let label = [&info.name, &info.driver, &info.driver_info].into_iter().find(|s| !s.is_empty()).cloned().unwrap_or_else(|| "browser adapter".into());
+    let adapter_name = format!("WebGPU · {label}");
 
     let ml_status = Rc::new(RefCell::new("starting burn on the GPU…".to_string()));
     match models::device_from_setup(models::WgpuSetup { instance: instance.clone(), adapter: adapter.clone(), device: device.clone(), queue: queue.clone(), backend: wgpu::Backend::BrowserWebGpu }) {
@@ -242,6 +243,7 @@ impl eframe::App for WebApp {
         self.follow_hash();
 
         let Some(rs) = frame.wgpu_render_state() else { return };
+        let cpu_start = now_ms();
         egui::CentralPanel::no_frame().show(ui, |ui| {
             let rect = ui.max_rect();
             let resp = ui.allocate_rect(rect, egui::Sense::click_and_drag());
@@ -260,6 +262,7 @@ impl eframe::App for WebApp {
             let stats = self.renderer.render(&rs.device, &rs.queue, &nodes, &params, MESH_KEEP_FRAMES);
             self.env.uploads = stats.uploads;
             self.env.triangles = stats.triangles;
+            self.env.cpu_ms = now_ms() - cpu_start;
             if let Some(id) = self.texture {
                 ui.painter().image(id, rect, egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)), egui::Color32::WHITE);
             }
@@ -303,6 +306,7 @@ impl eframe::App for WebApp {
             "source": self.env.source,
             "uploads": self.env.uploads,
             "triangles": self.env.triangles,
+            "cpu_ms": self.env.cpu_ms,
             "message": self.message,
             "link": link,
             "mode": format!("{:?}", mode),

@@ -1,3 +1,4 @@
+// Playwright's launch() gives every browser a fresh temporary profile (--user-data-dir).
 // End-to-end test of the trunk-built page in headless Chromium with real WebGPU (SwiftShader).
 // Serves ../../dist on loopback, drives the page like a person (links, keyboard, autopilot),
 // reads the app's own statistics through the exported `terrain_stats()` and checks what is on
@@ -8,7 +9,6 @@ import assert from 'node:assert/strict';
 import http from 'node:http';
 import fs from 'node:fs';
 import path from 'node:path';
-import os from 'node:os';
 import { fileURLToPath } from 'node:url';
 import { chromium } from 'playwright-core';
 import { PNG } from 'pngjs';
@@ -50,7 +50,6 @@ before(async () => {
       '--enable-features=Vulkan,CDPScreenshotNewSurface', '--use-vulkan=swiftshader',
       '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--disable-background-networking',
       '--disable-component-update', '--disable-sync', '--no-first-run', '--disable-quic',
-      `--user-data-dir=${fs.mkdtempSync(path.join(os.tmpdir(), 'terrain-chromium-'))}`,
     ],
   });
 });
@@ -221,7 +220,6 @@ test('without WebGPU the page says so instead of failing silently', async () => 
     args: [
       '--headless=new', '--no-sandbox', '--disable-gpu', '--disable-features=WebGPU', '--disable-background-networking',
       '--disable-component-update', '--disable-sync', '--no-first-run', '--disable-quic',
-      `--user-data-dir=${fs.mkdtempSync(path.join(os.tmpdir(), 'terrain-chromium-'))}`,
     ],
   });
   try {
