@@ -14,8 +14,14 @@ use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
 use crate::world::schedule::{mix64, tile_seed};
 use crate::world::{ProceduralSource, TILE_SIZE_M, WorldStream};
 
-/// Milliseconds per frame that tile generation may use before it waits for the next frame.
+/// Milliseconds per frame that tile generation may use at least before it waits for the next
+/// frame. When frames are slow for other reasons (a busy GPU), the budget grows to a quarter of
+/// the median frame time, up to `TILE_BUDGET_MAX_MS`: the world streams in as fast as the
+/// frame rate allows without lowering it.
 pub const TILE_BUDGET_MS: f64 = 4.0;
+
+/// Upper bound of the per-frame tile generation budget (milliseconds).
+pub const TILE_BUDGET_MAX_MS: f64 = 40.0;
 
 /// Quadtree nodes built per frame at most (each is a 35² gather plus a mesh upload).
 pub const NODE_BUILD_BUDGET: usize = 24;
@@ -174,7 +180,8 @@ impl TerrainApp {
         self.controller.update(&mut self.camera, input, dt_s, |x, z| world.height_at(x, z));
 
         let eye = self.camera.position_m;
-        self.world.update(eye.x, eye.z, TILE_BUDGET_MS);
+        let budget = (self.stats.frame_ms_median * 0.25).clamp(TILE_BUDGET_MS, TILE_BUDGET_MAX_MS);
+        self.world.update(eye.x, eye.z, budget);
         let world = &self.world;
         self.nodes.retain_tiles(|t| world.contains(t));
         let tiles = self.world.drawable(eye.x, eye.z);

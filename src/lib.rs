@@ -12,6 +12,8 @@ pub mod dem;
 pub mod models;
 pub mod render;
 pub mod share;
+#[cfg(all(feature = "train", not(target_arch = "wasm32")))]
+pub mod train;
 pub mod ui;
 pub mod world;
 

@@ -7,7 +7,10 @@ use std::process::ExitCode;
 
 use terrain::world::{NoiseParams, ProceduralSource, TileSource, export};
 
-const USAGE: &str = "usage:\n  terrain world --seed S --tiles X0 Y0 W H --out region.tif [--source procedural]";
+const USAGE: &str = "usage:
+  terrain world --seed S --tiles X0 Y0 W H --out region.tif [--source procedural]
+  terrain train-tem --dem-dir DIR [--steps N] [--batch B] [--chain L] [--seed S] [--out weights]
+  terrain eval-tem --dem-dir DIR [--weights weights] [--windows N]";
 
 fn world(args: &[String]) -> Result<(), String> {
     let mut seed: Option<u64> = None;
@@ -57,10 +60,72 @@ fn world(args: &[String]) -> Result<(), String> {
     Ok(())
 }
 
+/// Value of `--name` in `args`, if given.
+fn flag<'a>(args: &'a [String], name: &str) -> Option<&'a str> {
+    args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).map(String::as_str)
+}
+
+fn parse_or<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> Result<T, String> {
+    flag(args, name).map_or(Ok(default), |v| v.parse().map_err(|_| format!("{name} '{v}' is not valid")))
+}
+
+#[cfg(feature = "train")]
+fn train_tem(args: &[String]) -> Result<(), String> {
+    use terrain::train::{self, TrainConfig};
+    let dir = std::path::PathBuf::from(flag(args, "--dem-dir").ok_or("--dem-dir is required")?);
+    let out = std::path::PathBuf::from(flag(args, "--out").unwrap_or("weights"));
+    let d = TrainConfig::default();
+    let cfg = TrainConfig {
+        steps: parse_or(args, "--steps", d.steps)?,
+        batch: parse_or(args, "--batch", d.batch)?,
+        chain_levels: parse_or(args, "--chain", d.chain_levels)?,
+        lr: parse_or(args, "--lr", d.lr)?,
+        seed: parse_or(args, "--seed", d.seed)?,
+    };
+    let dems = train::pairs::load_dems(&dir)?;
+    eprintln!("{} DEMs loaded; {cfg:?}", dems.len());
+    let device = burn::tensor::Device::flex().autodiff();
+    let (models, losses) = train::train_tem(&dems, &cfg, &device, |step, loss, secs| {
+        if step % 10 == 0 {
+            eprintln!("step {step:5}  loss {loss:.5}  {secs:7.1} s");
+        }
+    })?;
+    train::save_models(&models, &out)?;
+    println!("{}", serde_json::json!({ "steps": cfg.steps, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_40m_units": losses }));
+    Ok(())
+}
+
+#[cfg(feature = "train")]
+fn eval_tem(args: &[String]) -> Result<(), String> {
+    use terrain::train;
+    let dir = std::path::PathBuf::from(flag(args, "--dem-dir").ok_or("--dem-dir is required")?);
+    let weights = std::path::PathBuf::from(flag(args, "--weights").unwrap_or("weights"));
+    let windows: usize = parse_or(args, "--windows", 64)?;
+    let device = burn::tensor::Device::flex();
+    let models = train::load_models(&weights, &device)?;
+    let dems = train::pairs::load_dems(&dir)?;
+    let evals = train::eval_levels(&models, &dems, &device, windows);
+    println!("level  spacing  data          windows  RMSE bicubic  RMSE TEM   gain   PSNR bicubic  PSNR TEM   TEM RMSE by distance to edge (px: 0,1,2-3,4-7,8-15,16+)");
+    for e in &evals {
+        let gain = 100.0 * (1.0 - e.rmse_tem / e.rmse_bicubic.max(1e-12));
+        let edge: Vec<String> = e.rmse_by_edge_distance.iter().map(|v| format!("{v:.3}")).collect();
+        println!(
+            "{:5}  {:5} m  {:12}  {:7}  {:10.4} m  {:8.4} m  {:5.1}%  {:9.2} dB  {:7.2} dB  {}",
+            e.level, e.spacing_m, if e.real { "real" } else { "self-similar" }, e.windows, e.rmse_bicubic, e.rmse_tem, gain, e.psnr_bicubic, e.psnr_tem, edge.join(" ")
+        );
+    }
+    println!("{}", serde_json::to_string(&evals).map_err(|e| e.to_string())?);
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let result = match args.first().map(String::as_str) {
         Some("world") => world(&args[1..]),
+        #[cfg(feature = "train")]
+        Some("train-tem") => train_tem(&args[1..]),
+        #[cfg(feature = "train")]
+        Some("eval-tem") => eval_tem(&args[1..]),
         Some("-h" | "--help") | None => {
             println!("{USAGE}");
             return ExitCode::SUCCESS;

@@ -102,7 +102,7 @@ function imageSpread(buf, x0 = 0) {
   return { mean, sd, colours: colours.size };
 }
 
-const VIEW = 'v=1&seed=7&cam=3000,1500,9000,0.9,-0.3&r=3&lod=6';
+const VIEW = 'v=1&seed=7&cam=3000,2500,9000,0.9,-0.3&r=3&lod=6';
 
 test('the default world renders terrain, with no console errors', async () => {
   const t0 = Date.now();

@@ -1,6 +1,8 @@
-//! Neural-network runtime: burn on a wgpu device shared with the renderer (WebGPU in the page,
-//! Vulkan natively), and a start-up self-check that runs a real convolution kernel on it and
-//! compares it with a CPU reference. The TEM and TCM modules build on this device.
+//! Neural networks: the runtime (burn on a wgpu device shared with the renderer — WebGPU in
+//! the page, Vulkan natively — with a start-up self-check that runs a real convolution kernel
+//! and compares it with a CPU reference) and the models themselves ([`tem`]).
+
+pub mod tem;
 
 use burn::tensor::module::conv2d;
 use burn::tensor::ops::ConvOptions;
