@@ -9,7 +9,7 @@ pub mod pairs;
 
 use std::path::Path;
 
-use burn::optim::{AdamConfig, GradientsParams, Optimizer};
+use burn::optim::{AdamConfig, GradientsParams};
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::{Device, Tensor, TensorData};
 
@@ -113,9 +113,9 @@ pub fn train_tem(dems: &[Dem], cfg: &TrainConfig, device: &Device, mut log: impl
         }
         drop(x);
         let loss = loss.expect("at least one level");
-        let total: f64 = loss.clone().into_scalar().to_f64();
+        let total = loss.clone().into_scalar::<f32>() as f64;
         for (j, l) in per_level.into_iter().enumerate() {
-            let v = l.into_scalar().to_f64();
+            let v = l.into_scalar::<f32>() as f64;
             let r = &mut running[first + j];
             *r = if r.is_nan() { v } else { 0.95 * *r + 0.05 * v };
         }
