@@ -137,9 +137,11 @@ test('a scripted 20-second autopilot flight streams new tiles with flat memory',
   });
   const t0 = Date.now();
   let maxCached = 0;
+  const cpu = [];
   while (Date.now() - t0 < 20_000) {
     await page.waitForTimeout(1000);
     const s = await stats(page);
+    cpu.push(s.cpu_ms);
     maxCached = Math.max(maxCached, s.stats.tiles_cached);
     assert.ok(s.stats.tiles_cached <= s.stats.tiles_capacity, 'cache over capacity');
   }
@@ -152,6 +154,7 @@ test('a scripted 20-second autopilot flight streams new tiles with flat memory',
     frame_ms_median: frames[Math.floor(frames.length / 2)],
     frame_ms_p95: frames[Math.floor(frames.length * 0.95)],
     frame_ms_worst: frames[frames.length - 1],
+    cpu_ms_samples: cpu,
     moved_m: moved,
     tiles_generated: s1.stats.tiles_generated - s0.stats.tiles_generated,
     ms_per_tile: s1.stats.ms_per_tile,
