@@ -10,7 +10,9 @@ use glam::DVec3;
 use crate::render::camera::{Camera, CameraController, ControlInput};
 use crate::render::gpu::{FrameParams, sun_direction};
 use crate::share::ShareState;
+use crate::models::tem::LEVELS;
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
+use crate::world::refine::{INPUT_SIDE, PatchKey, PatchStore, RefineJob};
 use crate::world::schedule::{mix64, tile_seed};
 use crate::world::{ProceduralSource, TILE_SIZE_M, WorldStream};
 
@@ -25,6 +27,9 @@ pub const TILE_BUDGET_MAX_MS: f64 = 40.0;
 
 /// Quadtree nodes built per frame at most (each is a 35² gather plus a mesh upload).
 pub const NODE_BUILD_BUDGET: usize = 24;
+
+/// Refined patches (quads) asked of the TEM per batch at most.
+pub const REFINE_BATCH: usize = 4;
 
 /// Frames a node mesh stays on the GPU after it was last drawn.
 pub const MESH_KEEP_FRAMES: u64 = 240;
@@ -53,6 +58,14 @@ pub struct AppStats {
     pub nodes_cached: usize,
     /// Deepest quadtree depth drawn in the last frame.
     pub max_depth_drawn: u8,
+    /// Refined patches (TEM quads) made since the world was created.
+    pub quads_made: u64,
+    /// Mean TEM inference time per quad (milliseconds, read-back included).
+    pub ms_per_quad: f64,
+    /// Refined patches cached.
+    pub patches_cached: usize,
+    /// Where the TEM runs ("" while it is off).
+    pub refine_backend: String,
     /// Median frame time over the recent window (milliseconds).
     pub frame_ms_median: f64,
     /// Worst frame time over the recent window (milliseconds).
@@ -69,6 +82,8 @@ pub struct TerrainApp {
     settings: ShareState,
     world: WorldStream,
     nodes: NodeCache,
+    refine: PatchStore,
+    refine_backend: Option<String>,
     /// The camera.
     pub camera: Camera,
     /// The camera controller.
@@ -88,6 +103,8 @@ impl TerrainApp {
             settings: s.clone(),
             world,
             nodes: NodeCache::new(),
+            refine: PatchStore::new(0),
+            refine_backend: None,
             camera: Camera::default(),
             controller: CameraController::default(),
             show_lod: false,
@@ -117,6 +134,7 @@ impl TerrainApp {
         if world_changed {
             self.world = Self::make_world(&s);
             self.nodes = NodeCache::new();
+            self.refine = PatchStore::new(0);
         }
         self.set_view(&s);
         self.settings = s;
@@ -184,11 +202,15 @@ impl TerrainApp {
         self.world.update(eye.x, eye.z, budget);
         let world = &self.world;
         self.nodes.retain_tiles(|t| world.contains(t));
+        self.refine.retain_tiles(|t| world.contains(t));
         let tiles = self.world.drawable(eye.x, eye.z);
         let aspect = size_px[0].max(1) as f32 / size_px[1].max(1) as f32;
-        let view = self.camera.lod_view(aspect, size_px[1].max(1) as f32, self.settings.lod_px, BASE_DATA_DEPTH);
+        let refining = self.refine_backend.is_some();
+        let max_depth = if refining { BASE_DATA_DEPTH + LEVELS as u8 } else { BASE_DATA_DEPTH };
+        let view = self.camera.lod_view(aspect, size_px[1].max(1) as f32, self.settings.lod_px, max_depth);
         let mut budget = NODE_BUILD_BUDGET;
-        let nodes = self.nodes.select(&tiles, &self.world, &view, &mut budget);
+        let refine = if refining { Some(&mut self.refine) } else { None };
+        let nodes = self.nodes.select(&tiles, &self.world, refine, &view, &mut budget);
 
         let ws = self.world.stats();
         self.stats.frames += 1;
@@ -201,6 +223,11 @@ impl TerrainApp {
         self.stats.nodes_drawn = nodes.len();
         self.stats.nodes_cached = self.nodes.len();
         self.stats.max_depth_drawn = nodes.iter().map(|n| n.id.depth).max().unwrap_or(0);
+        let rs = self.refine.stats();
+        self.stats.quads_made = rs.quads_made;
+        self.stats.ms_per_quad = rs.ms_per_quad();
+        self.stats.patches_cached = rs.cached;
+        self.stats.refine_backend = self.refine_backend.clone().unwrap_or_default();
         self.stats.eye_m = eye.to_array();
         let sum = tiles.iter().filter_map(|&c| self.world.get(c)).fold(0u64, |acc, t| acc.wrapping_add(mix64(t.checksum ^ tile_seed(0, t.coord))));
         self.stats.view_checksum = format!("{sum:016x}");
@@ -219,6 +246,72 @@ impl TerrainApp {
             time_s: self.time_s as f32,
         };
         (nodes, params)
+    }
+
+    /// Turns learned refinement on (TEM models ready; `backend` names where they run, for the
+    /// overlay) or off (`None`).
+    pub fn set_refinement(&mut self, backend: Option<String>) {
+        if backend.is_none() {
+            self.nodes.retain_depth(BASE_DATA_DEPTH);
+        }
+        self.refine_backend = backend;
+    }
+
+    /// The TEM jobs this frame asks for (at most `max`, one level, nearest first); each must
+    /// come back through [`refine_done`](Self::refine_done) or
+    /// [`refine_failed`](Self::refine_failed).
+    pub fn refine_jobs(&mut self, max: usize) -> Vec<RefineJob> {
+        if self.refine_backend.is_none() {
+            return Vec::new();
+        }
+        self.refine.next_jobs(&self.world, max)
+    }
+
+    /// Stores the results of a batch: `raw` is the models' output for `keys` in order
+    /// ((2·INPUT_SIDE)² metres each), `ms` the batch's time.
+    pub fn refine_done(&mut self, keys: &[PatchKey], raw: &[f32], ms: f64) {
+        let per = (2 * INPUT_SIDE).pow(2);
+        if raw.len() != per * keys.len() {
+            self.refine.abandon(keys);
+            return;
+        }
+        self.refine.count_batch();
+        for (i, k) in keys.iter().enumerate() {
+            // Patches of tiles that left during inference are not kept.
+            if self.world.contains(k.tile()) {
+                self.refine.complete(*k, &raw[i * per..(i + 1) * per], ms / keys.len() as f64);
+            } else {
+                self.refine.abandon(&[*k]);
+            }
+        }
+    }
+
+    /// Forgets jobs whose inference failed.
+    pub fn refine_failed(&mut self, keys: &[PatchKey]) {
+        self.refine.abandon(keys);
+    }
+
+    /// Runs up to `max` TEM jobs now on `tem` (blocking; native). Returns how many ran.
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn refine_blocking(&mut self, tem: &crate::models::tem::TemSet, max: usize) -> Result<usize, String> {
+        let jobs = self.refine_jobs(max);
+        if jobs.is_empty() {
+            return Ok(0);
+        }
+        let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
+        let level = keys[0].level as usize;
+        let t = web_time::Instant::now();
+        let out = tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE);
+        match out {
+            Ok(raw) => {
+                self.refine_done(&keys, &raw, t.elapsed().as_secs_f64() * 1e3);
+                Ok(keys.len())
+            }
+            Err(e) => {
+                self.refine_failed(&keys);
+                Err(e)
+            }
+        }
     }
 
     /// Autopilot: fly level along the heading at the link's speed, following the terrain
@@ -276,6 +369,36 @@ mod tests {
         assert!(moved > 15_000.0, "moved {moved} m");
         assert!(app.stats().tiles_evicted > 0 || app.stats().tiles_generated > 40, "{:?}", app.stats());
         assert!(app.stats().tiles_cached <= app.stats().tiles_capacity);
+    }
+
+    /// With refinement on (untrained, i.e. bicubic, models on the CPU), looking down from low
+    /// above rough ground draws nodes below 32 m, built from TEM patches.
+    #[test]
+    fn refinement_draws_nodes_below_the_base_depth() {
+        let device = burn::tensor::Device::flex();
+        let tem = crate::models::tem::TemSet::untrained(&device);
+        let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, ..ShareState::default() });
+        app.set_refinement(Some("CPU".into()));
+        for _ in 0..60 {
+            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        }
+        // Low above the ground, looking down ahead.
+        let p = app.camera.position_m;
+        let g = app.ground_at(p.x, p.z).unwrap() as f64;
+        app.camera.position_m.y = g + 60.0;
+        app.camera.pitch = -0.6;
+        let mut ran = 0;
+        for _ in 0..80 {
+            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+            ran += app.refine_blocking(&tem, REFINE_BATCH).unwrap();
+        }
+        let s = app.stats().clone();
+        assert!(ran > 0 && s.quads_made as usize == ran, "{s:?}");
+        assert!(s.max_depth_drawn > BASE_DATA_DEPTH, "refined nodes drawn: {s:?}");
+        assert!(s.ms_per_quad > 0.0 && s.refine_backend == "CPU");
+        app.set_refinement(None);
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        assert!(app.stats().max_depth_drawn <= BASE_DATA_DEPTH);
     }
 
     #[test]

@@ -9,7 +9,7 @@ use terrain::world::{NoiseParams, ProceduralSource, TileSource, export};
 
 const USAGE: &str = "usage:
   terrain world --seed S --tiles X0 Y0 W H --out region.tif [--source procedural]
-  terrain train-tem --dem-dir DIR [--steps N] [--batch B] [--chain L] [--seed S] [--out weights]
+  terrain train-tem --dem-dir DIR [--steps N] [--finetune N] [--checkpoint-every N] [--batch B] [--chain L] [--seed S] [--out weights]
   terrain eval-tem --dem-dir DIR [--weights weights] [--windows N]";
 
 fn world(args: &[String]) -> Result<(), String> {
@@ -77,6 +77,7 @@ fn train_tem(args: &[String]) -> Result<(), String> {
     let d = TrainConfig::default();
     let cfg = TrainConfig {
         steps: parse_or(args, "--steps", d.steps)?,
+        finetune_steps: parse_or(args, "--finetune", d.finetune_steps)?,
         batch: parse_or(args, "--batch", d.batch)?,
         chain_levels: parse_or(args, "--chain", d.chain_levels)?,
         lr: parse_or(args, "--lr", d.lr)?,
@@ -85,11 +86,19 @@ fn train_tem(args: &[String]) -> Result<(), String> {
     let dems = train::pairs::load_dems(&dir)?;
     eprintln!("{} DEMs loaded; {cfg:?}", dems.len());
     let device = burn::tensor::Device::flex().autodiff();
-    let (models, losses) = train::train_tem(&dems, &cfg, &device, |step, loss, secs| {
+    let every: usize = parse_or(args, "--checkpoint-every", 100)?;
+    let mut saved: Result<(), String> = Ok(());
+    let (models, losses) = train::train_tem(&dems, &cfg, &device, |step, loss, secs, models| {
         if step % 10 == 0 {
             eprintln!("step {step:5}  loss {loss:.5}  {secs:7.1} s");
         }
+        // Checkpoints, so a long run stopped early still leaves usable weights.
+        if every > 0 && (step + 1) % every == 0 && saved.is_ok() {
+            saved = train::save_models(models, &out.join("checkpoint"));
+            eprintln!("checkpoint after {} steps", step + 1);
+        }
     })?;
+    saved?;
     train::save_models(&models, &out)?;
     println!("{}", serde_json::json!({ "steps": cfg.steps, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_40m_units": losses }));
     Ok(())

@@ -1,32 +1,59 @@
 //! The terrain enhancement module (TEM): a ×2 super-resolution CNN of 47,497 parameters. It
-//! takes one quadrant (h × h heights, metres) and returns the full-resolution tile (2h × 2h,
-//! metres): a learned residual added to the bicubic upsampling of its input. Five of them make
-//! the 32 → 16 → 8 → 4 → 2 → 1 m ladder.
+//! takes one quadrant of a patch (with a context margin, heights in metres) and returns the
+//! quadrant at half the spacing: a learned residual added to the bicubic upsampling of its
+//! input. Five of them make the 32 → 16 → 8 → 4 → 2 → 1 m ladder.
 //!
 //! Architecture (SPEC.md): head conv3×3 4→32; body 4 × (conv3×3 32→32 + ReLU) + conv3×3 32→32
-//! with a skip from the head; tail PixelShuffle(2) then conv3×3 8→1. Inputs: height, gradient
-//! along x, gradient along z and |gx| + |gz|, after subtracting the patch mean and dividing by
-//! 40 m (gradients ×10).
+//! with a skip from the head; tail PixelShuffle(2) then conv3×3 8→1 (initialised to zero, so an
+//! untrained model is exactly bicubic).
+//!
+//! Two choices differ from the reference and make the refined world seamless by construction:
+//! - Every input feature is local and invariant to adding a constant height: the height minus
+//!   its 3×3 mean, ∂x, ∂z and |∂x| + |∂z| (no patch mean). An output pixel therefore depends only
+//!   on input pixels within [`RECEPTIVE_OUT_PX`], so two overlapping patches computed with enough
+//!   margin agree on their overlap (up to float rounding) and refined edges of neighbouring
+//!   quads match.
+//! - Heights are divided by a per-level scale proportional to the input spacing
+//!   ([`level_scale_m`]: 40 m at 32 m input, as the reference, 2.5 m at 2 m input), so every
+//!   level sees slopes of the same order and self-similar pretraining transfers across levels.
 
 use burn::module::Module;
-use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::nn::{Initializer, PaddingConfig2d};
 use burn::nn::{PixelShuffle, PixelShuffleConfig};
 use burn::tensor::activation::relu;
 use burn::tensor::module::interpolate;
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor};
 
-/// Heights are divided by this after subtracting the patch mean (metres).
-pub const HEIGHT_SCALE_M: f32 = 40.0;
-/// Gain applied to gradients of normalised heights.
-pub const GRADIENT_GAIN: f32 = 10.0;
+/// Gain applied to the normalised local features.
+pub const FEATURE_GAIN: f32 = 10.0;
 /// Number of TEM levels.
 pub const LEVELS: usize = 5;
 /// Output spacing of each level (metres per pixel): level k turns 2·s into s.
 pub const LEVEL_SPACING_M: [f64; LEVELS] = [16.0, 8.0, 4.0, 2.0, 1.0];
+/// Side (output pixels) of the core of a refined patch; the input quadrant is half of it.
+pub const PATCH: usize = 128;
+/// Side (input pixels) of the quadrant a model refines.
+pub const QUAD: usize = PATCH / 2;
+/// Context margin (pixels, on every side): a model reads QUAD + 2·MARGIN input pixels and a
+/// stored patch keeps PATCH + 2·MARGIN output pixels. It must be at least
+/// [`RECEPTIVE_OUT_PX`] so that stored pixels never see the input's border.
+pub const MARGIN: usize = 16;
+/// Side of a model's input window (pixels).
+pub const WINDOW: usize = QUAD + 2 * MARGIN;
+/// Side of a stored refined patch (pixels): core plus margin.
+pub const STORED: usize = PATCH + 2 * MARGIN;
+/// Output pixels within this distance of the input window's border are affected by padding
+/// (features: 1 input px, 6 convolutions at input resolution, the tail at output resolution).
+pub const RECEPTIVE_OUT_PX: usize = 15;
 /// Channels of the body.
 const WIDTH: usize = 32;
+
+/// Height scale of level `k` (metres): 1.25 × its input spacing.
+pub fn level_scale_m(level: usize) -> f32 {
+    (2.5 * LEVEL_SPACING_M[level]) as f32
+}
 
 /// One TEM model (one level of the ladder).
 #[derive(Module, Debug)]
@@ -43,55 +70,148 @@ fn conv(cin: usize, cout: usize, device: &Device) -> Conv2d {
 }
 
 impl Tem {
-    /// A freshly initialised model on `device`.
+    /// A freshly initialised model on `device` (its output is exactly bicubic).
     pub fn new(device: &Device) -> Self {
         Self {
             head: conv(4, WIDTH, device),
             body: (0..4).map(|_| conv(WIDTH, WIDTH, device)).collect(),
             merge: conv(WIDTH, WIDTH, device),
             shuffle: PixelShuffleConfig::new(2).init(),
-            tail: conv(WIDTH / 4, 1, device),
+            tail: Conv2dConfig::new([WIDTH / 4, 1], [3, 3])
+                .with_padding(PaddingConfig2d::Same)
+                .with_initializer(Initializer::Zeros)
+                .init(device),
         }
     }
 
-    /// Enhances a batch of patches: `x` is [B, 1, h, w] heights in metres, the result
-    /// [B, 1, 2h, 2w] heights in metres at half the spacing.
-    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+    /// Enhances a batch: `x` is [B, 1, h, w] heights in metres, `scale_m` the level's height
+    /// scale ([`level_scale_m`]); the result is [B, 1, 2h, 2w] heights in metres at half the
+    /// spacing. Pixels within [`RECEPTIVE_OUT_PX`] of the border see the padding.
+    pub fn forward(&self, x: Tensor<4>, scale_m: f32) -> Tensor<4> {
         let [_, _, h, w] = x.dims();
-        let mean = x.clone().mean_dim(3).mean_dim(2);
-        let xn = (x - mean.clone()) / HEIGHT_SCALE_M;
-        self.forward_normalised(xn, [2 * h, 2 * w]) * HEIGHT_SCALE_M + mean
-    }
-
-    /// The network on normalised heights (mean 0, units of 40 m): returns the normalised
-    /// enhanced patch of size `out`.
-    pub fn forward_normalised(&self, xn: Tensor<4>, out: [usize; 2]) -> Tensor<4> {
-        let feats = features(xn.clone());
-        let head = self.head.forward(feats);
+        let base = interpolate(x.clone(), InterpolateOptions::new(InterpolateMode::Bicubic).with_align_corners(false).with_output_size([2 * h, 2 * w]));
+        let head = self.head.forward(features(x / scale_m));
         let mut b = head.clone();
         for c in &self.body {
             b = relu(c.forward(b));
         }
         let b = self.merge.forward(b) + head;
         let residual = self.tail.forward(self.shuffle.forward(b));
-        let base = interpolate(xn, InterpolateOptions::new(InterpolateMode::Bicubic).with_align_corners(false).with_output_size(out));
-        base + residual
+        base + residual * scale_m
     }
 }
 
-/// The four input channels from normalised heights [B, 1, h, w]: height, ∂/∂x, ∂/∂z (central
-/// differences, edges replicated, ×10) and |∂/∂x| + |∂/∂z|.
+/// File name of level `k`'s weights (burnpack) in `weights/`.
+pub fn weight_file(k: usize) -> String {
+    format!("tem_{k}_{}m.bpk", LEVEL_SPACING_M[k])
+}
+
+/// The five TEM models of the ladder on one device, ready for inference.
+pub struct TemSet {
+    models: Vec<Tem>,
+    device: Device,
+}
+
+impl TemSet {
+    /// Untrained models (each exactly bicubic) on `device`.
+    pub fn untrained(device: &Device) -> Self {
+        Self { models: (0..LEVELS).map(|_| Tem::new(device)).collect(), device: device.clone() }
+    }
+
+    /// Wraps trained models.
+    pub fn from_models(models: Vec<Tem>, device: &Device) -> Result<Self, String> {
+        if models.len() != LEVELS {
+            return Err(format!("{} TEM models given, {LEVELS} needed", models.len()));
+        }
+        Ok(Self { models, device: device.clone() })
+    }
+
+    /// Loads the five models from burnpack bytes (level order) onto `device`. A broken or
+    /// mismatching file is a clear error naming it.
+    pub fn from_bytes(files: Vec<Vec<u8>>, device: &Device) -> Result<Self, String> {
+        use burn::store::{BurnpackStore, ModuleSnapshot};
+        if files.len() != LEVELS {
+            return Err(format!("{} TEM weight files given, {LEVELS} needed", files.len()));
+        }
+        let mut models = Vec::with_capacity(LEVELS);
+        for (k, bytes) in files.into_iter().enumerate() {
+            let mut m = Tem::new(device);
+            let mut store = BurnpackStore::from_bytes(Some(burn::tensor::Bytes::from_bytes_vec(bytes)));
+            let r = m.load_from(&mut store).map_err(|e| format!("{}: {e:?}", weight_file(k)))?;
+            if !r.missing.is_empty() {
+                return Err(format!("{}: missing tensors {:?}", weight_file(k), r.missing));
+            }
+            models.push(m);
+        }
+        Ok(Self { models, device: device.clone() })
+    }
+
+    /// Loads the five models from `dir/tem_{k}_{s}m.bpk` onto `device`.
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn load_dir(dir: &std::path::Path, device: &Device) -> Result<Self, String> {
+        let files = (0..LEVELS)
+            .map(|k| std::fs::read(dir.join(weight_file(k))).map_err(|e| format!("{}: {e}", dir.join(weight_file(k)).display())))
+            .collect::<Result<Vec<_>, _>>()?;
+        Self::from_bytes(files, device)
+    }
+
+    /// The model of level `k`.
+    pub fn model(&self, level: usize) -> &Tem {
+        &self.models[level]
+    }
+
+    /// The five models, level order.
+    pub fn into_models(self) -> Vec<Tem> {
+        self.models
+    }
+
+    /// The device the models live on.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// Runs level `level` on `n` square windows of side `side` (heights in metres, row-major,
+    /// concatenated); returns the raw [n, 1, 2·side, 2·side] output (not yet read back).
+    pub fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Tensor<4> {
+        let x = Tensor::<4>::from_data(burn::tensor::TensorData::new(inputs, [n, 1, side, side]), &self.device);
+        self.models[level].forward(x, level_scale_m(level))
+    }
+
+    /// [`enhance`](Self::enhance) read back (blocking; native only).
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn enhance_blocking(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<Vec<f32>, String> {
+        self.enhance(level, inputs, n, side).into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))
+    }
+
+    /// [`enhance`](Self::enhance) read back asynchronously (as browsers require).
+    pub async fn enhance_async(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<Vec<f32>, String> {
+        let data = self.enhance(level, inputs, n, side).into_data_async().await.map_err(|e| format!("GPU readback failed: {e:?}"))?;
+        data.try_to_vec::<f32>().map_err(|e| format!("{e:?}"))
+    }
+}
+
+/// Shifts `t` by one pixel along `dim` (size `n`) with the edge replicated: (previous, next).
+fn neighbours(t: &Tensor<4>, dim: usize, n: usize) -> (Tensor<4>, Tensor<4>) {
+    let prev = Tensor::cat(vec![t.clone().narrow(dim, 0, 1), t.clone().narrow(dim, 0, n - 1)], dim);
+    let next = Tensor::cat(vec![t.clone().narrow(dim, 1, n - 1), t.clone().narrow(dim, n - 1, 1)], dim);
+    (prev, next)
+}
+
+/// The four input channels from scaled heights [B, 1, h, w], all × [`FEATURE_GAIN`]: height
+/// minus its 3×3 mean, ∂/∂x and ∂/∂z (central differences) and |∂/∂x| + |∂/∂z|; edges
+/// replicated.
 pub fn features(xn: Tensor<4>) -> Tensor<4> {
     let [_, _, h, w] = xn.dims();
-    let shift = |t: &Tensor<4>, dim: usize, n: usize| {
-        let prev = Tensor::cat(vec![t.clone().narrow(dim, 0, 1), t.clone().narrow(dim, 0, n - 1)], dim);
-        let next = Tensor::cat(vec![t.clone().narrow(dim, 1, n - 1), t.clone().narrow(dim, n - 1, 1)], dim);
-        (next - prev) * (0.5 * GRADIENT_GAIN)
-    };
-    let gx = shift(&xn, 3, w);
-    let gz = shift(&xn, 2, h);
+    let (l, r) = neighbours(&xn, 3, w);
+    let gx = (r.clone() - l.clone()) * (0.5 * FEATURE_GAIN);
+    let row = (l + r + xn.clone()) / 3.0;
+    let (u, d) = neighbours(&xn, 2, h);
+    let gz = (d - u) * (0.5 * FEATURE_GAIN);
+    let (ru, rd) = neighbours(&row, 2, h);
+    let mean = (ru + rd + row) / 3.0;
+    let detail = (xn - mean) * FEATURE_GAIN;
     let mag = gx.clone().abs() + gz.clone().abs();
-    Tensor::cat(vec![xn, gx, gz, mag], 1)
+    Tensor::cat(vec![detail, gx, gz, mag], 1)
 }
 
 #[cfg(all(test, feature = "train"))]
@@ -106,28 +226,75 @@ mod tests {
     }
 
     #[test]
-    fn doubles_the_size_and_keeps_the_mean_level() {
+    fn an_untrained_model_is_bicubic_and_offsets_pass_through() {
         let device = Device::flex();
         let m = Tem::new(&device);
-        let data: Vec<f32> = (0..2 * 16 * 16).map(|k| 1500.0 + (k % 16) as f32 * 3.0 + (k / 256) as f32 * 200.0).collect();
-        let x = Tensor::<4>::from_data(TensorData::new(data, [2, 1, 16, 16]), &device);
-        let y = m.forward(x);
-        assert_eq!(y.dims(), [2, 1, 32, 32]);
-        let v: Vec<f32> = y.into_data().try_to_vec::<f32>().unwrap();
-        let mean0 = v[..1024].iter().sum::<f32>() / 1024.0;
-        let mean1 = v[1024..].iter().sum::<f32>() / 1024.0;
-        // An untrained residual is small next to the 200 m offset between the two patches.
-        assert!((mean1 - mean0 - 200.0).abs() < 40.0, "{mean0} {mean1}");
+        let data: Vec<f32> = (0..2 * 16 * 16).map(|k| 1500.0 + ((k % 16) as f32 * 0.7).sin() * 30.0 + (k / 256) as f32 * 200.0).collect();
+        let x = Tensor::<4>::from_data(TensorData::new(data.clone(), [2, 1, 16, 16]), &device);
+        let y: Vec<f32> = m.forward(x, 40.0).into_data().try_to_vec::<f32>().unwrap();
+        assert_eq!(y.len(), 2 * 32 * 32);
+        let bic = crate::dem::Heightfield::new(16, 16, 2.0, data[..256].to_vec()).upsample_bicubic2();
+        let worst = y[..1024].iter().zip(&bic.data).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(worst < 1e-3, "zero tail ⇒ bicubic, off by {worst} m");
+        let mean0 = y[..1024].iter().sum::<f32>() / 1024.0;
+        let mean1 = y[1024..].iter().sum::<f32>() / 1024.0;
+        assert!((mean1 - mean0 - 200.0).abs() < 0.01, "{mean0} {mean1}");
     }
 
     #[test]
-    fn gradient_features_see_a_ramp() {
+    fn features_see_a_ramp_and_ignore_constant_offsets() {
         let device = Device::flex();
-        let x = Tensor::<4>::from_data(TensorData::new((0..16).map(|k| (k % 4) as f32 * 0.1).collect::<Vec<_>>(), [1, 1, 4, 4]), &device);
+        let ramp: Vec<f32> = (0..16).map(|k| (k % 4) as f32 * 0.1).collect();
+        let x = Tensor::<4>::from_data(TensorData::new(ramp.clone(), [1, 1, 4, 4]), &device);
         let f: Vec<f32> = features(x).into_data().try_to_vec::<f32>().unwrap();
         // channel 1 (∂/∂x) inside: (0.2 − 0.0)/2 × 10 = 1.0; channel 2 (∂/∂z) is 0.
         assert!((f[16 + 1] - 1.0).abs() < 1e-5, "{}", f[17]);
         assert!(f[32..48].iter().all(|v| v.abs() < 1e-6));
         assert!((f[48 + 1] - 1.0).abs() < 1e-5);
+        // A linear ramp has no detail inside.
+        assert!(f[5].abs() < 1e-5 && f[6].abs() < 1e-5);
+        let lifted = Tensor::<4>::from_data(TensorData::new(ramp.iter().map(|v| v + 1000.0).collect::<Vec<_>>(), [1, 1, 4, 4]), &device);
+        let g: Vec<f32> = features(lifted).into_data().try_to_vec::<f32>().unwrap();
+        let d = f.iter().zip(&g).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(d < 1e-2, "features must not depend on the absolute height: {d}");
+    }
+
+    /// The property the seamless world rests on: an output pixel further than
+    /// RECEPTIVE_OUT_PX from the border does not depend on input outside its reach, so two
+    /// overlapping windows agree.
+    #[test]
+    fn overlapping_windows_agree_away_from_the_border() {
+        let device = Device::flex();
+        let mut m = Tem::new(&device);
+        // Random non-zero weights everywhere (a zero tail would make this trivially bicubic).
+        m = m.map(&mut RandomizeTail(device.clone()));
+        let n = 48;
+        let global: Vec<f32> = (0..(n + 8) * n).map(|k| ((k % (n + 8)) as f32 * 0.37).sin() * 20.0 + ((k / (n + 8)) as f32 * 0.21).cos() * 15.0).collect();
+        let cut = |x0: usize| -> Vec<f32> { (0..n).flat_map(|y| global[y * (n + 8) + x0..y * (n + 8) + x0 + n].to_vec()).collect() };
+        let a = Tensor::<4>::from_data(TensorData::new(cut(0), [1, 1, n, n]), &device);
+        let b = Tensor::<4>::from_data(TensorData::new(cut(8), [1, 1, n, n]), &device);
+        let ya: Vec<f32> = m.forward(a, 40.0).into_data().try_to_vec::<f32>().unwrap();
+        let yb: Vec<f32> = m.forward(b, 40.0).into_data().try_to_vec::<f32>().unwrap();
+        let (o, r) = (2 * n, RECEPTIVE_OUT_PX);
+        let mut worst = 0f32;
+        let mut worst_inside_border = 0f32;
+        for y in r..o - r {
+            for x in 16 + r..o - r {
+                // ya at output x equals yb at output x − 16.
+                let d = (ya[y * o + x] - yb[y * o + x - 16]).abs();
+                worst = worst.max(d);
+            }
+            worst_inside_border = worst_inside_border.max((ya[y * o + 16] - yb[y * o]).abs());
+        }
+        assert!(worst < 1e-3, "overlap differs by {worst} m");
+        assert!(worst_inside_border > 1e-3, "the border pixels do see the padding ({worst_inside_border}); else the test proves nothing");
+    }
+
+    struct RandomizeTail(Device);
+    impl burn::module::ModuleMapper for RandomizeTail {
+        fn map_float<const D: usize>(&mut self, param: burn::module::Param<Tensor<D>>) -> burn::module::Param<Tensor<D>> {
+            let device = self.0.clone();
+            param.map(|t| Tensor::<D>::random(t.shape(), burn::tensor::Distribution::Uniform(-0.3, 0.3), &device))
+        }
     }
 }

@@ -13,62 +13,75 @@ use burn::optim::{AdamConfig, GradientsParams};
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::{Device, Tensor, TensorData};
 
-use crate::models::tem::{HEIGHT_SCALE_M, LEVEL_SPACING_M, LEVELS, Tem};
-use pairs::{Dem, PATCH, Rng, Split, WorkingCache, chain_sample, finest_spacing};
+use crate::models::tem::{LEVEL_SPACING_M, LEVELS, Tem, level_scale_m};
+use pairs::{Dem, MARGIN, PATCH, QUAD, Rng, Split, WINDOW, WorkingCache, chain_sample, finest_spacing};
 
 /// Settings of one training run.
 #[derive(Clone, Debug)]
 pub struct TrainConfig {
-    /// Optimiser steps.
+    /// Chained optimiser steps.
     pub steps: usize,
+    /// Single-level fine-tuning steps after the chained ones, on real data wherever a DEM is
+    /// fine enough for the level (levels cycle 0..5).
+    pub finetune_steps: usize,
     /// Chains per step.
     pub batch: usize,
     /// Consecutive levels per chain (1..=5).
     pub chain_levels: usize,
-    /// Adam learning rate (the last quarter of the steps uses a third of it).
+    /// Adam learning rate (the last quarter of the chained steps and the fine-tuning use a
+    /// third of it).
     pub lr: f64,
-    /// Seed of the sampler and of the weight initialisation order.
+    /// Seed of the sampler.
     pub seed: u64,
 }
 
 impl Default for TrainConfig {
     fn default() -> Self {
-        Self { steps: 600, batch: 12, chain_levels: 3, lr: 1e-3, seed: 1 }
+        Self { steps: 600, finetune_steps: 0, batch: 12, chain_levels: 3, lr: 1e-3, seed: 1 }
     }
 }
 
-/// Mean L1 loss per level (units of 40 m) over the last steps that trained it.
+/// Mean L1 loss per level (units of the level's height scale) over the last steps that
+/// trained it.
 pub type LevelLosses = [f64; LEVELS];
 
 fn tensor(data: Vec<f32>, n: usize, side: usize, device: &Device) -> Tensor<4> {
     Tensor::<4>::from_data(TensorData::new(data, [n, 1, side, side]), device)
 }
 
+/// The core (PATCH², at offset 2·MARGIN) of a model's raw output [B, 1, 2·WINDOW, 2·WINDOW].
+pub fn core(raw: Tensor<4>) -> Tensor<4> {
+    raw.narrow(3, 2 * MARGIN, PATCH).narrow(2, 2 * MARGIN, PATCH)
+}
+
 /// Trains five models from `dems` (train split) on `device` (an autodiff device). `log` gets
-/// (step, total loss, seconds so far). Returns the models and the running loss per level.
-pub fn train_tem(dems: &[Dem], cfg: &TrainConfig, device: &Device, mut log: impl FnMut(usize, f64, f64)) -> Result<(Vec<Tem>, LevelLosses), String> {
+/// (step, total loss, seconds so far, the models). Returns the models and the running loss per
+/// level.
+pub fn train_tem(dems: &[Dem], cfg: &TrainConfig, device: &Device, mut log: impl FnMut(usize, f64, f64, &[Tem])) -> Result<(Vec<Tem>, LevelLosses), String> {
     let mut models: Vec<Tem> = (0..LEVELS).map(|_| Tem::new(device)).collect();
     let mut optims: Vec<_> = (0..LEVELS).map(|_| AdamConfig::new().init()).collect();
     let mut cache = WorkingCache::default();
     let mut rng = Rng(cfg.seed);
-    let levels = cfg.chain_levels.clamp(1, LEVELS);
+    let chain = cfg.chain_levels.clamp(1, LEVELS);
     let mut running = [f64::NAN; LEVELS];
     let start = web_time::Instant::now();
-    for step in 0..cfg.steps {
-        let first = rng.below(LEVELS - levels + 1);
+    for step in 0..cfg.steps + cfg.finetune_steps {
+        let finetune = step >= cfg.steps;
+        let levels = if finetune { 1 } else { chain };
+        let first = if finetune { (step - cfg.steps) % LEVELS } else { rng.below(LEVELS - levels + 1) };
         let quads: Vec<usize> = (1..levels).map(|_| rng.below(4)).collect();
         let spacing = finest_spacing(first, levels);
-        // Candidate DEMs: large enough at the working spacing; real data four times as likely.
+        // Candidate DEMs with room for the chain: real data four times as likely while
+        // chained, only real data (where any fits) while fine-tuning.
         let mut candidates = Vec::new();
         for k in 0..dems.len() {
             let w = cache.get(dems, k, spacing);
-            let (c0, c1) = pairs::split_columns(w.hf.width, Split::Train);
-            let extent = PATCH << (levels - 1);
-            if c1 >= c0 + extent && w.hf.height >= extent {
-                for _ in 0..(if w.real { 4 } else { 1 }) {
-                    candidates.push(k);
-                }
+            if pairs::fits(&w.hf, Split::Train, levels) {
+                candidates.extend(std::iter::repeat_n((k, w.real), if w.real { 4 } else { 1 }));
             }
+        }
+        if finetune && candidates.iter().any(|c| c.1) {
+            candidates.retain(|c| c.1);
         }
         if candidates.is_empty() {
             return Err(format!("no DEM is large enough for a {levels}-level chain at {spacing} m"));
@@ -79,7 +92,7 @@ pub fn train_tem(dems: &[Dem], cfg: &TrainConfig, device: &Device, mut log: impl
         let mut tries = 0;
         while got < cfg.batch && tries < cfg.batch * 10 {
             tries += 1;
-            let k = candidates[rng.below(candidates.len())];
+            let k = candidates[rng.below(candidates.len())].0;
             let w = cache.get(dems, k, spacing);
             if let Some(c) = chain_sample(&w.hf, Split::Train, levels, &quads, &mut rng) {
                 inputs.extend(c.input);
@@ -92,23 +105,25 @@ pub fn train_tem(dems: &[Dem], cfg: &TrainConfig, device: &Device, mut log: impl
         if got == 0 {
             return Err("could not cut any NaN-free training window".into());
         }
-        let mut x = tensor(inputs, got, PATCH / 2, device);
+        let mut x = tensor(inputs, got, WINDOW, device);
         let mut loss: Option<Tensor<1>> = None;
         let mut per_level = Vec::new();
         for (j, truth) in truths.into_iter().enumerate() {
-            let out = models[first + j].forward(x);
+            let level = first + j;
+            let raw = models[level].forward(x, level_scale_m(level));
             let gt = tensor(truth, got, PATCH, device);
-            let l = (out.clone() - gt).abs().mean() / HEIGHT_SCALE_M;
+            let l = (core(raw.clone()) - gt).abs().mean() / level_scale_m(level);
             per_level.push(l.clone());
             loss = Some(match loss {
                 Some(acc) => acc + l,
                 None => l,
             });
+            // The next level reads its quadrant of this core with the margin around it.
             if j + 1 < levels {
                 let q = quads[j];
-                x = out.narrow(3, (q % 2) * PATCH / 2, PATCH / 2).narrow(2, (q / 2) * PATCH / 2, PATCH / 2);
+                x = raw.narrow(3, MARGIN + (q % 2) * QUAD, WINDOW).narrow(2, MARGIN + (q / 2) * QUAD, WINDOW);
             } else {
-                x = out;
+                x = raw;
             }
         }
         drop(x);
@@ -120,20 +135,17 @@ pub fn train_tem(dems: &[Dem], cfg: &TrainConfig, device: &Device, mut log: impl
             *r = if r.is_nan() { v } else { 0.95 * *r + 0.05 * v };
         }
         let mut grads = loss.backward();
-        let lr = if step >= cfg.steps * 3 / 4 { cfg.lr / 3.0 } else { cfg.lr };
+        let lr = if finetune || step >= cfg.steps * 3 / 4 { cfg.lr / 3.0 } else { cfg.lr };
         for j in first..first + levels {
             let gp = GradientsParams::from_module(&mut grads, &models[j]);
             models[j] = optims[j].step(lr, models[j].clone(), gp);
         }
-        log(step, total, start.elapsed().as_secs_f64());
+        log(step, total, start.elapsed().as_secs_f64(), &models);
     }
     Ok((models, running))
 }
 
-/// File name of level `k`'s weights.
-pub fn weight_file(k: usize) -> String {
-    format!("tem_{k}_{}m.bpk", LEVEL_SPACING_M[k])
-}
+pub use crate::models::tem::weight_file;
 
 /// Saves the five models as burnpack files in `dir`.
 pub fn save_models(models: &[Tem], dir: &Path) -> Result<(), String> {
@@ -147,14 +159,7 @@ pub fn save_models(models: &[Tem], dir: &Path) -> Result<(), String> {
 
 /// Loads the five models from burnpack files in `dir` onto `device`.
 pub fn load_models(dir: &Path, device: &Device) -> Result<Vec<Tem>, String> {
-    (0..LEVELS)
-        .map(|k| {
-            let mut m = Tem::new(device);
-            let mut store = BurnpackStore::from_file(dir.join(weight_file(k)));
-            m.load_from(&mut store).map_err(|e| format!("loading {}: {e:?}", weight_file(k)))?;
-            Ok(m)
-        })
-        .collect()
+    Ok(crate::models::tem::TemSet::load_dir(dir, device)?.into_models())
 }
 
 /// Accuracy of one level on held-out windows.
@@ -176,7 +181,7 @@ pub struct LevelEval {
     pub psnr_bicubic: f64,
     /// PSNR of the TEM (dB).
     pub psnr_tem: f64,
-    /// TEM RMSE (metres) by distance to the patch edge: [0,1), [1,2), [2,4), [4,8), [8,16), [16,64) px.
+    /// TEM RMSE (metres) by distance to the edge of the refined quad: [0,1), [1,2), [2,4), [4,8), [8,16), [16,64) px.
     pub rmse_by_edge_distance: [f64; 6],
 }
 
@@ -201,14 +206,14 @@ pub fn eval_levels(models: &[Tem], dems: &[Dem], device: &Device, max_windows: u
         let spacing = LEVEL_SPACING_M[level];
         let any_real = (0..dems.len()).any(|k| {
             let w = cache.get(dems, k, spacing);
-            w.real && enough(&w.hf)
+            w.real && pairs::fits(&w.hf, Split::Validation, 1)
         });
         let mut rng = Rng(1000 + level as u64);
         let mut inputs = Vec::new();
         let mut truths = Vec::new();
         'dems: for k in 0..dems.len() {
             let w = cache.get(dems, k, spacing);
-            if w.real != any_real || !enough(&w.hf) {
+            if w.real != any_real || !pairs::fits(&w.hf, Split::Validation, 1) {
                 continue;
             }
             for _ in 0..(max_windows / 4).max(1) {
@@ -227,12 +232,12 @@ pub fn eval_levels(models: &[Tem], dems: &[Dem], device: &Device, max_windows: u
             continue;
         }
         let n = truths.len();
-        let y = models[level].forward(tensor(inputs.concat(), n, PATCH / 2, device));
+        let y = core(models[level].forward(tensor(inputs.concat(), n, WINDOW, device), level_scale_m(level)));
         let y: Vec<f32> = y.into_data().try_to_vec::<f32>().expect("f32 output");
         let (mut se_t, mut se_b, mut psnr_t, mut psnr_b) = (0f64, 0f64, 0f64, 0f64);
         let mut edge = [(0f64, 0usize); 6];
         for (i, (inp, gt)) in inputs.iter().zip(&truths).enumerate() {
-            let bic = crate::dem::Heightfield::new(PATCH / 2, PATCH / 2, spacing * 2.0, inp.clone()).upsample_bicubic2();
+            let bic = crate::dem::Heightfield::new(WINDOW, WINDOW, spacing * 2.0, inp.clone()).upsample_bicubic2().window(2 * MARGIN, 2 * MARGIN, PATCH, PATCH);
             let tem = &y[i * PATCH * PATCH..(i + 1) * PATCH * PATCH];
             let (mut st, mut sb) = (0f64, 0f64);
             for (p, g) in gt.iter().enumerate() {
@@ -263,53 +268,41 @@ pub fn eval_levels(models: &[Tem], dems: &[Dem], device: &Device, max_windows: u
     out
 }
 
-fn enough(hf: &crate::dem::Heightfield) -> bool {
-    let (c0, c1) = pairs::split_columns(hf.width, Split::Validation);
-    c1 >= c0 + PATCH && hf.height >= PATCH
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::dem::Heightfield;
-    use crate::world::{NoiseParams, ProceduralSource, TileCoord, TileSource};
 
     /// A short real run of the whole training path on synthetic terrain: losses are finite,
     /// the weights save and load back to the same outputs.
     #[test]
     fn smoke_training_runs_saves_and_reloads() {
-        let tile = ProceduralSource::new(NoiseParams::default()).generate(1, TileCoord::new(0, 0), &Default::default());
-        // 640×256 at 100 m: coarser than every level, so used self-similarly at native size.
-        let mut data = Vec::new();
-        for v in 0..128 {
-            for rep in 0..5 {
-                data.extend(tile.heights[v * 128..(v + 1) * 128].iter().map(|h| h * 0.01 + rep as f32));
-            }
-        }
-        let mut rows = data.clone();
-        rows.extend(data.iter().map(|h| h + 1.0));
-        let hf = Heightfield::new(640, 256, 100.0, rows);
+        // 900×400 at 100 m: coarser than every level, so used self-similarly at native size.
+        let (w, h) = (900, 400);
+        let field = |x: f32, y: f32| (x * 0.031).sin() * 40.0 + (y * 0.047 + x * 0.011).cos() * 25.0 + ((x * 0.17).sin() * (y * 0.13).cos()) * 6.0;
+        let hf = Heightfield::new(w, h, 100.0, (0..w * h).map(|k| field((k % w) as f32, (k / w) as f32)).collect());
         let dems = vec![Dem { id: "synthetic".into(), hf }];
-        let cfg = TrainConfig { steps: 2, batch: 2, chain_levels: 2, lr: 1e-3, seed: 5 };
+        let cfg = TrainConfig { steps: 2, finetune_steps: 1, batch: 2, chain_levels: 2, lr: 1e-3, seed: 5 };
         let device = Device::flex().autodiff();
         let mut steps = 0;
-        let (models, losses) = train_tem(&dems, &cfg, &device, |_, loss, _| {
+        let (models, losses) = train_tem(&dems, &cfg, &device, |_, loss, _, _| {
             assert!(loss.is_finite());
             steps += 1;
         })
         .unwrap();
-        assert_eq!(steps, 2);
+        assert_eq!(steps, 3);
         assert!(losses.iter().any(|l| l.is_finite()));
         let dir = std::env::temp_dir().join(format!("terrain-tem-smoke-{}", std::process::id()));
         save_models(&models, &dir).unwrap();
         let plain = Device::flex();
         let back = load_models(&dir, &plain).unwrap();
-        let x = tensor((0..64 * 64).map(|k| (k % 64) as f32 * 0.3).collect(), 1, 64, &plain);
-        let a: Vec<f32> = back[1].forward(x.clone()).into_data().try_to_vec::<f32>().unwrap();
+        let input = || tensor((0..64 * 64).map(|k| ((k % 64) as f32 * 0.3).sin() * 5.0 + (k / 64) as f32 * 0.2).collect(), 1, 64, &plain);
+        let x = input();
+        let a: Vec<f32> = back[1].forward(x.clone(), 20.0).into_data().try_to_vec::<f32>().unwrap();
         let reload = load_models(&dir, &plain).unwrap();
-        let b: Vec<f32> = reload[1].forward(x).into_data().try_to_vec::<f32>().unwrap();
+        let b: Vec<f32> = reload[1].forward(x, 20.0).into_data().try_to_vec::<f32>().unwrap();
         assert_eq!(a, b);
-        let fresh: Vec<f32> = Tem::new(&plain).forward(tensor((0..64 * 64).map(|k| (k % 64) as f32 * 0.3).collect(), 1, 64, &plain)).into_data().try_to_vec::<f32>().unwrap();
+        let fresh: Vec<f32> = Tem::new(&plain).forward(input(), 20.0).into_data().try_to_vec::<f32>().unwrap();
         assert_ne!(a, fresh, "loaded weights must differ from a fresh initialisation");
     }
 }

@@ -9,8 +9,7 @@ use crate::dem::{Heightfield, PngScale};
 use crate::models::tem::LEVEL_SPACING_M;
 use crate::world::schedule::mix64;
 
-/// Output patch side (pixels) at every level; inputs are half of it.
-pub const PATCH: usize = 128;
+pub use crate::models::tem::{MARGIN, PATCH, QUAD, WINDOW};
 
 /// Fraction of each DEM's columns (the east side) held out for validation.
 pub const VALIDATION_FRACTION: f64 = 1.0 / 3.0;
@@ -116,51 +115,38 @@ pub fn dihedral(src: &[f32], n: usize, t: usize) -> Vec<f32> {
     out
 }
 
-/// Box-downsamples a square grid of side `n` by `f` (a power of two).
-pub fn box_down(src: &[f32], n: usize, f: usize) -> Vec<f32> {
-    let m = n / f;
-    let mut out = vec![0f32; m * m];
-    let inv = 1.0 / (f * f) as f32;
-    for y in 0..m {
-        for x in 0..m {
-            let mut s = 0f32;
-            for dy in 0..f {
-                let row = (y * f + dy) * n + x * f;
-                s += src[row..row + f].iter().sum::<f32>();
-            }
-            out[y * m + x] = s * inv;
-        }
-    }
-    out
-}
-
-/// Crops the square [x0, x0+m) × [y0, y0+m) of a square grid of side `n`.
-pub fn crop(src: &[f32], n: usize, x0: usize, y0: usize, m: usize) -> Vec<f32> {
-    let mut out = Vec::with_capacity(m * m);
-    for y in y0..y0 + m {
-        out.extend_from_slice(&src[y * n + x0..y * n + x0 + m]);
-    }
-    out
-}
-
-/// One chained training sample over `levels` consecutive levels: the input (PATCH/2)² of the
-/// first level, the quadrant (0..4: NW, NE, SW, SE) each later level enhances, and the ground
-/// truth PATCH² of every level (metres).
+/// One chained training sample over `levels` consecutive levels: the input window
+/// ([`WINDOW`]² at the first level's input spacing, metres) and the ground truth core
+/// ([`PATCH`]², metres) of every level, each the quadrant (0..4: NW, NE, SW, SE) of the previous
+/// core chosen by `quads`.
 pub struct Chain {
-    /// Input heights of the first level, (PATCH/2)².
+    /// Input heights of the first level, WINDOW².
     pub input: Vec<f32>,
-    /// Ground truth per level, PATCH² each.
+    /// Ground truth core per level, PATCH² each.
     pub truth: Vec<Vec<f32>>,
+}
+
+/// Side (pixels of the finest level) of the region a chain of `levels` reads.
+pub fn chain_extent(levels: usize) -> usize {
+    WINDOW << levels
+}
+
+/// Whether grid `w` has room for a chain of `levels` in `split`.
+pub fn fits(w: &Heightfield, split: Split, levels: usize) -> bool {
+    let (c0, c1) = split_columns(w.width, split);
+    let extent = chain_extent(levels);
+    c1 >= c0 + extent && w.height >= extent
 }
 
 /// Cuts a chain sample with quadrant choices `quads` (one per level after the first) from a
 /// random NaN-free window of `w` in `split`; `None` if no such window was found in 20 tries.
+/// Every level's truth is the area mean of the finest grid (never upsampled).
 pub fn chain_sample(w: &Heightfield, split: Split, levels: usize, quads: &[usize], rng: &mut Rng) -> Option<Chain> {
-    let extent = PATCH << (levels - 1);
-    let (c0, c1) = split_columns(w.width, split);
-    if c1 < c0 + extent || w.height < extent {
+    if !fits(w, split, levels) {
         return None;
     }
+    let extent = chain_extent(levels);
+    let (c0, c1) = split_columns(w.width, split);
     for _ in 0..20 {
         let x0 = c0 + rng.below(c1 - c0 - extent + 1);
         let y0 = rng.below(w.height - extent + 1);
@@ -168,20 +154,24 @@ pub fn chain_sample(w: &Heightfield, split: Split, levels: usize, quads: &[usize
         if win.data.iter().any(|v| v.is_nan()) {
             continue;
         }
-        let win = dihedral(&win.data, extent, rng.below(8));
-        let mut truth = Vec::with_capacity(levels);
-        let (mut rx, mut ry, mut size) = (0usize, 0usize, extent);
-        for level in 0..levels {
-            if level > 0 {
-                let q = quads[level - 1];
-                size /= 2;
-                rx += (q % 2) * size;
-                ry += (q / 2) * size;
-            }
-            let region = crop(&win, extent, rx, ry, size);
-            truth.push(box_down(&region, size, size / PATCH));
+        let finest = Heightfield::new(extent, extent, w.spacing_m, dihedral(&win.data, extent, rng.below(8)));
+        // pyramid[t]: the window at 2^t × the finest spacing.
+        let mut pyramid = vec![finest];
+        for _ in 0..levels {
+            let next = pyramid.last().expect("non-empty").downsample2();
+            pyramid.push(next);
         }
-        let input = box_down(&truth[0], PATCH, 2);
+        let mut truth = Vec::with_capacity(levels);
+        // Core origin of level j in its own output grid: the input margin, then quadrants.
+        let mut core = (2 * MARGIN, 2 * MARGIN);
+        for j in 0..levels {
+            if j > 0 {
+                let q = quads[j - 1];
+                core = (2 * (core.0 + (q % 2) * QUAD), 2 * (core.1 + (q / 2) * QUAD));
+            }
+            truth.push(pyramid[levels - 1 - j].window(core.0, core.1, PATCH, PATCH).data);
+        }
+        let input = pyramid.pop().expect("coarsest").data;
         return Some(Chain { input, truth });
     }
     None
@@ -220,17 +210,23 @@ mod tests {
 
     #[test]
     fn chains_nest_their_regions() {
-        // A ramp: each level's truth is the box mean of its region, so the first truth's
-        // quadrant, box-downsampled, equals the second truth box-downsampled twice.
-        let n = 2 * PATCH;
-        let hf = Heightfield::new(3 * n, n, 1.0, (0..3 * n * n).map(|k| ((k % (3 * n)) as f32 * 0.5) + (k / (3 * n)) as f32).collect());
+        // A smooth field: each level's truth is the area mean of its region, so the first
+        // truth's chosen quadrant equals the second truth box-downsampled, and the input's
+        // centre equals the first truth box-downsampled.
+        let n = chain_extent(2);
+        let hf = Heightfield::new(3 * n / 2 + 20, n, 1.0, (0..(3 * n / 2 + 20) * n).map(|k| ((k % (3 * n / 2 + 20)) as f32 * 0.05).sin() * 9.0 + (k / (3 * n / 2 + 20)) as f32 * 0.1).collect());
+        assert!(fits(&hf, Split::Train, 2));
         let mut rng = Rng(3);
         let c = chain_sample(&hf, Split::Train, 2, &[3], &mut rng).unwrap();
-        assert_eq!(c.input.len(), PATCH * PATCH / 4);
+        assert_eq!(c.input.len(), WINDOW * WINDOW);
         assert_eq!(c.truth.len(), 2);
-        let q = crop(&c.truth[0], PATCH, PATCH / 2, PATCH / 2, PATCH / 2);
-        let fine = box_down(&c.truth[1], PATCH, 2);
-        let err = q.iter().zip(&fine).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        let t0 = Heightfield::new(PATCH, PATCH, 2.0, c.truth[0].clone());
+        let q = t0.window(QUAD, QUAD, QUAD, QUAD);
+        let fine = Heightfield::new(PATCH, PATCH, 1.0, c.truth[1].clone()).downsample2();
+        let err = q.data.iter().zip(&fine.data).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(err < 1e-3, "{err}");
+        let centre = Heightfield::new(WINDOW, WINDOW, 4.0, c.input.clone()).window(MARGIN, MARGIN, QUAD, QUAD);
+        let err = centre.data.iter().zip(&t0.downsample2().data).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
         assert!(err < 1e-3, "{err}");
     }
 

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use glam::{DVec3, Mat4, Vec3, Vec4};
 
 use super::coord::{TILE_SAMPLES, TILE_SIZE_M, TileCoord};
+use super::refine::{PatchKey, PatchStore};
 use super::stream::WorldStream;
 
 /// Quads along one side of every node's mesh, at every depth.
@@ -198,6 +199,10 @@ pub struct LodView {
     pub max_depth: u8,
 }
 
+/// A node below the base depth is refined only if its height range is at least this many
+/// times its vertex spacing ("rough enough"): flat ground gains nothing from the TEM.
+pub const ROUGHNESS_PER_SPACING: f32 = 0.5;
+
 /// Distance (metres) from `p` to the box [min, max]; 0 inside.
 fn distance_to_box(p: DVec3, min: DVec3, max: DVec3) -> f64 {
     (min - p).max(p - max).max(DVec3::ZERO).length()
@@ -248,19 +253,24 @@ impl NodeCache {
         d
     }
 
-    /// Node `id` from the cache, else built from base samples while `build_budget` (nodes)
-    /// lasts.
-    pub fn get_or_build(&mut self, id: NodeId, world: &WorldStream, build_budget: &mut usize) -> Option<Arc<NodeData>> {
+    /// Node `id` from the cache, else built while `build_budget` (nodes) lasts: from base
+    /// samples down to `BASE_DATA_DEPTH`, below that from refined patches in `refine`.
+    pub fn get_or_build(&mut self, id: NodeId, world: &WorldStream, refine: Option<&PatchStore>, build_budget: &mut usize) -> Option<Arc<NodeData>> {
         if let Some(d) = self.nodes.get(&id) {
             return Some(d.clone());
         }
         if *build_budget == 0 {
             return None;
         }
-        let d = NodeData::from_world(id, world)?;
+        let d = if id.depth <= BASE_DATA_DEPTH { NodeData::from_world(id, world)? } else { refine?.node(id, world)? };
         *build_budget -= 1;
         self.built += 1;
         Some(self.insert(d))
+    }
+
+    /// Drops every node deeper than `depth`.
+    pub fn retain_depth(&mut self, depth: u8) {
+        self.nodes.retain(|id, _| id.depth <= depth);
     }
 
     /// Drops every node whose tile is not in `keep`; returns the dropped ids.
@@ -274,32 +284,40 @@ impl NodeCache {
 
     /// The nodes to draw for `view` over `tiles`: for each tile, descend while a node is in the
     /// frustum, coarse for the view and all four children are available (built within
-    /// `build_budget` nodes this call); otherwise draw the node itself. Nodes outside the frustum
-    /// are skipped. Every visible part of every tile is covered exactly once.
-    pub fn select(&mut self, tiles: &[TileCoord], world: &WorldStream, view: &LodView, build_budget: &mut usize) -> Vec<Arc<NodeData>> {
+    /// `build_budget` nodes this call); otherwise draw the node itself. Below the base depth a
+    /// node also has to be rough enough ([`ROUGHNESS_PER_SPACING`]); the refined patch its
+    /// children need is requested from `refine` (nearest first) when missing. Nodes outside the
+    /// frustum are skipped. Every visible part of every tile is covered exactly once.
+    pub fn select(&mut self, tiles: &[TileCoord], world: &WorldStream, mut refine: Option<&mut PatchStore>, view: &LodView, build_budget: &mut usize) -> Vec<Arc<NodeData>> {
         let mut out = Vec::new();
         for &t in tiles {
-            if let Some(root) = self.get_or_build(NodeId::root(t), world, build_budget) {
-                self.visit(root, world, view, build_budget, &mut out);
+            if let Some(root) = self.get_or_build(NodeId::root(t), world, None, build_budget) {
+                self.visit(root, world, &mut refine, view, build_budget, &mut out);
             }
         }
         out
     }
 
-    fn visit(&mut self, d: Arc<NodeData>, world: &WorldStream, view: &LodView, budget: &mut usize, out: &mut Vec<Arc<NodeData>>) {
+    fn visit(&mut self, d: Arc<NodeData>, world: &WorldStream, refine: &mut Option<&mut PatchStore>, view: &LodView, budget: &mut usize, out: &mut Vec<Arc<NodeData>>) {
         let (min, max) = d.bounds_m();
         let rel = |p: DVec3| (p - view.eye_m).as_vec3();
         if !view.frustum.intersects_box(rel(min), rel(max)) {
             return;
         }
-        if d.id.depth < view.max_depth && wants_split(&d, view) {
+        let refining = d.id.depth >= BASE_DATA_DEPTH;
+        let rough = !refining || d.max_m - d.min_m >= ROUGHNESS_PER_SPACING * d.id.spacing_m() as f32;
+        if d.id.depth < view.max_depth && rough && wants_split(&d, view) {
             let kids = d.id.children();
-            let built: Vec<Arc<NodeData>> = kids.iter().filter_map(|&k| self.get_or_build(k, world, budget)).collect();
+            let store = refine.as_deref();
+            let built: Vec<Arc<NodeData>> = kids.iter().filter_map(|&k| self.get_or_build(k, world, store, budget)).collect();
             if built.len() == 4 {
                 for k in built {
-                    self.visit(k, world, view, budget, out);
+                    self.visit(k, world, refine, view, budget, out);
                 }
                 return;
+            }
+            if refining && let (Some(store), Some(key)) = (refine.as_deref_mut(), PatchKey::for_node(kids[0])) {
+                store.request(key, distance_to_box(view.eye_m, min, max));
             }
         }
         out.push(d);
@@ -383,7 +401,7 @@ mod tests {
         let eye = DVec3::new(TILE_SIZE_M * 0.5, h + 200.0, TILE_SIZE_M * 0.5);
         let view = view_from(eye, eye + DVec3::new(1.0, -0.2, 0.0));
         let mut budget = usize::MAX;
-        let nodes = cache.select(&tiles, &w, &view, &mut budget);
+        let nodes = cache.select(&tiles, &w, None, &view, &mut budget);
         assert!(nodes.iter().any(|n| n.id.depth == 2), "fine nodes near the eye");
         assert!(nodes.iter().any(|n| n.id.depth == 0), "coarse nodes far away");
         // Looking east: nothing drawn that lies entirely west of the eye (behind it).
@@ -398,7 +416,7 @@ mod tests {
         // With no build budget left, the cached nodes still draw and nothing new is built.
         let before = cache.built;
         let mut zero = 0;
-        let again = cache.select(&tiles, &w, &view, &mut zero);
+        let again = cache.select(&tiles, &w, None, &view, &mut zero);
         assert_eq!(cache.built, before);
         assert_eq!(again.len(), nodes.len());
     }
