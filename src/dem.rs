@@ -303,11 +303,19 @@ impl Heightfield {
     /// Doubles the resolution by bicubic interpolation (Keys, a = −0.75; sample centres as in
     /// area averaging, so `downsample2` of the result is close to the input; edges clamp).
     pub fn upsample_bicubic2(&self) -> Heightfield {
-        let (w, h) = (self.width * 2, self.height * 2);
+        self.upsample_bicubic(2)
+    }
+
+    /// Multiplies the resolution by `factor` (≥ 1) with bicubic interpolation (Keys,
+    /// a = −0.75, pixel-area centres like PyTorch's `align_corners = false`; edges clamp): the
+    /// baseline the TEM is measured against.
+    pub fn upsample_bicubic(&self, factor: usize) -> Heightfield {
+        let f = factor.max(1);
+        let (w, h) = (self.width * f, self.height * f);
         let taps = |o: usize, n: usize| -> [(usize, f32); 4] {
-            let src = o as f32 * 0.5 - 0.25;
+            let src = (o as f64 + 0.5) / f as f64 - 0.5;
             let i0 = src.floor();
-            let t = src - i0;
+            let t = (src - i0) as f32;
             let k = cubic_weights(t);
             let mut out = [(0usize, 0f32); 4];
             for (m, slot) in out.iter_mut().enumerate() {
@@ -330,7 +338,40 @@ impl Heightfield {
                 data.push(t.iter().map(|&(j, k)| rows[j * w + x] * k).sum());
             }
         }
-        Heightfield::new(w, h, self.spacing_m * 0.5, data)
+        Heightfield::new(w, h, self.spacing_m / f as f64, data)
+    }
+
+    /// Replaces no-data (NaN) samples by the nearest valid sample (breadth-first, 4-neighbour
+    /// distance). `None` if there is no valid sample at all.
+    pub fn fill_nodata(&self) -> Option<Heightfield> {
+        let mut data = self.data.clone();
+        let mut queue: std::collections::VecDeque<usize> = (0..data.len()).filter(|&i| !data[i].is_nan()).collect();
+        if queue.is_empty() {
+            return None;
+        }
+        while let Some(i) = queue.pop_front() {
+            let (x, y) = (i % self.width, i / self.width);
+            let v = data[i];
+            let mut visit = |j: usize| {
+                if data[j].is_nan() {
+                    data[j] = v;
+                    queue.push_back(j);
+                }
+            };
+            if x > 0 {
+                visit(i - 1);
+            }
+            if x + 1 < self.width {
+                visit(i + 1);
+            }
+            if y > 0 {
+                visit(i - self.width);
+            }
+            if y + 1 < self.height {
+                visit(i + self.width);
+            }
+        }
+        Some(Heightfield::new(self.width, self.height, self.spacing_m, data))
     }
 }
 

@@ -5,10 +5,12 @@
 //! Data flows one way: seed → tile ([`world`]) → quadtree node ([`world::quadtree`]) → GPU
 //! buffer ([`render`]) → frame. [`app`] drives it per frame, [`ui`] draws the overlay,
 //! [`share`] reads and writes links, [`dem`] reads and writes heightfields, [`models`] hosts
-//! the neural networks' runtime.
+//! the neural networks and their runtime, `enhance` refines whole DEMs (native).
 
 pub mod app;
 pub mod dem;
+#[cfg(not(target_arch = "wasm32"))]
+pub mod enhance;
 pub mod models;
 pub mod render;
 pub mod share;

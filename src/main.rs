@@ -2,6 +2,11 @@
 //!
 //! `terrain world --seed S --tiles X0 Y0 W H --out region.tif [--source procedural]`
 //! writes the 32 m heights (metres) of tiles [X0, X0+W) × [Y0, Y0+H) as a float32 TIFF.
+//!
+//! `terrain enhance --input in.tif --input-res 32 --output-res 1 --out out.tif` refines a DEM
+//! with the TEM ladder (the world's patch code path) and writes the same extent at the output
+//! spacing. `terrain tem-probe` prints the digest of the fixed probe per level (CPU), which the
+//! browser test compares with the page's WebGPU result.
 
 use std::process::ExitCode;
 
@@ -9,6 +14,8 @@ use terrain::world::{NoiseParams, ProceduralSource, TileSource, export};
 
 const USAGE: &str = "usage:
   terrain world --seed S --tiles X0 Y0 W H --out region.tif [--source procedural]
+  terrain enhance --input in.tif --input-res 32 --output-res 1 --out out.tif [--weights DIR] [--batch N]
+  terrain tem-probe [--weights DIR]
   terrain train-tem --dem-dir DIR [--steps N] [--finetune N] [--checkpoint-every N] [--batch B] [--chain L] [--seed S] [--out weights]
   terrain eval-tem --dem-dir DIR [--weights weights] [--windows N]";
 
@@ -57,6 +64,53 @@ fn world(args: &[String]) -> Result<(), String> {
     let file = std::fs::File::create(&out).map_err(|e| format!("cannot create {out}: {e}"))?;
     hf.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {out}: {e}"))?;
     eprintln!("wrote {out}: {}×{} samples at {} m", hf.width, hf.height, hf.spacing_m);
+    Ok(())
+}
+
+/// The weights folder: `--weights`, else `weights/` here, else the crate's own.
+fn weights_dir(args: &[String]) -> std::path::PathBuf {
+    if let Some(w) = flag(args, "--weights") {
+        return w.into();
+    }
+    let here = std::path::PathBuf::from("weights");
+    if here.join("manifest.json").exists() { here } else { std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/weights")) }
+}
+
+fn enhance(args: &[String]) -> Result<(), String> {
+    use terrain::dem::{Heightfield, PngScale};
+    let input = flag(args, "--input").ok_or("--input is required")?;
+    let out = flag(args, "--out").ok_or("--out is required")?;
+    let input_res: f64 = flag(args, "--input-res").ok_or("--input-res is required")?.parse().map_err(|_| "--input-res must be a number (m per pixel)")?;
+    let output_res: f64 = flag(args, "--output-res").ok_or("--output-res is required")?.parse().map_err(|_| "--output-res must be a number (m per pixel)")?;
+    let batch: usize = parse_or(args, "--batch", 4)?;
+    terrain::enhance::levels_for(input_res, output_res)?;
+    let hf = Heightfield::read_path(std::path::Path::new(input), Some(input_res), PngScale::default()).map_err(|e| format!("{input}: {e}"))?;
+    let device = burn::tensor::Device::flex();
+    let dir = weights_dir(args);
+    let tem = terrain::models::tem::TemSet::load_dir(&dir, &device)?;
+    let t = std::time::Instant::now();
+    let mut last = (usize::MAX, 0);
+    let (result, stats) = terrain::enhance::enhance(&hf, input_res, output_res, &tem, batch, &mut |level, done, total| {
+        if level != last.0 || done * 10 / total.max(1) != last.1 {
+            last = (level, done * 10 / total.max(1));
+            eprintln!("level {level} ({} m): {done}/{total} patches", terrain::models::tem::LEVEL_SPACING_M[level]);
+        }
+    })?;
+    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {out}: {e}"))?;
+    result.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {out}: {e}"))?;
+    eprintln!(
+        "wrote {out}: {}×{} at {} m from {}×{} at {input_res} m; {} patches in {:.1} s ({:.1} ms per patch)",
+        result.width, result.height, result.spacing_m, hf.width, hf.height, stats.quads_made, t.elapsed().as_secs_f64(), stats.ms_per_quad()
+    );
+    Ok(())
+}
+
+fn tem_probe(args: &[String]) -> Result<(), String> {
+    use terrain::models::tem::{LEVELS, PROBE_SIDE, TemSet, probe_digest, probe_input};
+    let device = burn::tensor::Device::flex();
+    let tem = TemSet::load_dir(&weights_dir(args), &device)?;
+    let digests = (0..LEVELS).map(|k| tem.enhance_blocking(k, probe_input(k), 1, PROBE_SIDE).map(|raw| probe_digest(&raw))).collect::<Result<Vec<_>, _>>()?;
+    println!("{}", serde_json::json!({ "backend": "cpu (burn flex)", "levels": digests }));
     Ok(())
 }
 
@@ -123,7 +177,37 @@ fn eval_tem(args: &[String]) -> Result<(), String> {
             e.level, e.spacing_m, if e.real { "real" } else { "self-similar" }, e.windows, e.rmse_bicubic, e.rmse_tem, gain, e.psnr_bicubic, e.psnr_tem, edge.join(" ")
         );
     }
-    println!("{}", serde_json::to_string(&evals).map_err(|e| e.to_string())?);
+    // Chained from the coarsest input through the `enhance` path.
+    let tem = terrain::models::tem::TemSet::from_models(models, &device)?;
+    let mut chained = Vec::new();
+    // Self-similar ×32: the largest validation regions, native pixels taken as 1 m.
+    let big: Vec<&terrain::dem::Heightfield> = dems.iter().map(|d| &d.hf).collect();
+    let mut ss: Vec<terrain::dem::Heightfield> = train::validation_windows(&big, 512, 3);
+    for w in &mut ss {
+        // Self-similar: slopes are kept, so heights scale with the spacing (as in training).
+        let f = (1.0 / w.spacing_m) as f32;
+        w.data.iter_mut().for_each(|v| *v *= f);
+        w.spacing_m = 1.0;
+    }
+    chained.extend(train::eval_chained(&tem, &ss, 32.0, "self-similar (native px as 1 m)")?);
+    // Real lidar ×8: 1 m DEMs, from 8 m.
+    let lidar: Vec<&terrain::dem::Heightfield> = dems.iter().filter(|d| d.hf.spacing_m <= 1.0 + 1e-9).map(|d| &d.hf).collect();
+    chained.extend(train::eval_chained(&tem, &train::validation_windows(&lidar, 256, 4), 8.0, "real 1 m lidar")?);
+    // Real ×2 at 16 m: DEMs of 16 m or finer resampled to 16 m.
+    let sixteen: Vec<terrain::dem::Heightfield> = dems.iter().filter(|d| d.hf.spacing_m <= 16.0).filter_map(|d| d.hf.resample_area(16.0).ok()).collect();
+    let refs: Vec<&terrain::dem::Heightfield> = sixteen.iter().collect();
+    chained.extend(train::eval_chained(&tem, &train::validation_windows(&refs, 256, 4), 32.0, "real (16 m)")?);
+    println!();
+    println!("chained (terrain enhance path)     in→out     windows  RMSE bicubic  RMSE TEM   gain   PSNR bic  PSNR TEM  seam ratio  TEM RMSE by distance to quad edge (px: 0,1,2-3,4-7,8-15,16+)");
+    for e in &chained {
+        let gain = 100.0 * (1.0 - e.rmse_tem / e.rmse_bicubic.max(1e-12));
+        let edge: Vec<String> = e.rmse_by_quad_edge_distance.iter().map(|v| format!("{v:.3}")).collect();
+        println!(
+            "{:34} {:>3}→{:<3} m ×{:<3} {:5}  {:10.4} m  {:8.4} m  {:5.1}%  {:7.2}  {:8.2}  {:9.3}  {}",
+            e.data, e.input_m, e.output_m, (e.input_m / e.output_m) as u32, e.windows, e.rmse_bicubic, e.rmse_tem, gain, e.psnr_bicubic, e.psnr_tem, e.seam_ratio, edge.join(" ")
+        );
+    }
+    println!("{}", serde_json::json!({ "one_level": evals, "chained": chained }));
     Ok(())
 }
 
@@ -131,6 +215,8 @@ fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let result = match args.first().map(String::as_str) {
         Some("world") => world(&args[1..]),
+        Some("enhance") => enhance(&args[1..]),
+        Some("tem-probe") => tem_probe(&args[1..]),
         #[cfg(feature = "train")]
         Some("train-tem") => train_tem(&args[1..]),
         #[cfg(feature = "train")]

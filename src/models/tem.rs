@@ -190,6 +190,30 @@ impl TemSet {
     }
 }
 
+/// Side of the fixed probe input (pixels) used to compare backends.
+pub const PROBE_SIDE: usize = 100;
+
+/// The fixed probe input of level `level`: smooth hills plus fine ripples (metres), scaled to
+/// the level's spacing. The page and the CLI run it to show that WebGPU and CPU agree.
+pub fn probe_input(level: usize) -> Vec<f32> {
+    let s = LEVEL_SPACING_M[level] as f32;
+    (0..PROBE_SIDE * PROBE_SIDE)
+        .map(|k| {
+            let (x, y) = ((k % PROBE_SIDE) as f32, (k / PROBE_SIDE) as f32);
+            1200.0 + s * (8.0 * (x * 0.11).sin() * (y * 0.07).cos() + 3.0 * (x * 0.53 + y * 0.31).sin() + 0.05 * x)
+        })
+        .collect()
+}
+
+/// A compact digest of a probe output ((2·PROBE_SIDE)² metres): its mean and 97 samples on a
+/// fixed stride (metres).
+pub fn probe_digest(raw: &[f32]) -> Vec<f64> {
+    let mean = raw.iter().map(|&v| v as f64).sum::<f64>() / raw.len().max(1) as f64;
+    let mut out = vec![mean];
+    out.extend(raw.iter().step_by(raw.len() / 96).map(|&v| v as f64));
+    out
+}
+
 /// Shifts `t` by one pixel along `dim` (size `n`) with the edge replicated: (previous, next).
 fn neighbours(t: &Tensor<4>, dim: usize, n: usize) -> (Tensor<4>, Tensor<4>) {
     let prev = Tensor::cat(vec![t.clone().narrow(dim, 0, 1), t.clone().narrow(dim, 0, n - 1)], dim);

@@ -186,15 +186,7 @@ pub struct LevelEval {
 }
 
 fn edge_bucket(x: usize, y: usize, n: usize) -> usize {
-    let d = x.min(y).min(n - 1 - x).min(n - 1 - y);
-    match d {
-        0 => 0,
-        1 => 1,
-        2..=3 => 2,
-        4..=7 => 3,
-        8..=15 => 4,
-        _ => 5,
-    }
+    edge_bucket_distance(x.min(y).min(n - 1 - x).min(n - 1 - y))
 }
 
 /// Evaluates every level one at a time on the validation split: up to `max_windows` windows
@@ -264,6 +256,132 @@ pub fn eval_levels(models: &[Tem], dems: &[Dem], device: &Device, max_windows: u
             *slot = (s / c.max(1) as f64).sqrt();
         }
         out.push(e);
+    }
+    out
+}
+
+/// Accuracy of the chained ladder (the `terrain enhance` path) at one output level.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct ChainEval {
+    /// Which data: "real" or "self-similar" and where from.
+    pub data: String,
+    /// Input spacing (metres).
+    pub input_m: f64,
+    /// Output spacing (metres).
+    pub output_m: f64,
+    /// Windows evaluated.
+    pub windows: usize,
+    /// RMSE of direct bicubic upsampling of the input by the same factor (metres).
+    pub rmse_bicubic: f64,
+    /// RMSE of the chained TEM (metres).
+    pub rmse_tem: f64,
+    /// PSNR of bicubic (dB; peak = the window's height range).
+    pub psnr_bicubic: f64,
+    /// PSNR of the chained TEM (dB).
+    pub psnr_tem: f64,
+    /// TEM RMSE (metres) by distance (output px) to the nearest refined-quad edge: [0,1),
+    /// [1,2), [2,4), [4,8), [8,16), [16,64); pixels within 16 px of the window border left out.
+    pub rmse_by_quad_edge_distance: [f64; 6],
+    /// Seam ratio: mean |height step| between neighbouring pixels across quad edges divided by
+    /// the mean step elsewhere (1 = the edges are invisible; bicubic gives its own ratio).
+    pub seam_ratio: f64,
+}
+
+/// Evaluates the chained TEM through [`crate::enhance::enhance`] on square `windows` (metres at
+/// the finest spacing `finest_m`; no NaN): each window is box-averaged to `input_m`, enhanced
+/// level by level, and compared at every output spacing with the window box-averaged to it.
+pub fn eval_chained(tem: &crate::models::tem::TemSet, windows: &[crate::dem::Heightfield], input_m: f64, data: &str) -> Result<Vec<ChainEval>, String> {
+    use crate::dem::Heightfield;
+    let Some(first_window) = windows.first() else { return Ok(Vec::new()) };
+    let finest_m = first_window.spacing_m;
+    let levels = (input_m / finest_m).log2().round() as usize;
+    let mut rows = Vec::new();
+    for n in 1..=levels {
+        let output_m = input_m / (1u64 << n) as f64;
+        let mut e = ChainEval { data: data.into(), input_m, output_m, windows: windows.len(), ..Default::default() };
+        let (mut se_t, mut se_b, mut count) = (0f64, 0f64, 0usize);
+        let mut edge = [(0f64, 0usize); 6];
+        let (mut seam, mut inner) = ((0f64, 0usize), (0f64, 0usize));
+        for w in windows {
+            let down = |hf: &Heightfield, times: usize| (0..times).fold(hf.clone(), |a, _| a.downsample2());
+            let input = down(w, levels);
+            let truth = down(w, levels - n);
+            let (out, _) = crate::enhance::enhance(&input, input_m, output_m, tem, 8, &mut |_, _, _| ())?;
+            let bic = input.upsample_bicubic(1 << n);
+            let side = truth.width;
+            let (mut st, mut sb) = (0f64, 0f64);
+            for y in 0..side {
+                for x in 0..side {
+                    let g = truth.at(x, y) as f64;
+                    let dt = out.at(x, y) as f64 - g;
+                    st += dt * dt;
+                    sb += (bic.at(x, y) as f64 - g).powi(2);
+                    // Distance to the nearest quad edge inside the window; pixels near the
+                    // window's own border (replicated context) are left out.
+                    let border = x.min(y).min(side - 1 - x).min(side - 1 - y);
+                    if border >= 16 {
+                        let d = |v: usize| (v % PATCH).min(PATCH - 1 - v % PATCH);
+                        let b = edge_bucket_distance(d(x).min(d(y)));
+                        edge[b].0 += dt * dt;
+                        edge[b].1 += 1;
+                    }
+                    if x + 1 < side {
+                        let step = (out.at(x + 1, y) - out.at(x, y)).abs() as f64;
+                        let slot = if (x + 1) % PATCH == 0 { &mut seam } else { &mut inner };
+                        slot.0 += step;
+                        slot.1 += 1;
+                    }
+                }
+            }
+            let range = truth.data.iter().fold(f32::MIN, |a, &b| a.max(b)) - truth.data.iter().fold(f32::MAX, |a, &b| a.min(b));
+            let np = (side * side) as f64;
+            e.psnr_tem += 20.0 * (range.max(1e-3) as f64 / (st / np).sqrt().max(1e-9)).log10() / windows.len() as f64;
+            e.psnr_bicubic += 20.0 * (range.max(1e-3) as f64 / (sb / np).sqrt().max(1e-9)).log10() / windows.len() as f64;
+            se_t += st;
+            se_b += sb;
+            count += side * side;
+        }
+        e.rmse_tem = (se_t / count as f64).sqrt();
+        e.rmse_bicubic = (se_b / count as f64).sqrt();
+        for (slot, (s, c)) in e.rmse_by_quad_edge_distance.iter_mut().zip(edge) {
+            *slot = if c == 0 { f64::NAN } else { (s / c as f64).sqrt() };
+        }
+        e.seam_ratio = if seam.1 == 0 { f64::NAN } else { (seam.0 / seam.1 as f64) / (inner.0 / inner.1.max(1) as f64).max(1e-12) };
+        rows.push(e);
+    }
+    Ok(rows)
+}
+
+fn edge_bucket_distance(d: usize) -> usize {
+    match d {
+        0 => 0,
+        1 => 1,
+        2..=3 => 2,
+        4..=7 => 3,
+        8..=15 => 4,
+        _ => 5,
+    }
+}
+
+/// Up to `per_dem` NaN-free square windows of side `side` from the validation split of every
+/// grid in `grids` (stacked down the rows).
+pub fn validation_windows(grids: &[&crate::dem::Heightfield], side: usize, per_dem: usize) -> Vec<crate::dem::Heightfield> {
+    let mut out = Vec::new();
+    for g in grids {
+        let (c0, c1) = pairs::split_columns(g.width, Split::Validation);
+        if c1 < c0 + side || g.height < side {
+            continue;
+        }
+        let mut got = 0;
+        let mut y = 0;
+        while y + side <= g.height && got < per_dem {
+            let w = g.window(c0, y, side, side);
+            if w.data.iter().all(|v| !v.is_nan()) {
+                out.push(w);
+                got += 1;
+            }
+            y += side;
+        }
     }
     out
 }

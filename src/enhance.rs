@@ -1,0 +1,154 @@
+//! Enhancing a whole DEM with the TEM ladder (`terrain enhance`): the DEM becomes the input
+//! grid of the first refined level and is refined patch by patch through the same
+//! [`PatchStore`] the world's quadtree uses, level by level, down to the output spacing.
+
+use crate::dem::Heightfield;
+use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, TemSet};
+use crate::world::refine::{INPUT_SIDE, PatchKey, PatchStore, RefineInput};
+
+/// A DEM as refinement input: pixel (x, y) of the grid is DEM sample (x, y); outside the DEM
+/// the edge is replicated, so edge patches see a plausible context.
+pub struct DemInput {
+    hf: Heightfield,
+}
+
+impl DemInput {
+    /// Wraps a DEM without no-data (fill it first).
+    pub fn new(hf: Heightfield) -> Self {
+        Self { hf }
+    }
+}
+
+impl RefineInput for DemInput {
+    fn window(&self, x0: i64, y0: i64, side: usize) -> Option<Vec<f32>> {
+        let (w, h) = (self.hf.width as i64, self.hf.height as i64);
+        let mut out = Vec::with_capacity(side * side);
+        for y in y0..y0 + side as i64 {
+            let yy = y.clamp(0, h - 1) as usize;
+            for x in x0..x0 + side as i64 {
+                out.push(self.hf.at(x.clamp(0, w - 1) as usize, yy));
+            }
+        }
+        Some(out)
+    }
+}
+
+/// The ladder levels (first, last) that take `input_res_m` to `output_res_m`: the input must
+/// be one of 32/16/8/4/2 m and the output one of 16/8/4/2/1 m below it.
+pub fn levels_for(input_res_m: f64, output_res_m: f64) -> Result<(usize, usize), String> {
+    let first = (0..LEVELS).find(|&k| (2.0 * LEVEL_SPACING_M[k] - input_res_m).abs() < 1e-9).ok_or_else(|| format!("--input-res must be one of 32, 16, 8, 4, 2 (m per pixel), got {input_res_m}"))?;
+    let last = (0..LEVELS).find(|&k| (LEVEL_SPACING_M[k] - output_res_m).abs() < 1e-9).ok_or_else(|| format!("--output-res must be one of 16, 8, 4, 2, 1 (m per pixel), got {output_res_m}"))?;
+    if last < first {
+        return Err(format!("--output-res {output_res_m} must be finer than --input-res {input_res_m}"));
+    }
+    Ok((first, last))
+}
+
+/// Progress of [`enhance`]: (level, patches done at that level, patches at that level).
+pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, usize);
+
+/// Runs `jobs` of one level on `tem` and stores them (blocking).
+fn run_batch(store: &mut PatchStore, tem: &TemSet, jobs: Vec<crate::world::refine::RefineJob>) -> Result<usize, String> {
+    let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
+    let level = keys[0].level as usize;
+    let t = web_time::Instant::now();
+    let raw = tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE)?;
+    let ms = t.elapsed().as_secs_f64() * 1e3 / keys.len() as f64;
+    let per = (2 * INPUT_SIDE).pow(2);
+    store.count_batch();
+    for (i, k) in keys.iter().enumerate() {
+        store.complete(*k, &raw[i * per..(i + 1) * per], ms);
+    }
+    Ok(keys.len())
+}
+
+/// Enhances `input` (metres at `input_res_m` per pixel, NaN = no data) to `output_res_m`:
+/// the output covers the same extent with 2^levels times the pixels per side; no-data input
+/// pixels stay no-data (their area in the output is NaN). Returns the result and the
+/// refinement counters.
+pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &TemSet, batch: usize, progress: Progress) -> Result<(Heightfield, crate::world::RefineStats), String> {
+    let (first, last) = levels_for(input_res_m, output_res_m)?;
+    if input.width == 0 || input.height == 0 {
+        return Err("the input DEM is empty".into());
+    }
+    let filled = input.fill_nodata().ok_or("the input DEM has no valid sample (all no-data)")?;
+    let source = DemInput::new(filled);
+    let mut store = PatchStore::new(first);
+    for level in first..=last {
+        let scale = 2usize << (level - first);
+        let (w, h) = (input.width * scale, input.height * scale);
+        let (nx, ny) = (w.div_ceil(PATCH) as i64, h.div_ceil(PATCH) as i64);
+        let total = (nx * ny) as usize;
+        let mut done = 0;
+        let mut pending: Vec<PatchKey> = (0..ny).flat_map(|y| (0..nx).map(move |x| PatchKey { level: level as u8, x, y })).collect();
+        while !pending.is_empty() {
+            for (i, k) in pending.iter().enumerate() {
+                store.request(*k, i as f64);
+            }
+            let jobs = store.next_jobs(&source, batch.max(1));
+            if jobs.is_empty() {
+                return Err(format!("level {level}: {} patches could not be started", pending.len()));
+            }
+            done += run_batch(&mut store, tem, jobs)?;
+            pending.retain(|k| store.get(*k).is_none());
+            progress(level, done, total);
+        }
+        if level > first {
+            store.drop_level(level - 1);
+        }
+    }
+    let levels = last - first + 1;
+    let f = 1usize << levels;
+    let (w, h) = (input.width * f, input.height * f);
+    let mut data = Vec::with_capacity(w * h);
+    for py in 0..h {
+        for px in 0..w {
+            let v = if input.at(px / f, py / f).is_nan() { f32::NAN } else { store.pixel(last, px as i64, py as i64).ok_or("a refined pixel is missing")? };
+            data.push(v);
+        }
+    }
+    Ok((Heightfield::new(w, h, LEVEL_SPACING_M[last], data), store.stats()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::Device;
+
+    #[test]
+    fn levels_follow_the_resolutions() {
+        assert_eq!(levels_for(32.0, 1.0).unwrap(), (0, 4));
+        assert_eq!(levels_for(16.0, 8.0).unwrap(), (1, 1));
+        assert_eq!(levels_for(4.0, 1.0).unwrap(), (3, 4));
+        assert!(levels_for(30.0, 1.0).unwrap_err().contains("--input-res"));
+        assert!(levels_for(32.0, 3.0).unwrap_err().contains("--output-res"));
+        assert!(levels_for(8.0, 16.0).is_err());
+    }
+
+    /// Untrained models are bicubic at every level: the enhanced DEM keeps the input's extent,
+    /// size × 2^levels, its area means and its no-data.
+    #[test]
+    fn enhance_keeps_extent_means_and_nodata() {
+        let (w, h) = (37, 21);
+        let mut data: Vec<f32> = (0..w * h).map(|k| ((k % w) as f32 * 0.4).sin() * 30.0 + (k / w) as f32 * 2.0 + 500.0).collect();
+        data[3 * w + 5] = f32::NAN;
+        let hf = Heightfield::new(w, h, 32.0, data);
+        let tem = TemSet::untrained(&Device::flex());
+        let mut calls = 0;
+        let (out, stats) = enhance(&hf, 32.0, 8.0, &tem, 4, &mut |_, _, _| calls += 1).unwrap();
+        assert_eq!((out.width, out.height, out.spacing_m), (w * 4, h * 4, 8.0));
+        assert!(out.at(5 * 4 + 1, 3 * 4 + 2).is_nan());
+        assert_eq!(out.data.iter().filter(|v| v.is_nan()).count(), 16);
+        assert!(calls > 0 && stats.quads_made > 0);
+        // Away from the edges, 4×4 means of the output are close to the input.
+        let mut worst = 0f32;
+        for y in 4..h - 4 {
+            for x in 8..w - 4 {
+                let m: f32 = (0..16).map(|k| out.at(x * 4 + k % 4, y * 4 + k / 4)).sum::<f32>() / 16.0;
+                worst = worst.max((m - hf.at(x, y)).abs());
+            }
+        }
+        assert!(worst < 2.0, "{worst}");
+        assert!(enhance(&Heightfield::new(2, 2, 32.0, vec![f32::NAN; 4]), 32.0, 16.0, &tem, 4, &mut |_, _, _| ()).unwrap_err().contains("no valid"));
+    }
+}
