@@ -1,5 +1,5 @@
 //! Speed of the world pipeline on the CPU: one procedural tile, one quadtree node gathered
-//! from tiles, and one node mesh (vertices + normals + skirts).
+//! from tiles, one node mesh (vertices + normals + skirts), and TEM inference per quad.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
@@ -25,5 +25,22 @@ fn world(c: &mut Criterion) {
     c.bench_function("node mesh 33x33 + skirts", |b| b.iter(|| black_box(node_vertices(&node))));
 }
 
-criterion_group!(benches, world);
+/// TEM inference per refined quad on the CPU backend (burn flex): one level-0 window of
+/// 100² heights → 200² (the stored patch keeps 164²), alone and in a batch of 4.
+fn tem(c: &mut Criterion) {
+    use terrain::models::tem::TemSet;
+    use terrain::world::refine::INPUT_SIDE;
+    let device = burn::tensor::Device::flex();
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+    let tem = TemSet::load_dir(&dir, &device).unwrap_or_else(|_| TemSet::untrained(&device));
+    let input: Vec<f32> = (0..INPUT_SIDE * INPUT_SIDE).map(|k| ((k % INPUT_SIDE) as f32 * 0.2).sin() * 40.0 + (k / INPUT_SIDE) as f32).collect();
+    let mut g = c.benchmark_group("tem cpu");
+    g.sample_size(10);
+    g.bench_function("1 quad (level 0, 100² → 200²)", |b| b.iter(|| black_box(tem.enhance_blocking(0, input.clone(), 1, INPUT_SIDE).unwrap())));
+    let four: Vec<f32> = (0..4).flat_map(|_| input.clone()).collect();
+    g.bench_function("batch of 4 quads", |b| b.iter(|| black_box(tem.enhance_blocking(0, four.clone(), 4, INPUT_SIDE).unwrap())));
+    g.finish();
+}
+
+criterion_group!(benches, world, tem);
 criterion_main!(benches);

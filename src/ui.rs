@@ -16,6 +16,12 @@ pub struct Environment {
     pub ml_status: String,
     /// Name of the tile source.
     pub source: String,
+    /// TEM weight files loaded / total, while they load.
+    pub tem_loading: Option<(usize, usize)>,
+    /// Why learned refinement is off, if it failed.
+    pub tem_error: Option<String>,
+    /// Whether the TEM models are loaded.
+    pub tem_ready: bool,
     /// Node meshes uploaded in the last frame.
     pub uploads: usize,
     /// Triangles drawn in the last frame.
@@ -60,9 +66,10 @@ impl Overlay {
         *self = Self { show_settings: self.show_settings, ..Self::new(s) };
     }
 
-    /// Draws the overlay. `speed_mps` and `show_lod` are edited in place.
+    /// Draws the overlay. `speed_mps`, `show_lod` and `refine` (learned detail on/off) are
+    /// edited in place.
     #[allow(clippy::too_many_arguments)]
-    pub fn show(&mut self, ctx: &egui::Context, stats: &AppStats, env: &Environment, mode: CameraMode, speed_mps: &mut f64, show_lod: &mut bool, message: Option<&str>, link_copied: bool) -> UiActions {
+    pub fn show(&mut self, ctx: &egui::Context, stats: &AppStats, env: &Environment, mode: CameraMode, speed_mps: &mut f64, show_lod: &mut bool, refine: &mut bool, message: Option<&str>, link_copied: bool) -> UiActions {
         let mut act = UiActions::default();
         if let Some(msg) = message {
             egui::Window::new("Notice").anchor(egui::Align2::CENTER_TOP, [0.0, 8.0]).collapsible(false).resizable(false).title_bar(false).show(ctx, |ui| {
@@ -85,6 +92,22 @@ impl Overlay {
             ui.label(format!("GPU: {}", env.adapter));
             ui.label(format!("ML: {}", env.ml_status));
             ui.label(format!("Source: {}", env.source));
+            if let Some((done, total)) = env.tem_loading {
+                ui.add(egui::ProgressBar::new(done as f32 / total.max(1) as f32).text(format!("loading TEM weights {done}/{total}")));
+            } else if let Some(e) = &env.tem_error {
+                ui.label(egui::RichText::new(e).color(egui::Color32::from_rgb(255, 200, 120)));
+            } else if env.tem_ready {
+                ui.horizontal(|ui| {
+                    ui.checkbox(refine, "Learned detail");
+                    if stats.refine_backend.is_empty() {
+                        ui.label("off");
+                    } else {
+                        ui.label(format!("TEM on {}", stats.refine_backend));
+                    }
+                });
+                let depth_m = crate::world::TILE_SIZE_M / f64::from(1u32 << stats.max_depth_drawn) / crate::world::quadtree::NODE_QUADS as f64;
+                ui.monospace(format!("depth {} ({depth_m} m)  {:.1} ms/quad  {} quads", stats.max_depth_drawn, stats.ms_per_quad, stats.quads_made));
+            }
             if stats.tiles_pending > 0 {
                 let total = stats.tiles_pending + stats.tiles_cached.min(1000);
                 ui.horizontal(|ui| {

@@ -8,8 +8,11 @@ use std::rc::Rc;
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 
-use crate::app::{MESH_KEEP_FRAMES, TerrainApp};
+use crate::app::{MESH_KEEP_FRAMES, REFINE_BATCH, TerrainApp};
 use crate::models;
+use crate::models::tem::{LEVELS, PROBE_SIDE, TemSet, probe_digest, probe_input, weight_file};
+use crate::world::PatchKey;
+use crate::world::refine::INPUT_SIDE;
 use crate::render::camera::ControlInput;
 use crate::render::gpu::TerrainRenderer;
 use crate::share::ShareState;
@@ -19,6 +22,107 @@ const NO_WEBGPU: &str = "This page needs WebGPU, which this browser does not off
 
 thread_local! {
     static STATS_JSON: RefCell<String> = RefCell::new("{}".into());
+    static TEM: RefCell<Option<(Rc<TemSet>, String)>> = const { RefCell::new(None) };
+}
+
+/// State of the learned refinement shared between the frame loop and the async tasks that
+/// load the weights and run inference.
+#[derive(Default)]
+struct Ml {
+    /// The self-check / backend line of the overlay.
+    status: String,
+    /// The loaded models and where they run ("WebGPU" or "CPU").
+    tem: Option<(Rc<TemSet>, String)>,
+    /// Weight files loaded so far (of `LEVELS`), while loading.
+    loading: Option<usize>,
+    /// Why the TEM is off, if it failed.
+    error: Option<String>,
+    /// A batch is running.
+    busy: bool,
+    /// Finished batches: keys, raw output or error, milliseconds.
+    results: Vec<(Vec<PatchKey>, Result<Vec<f32>, String>, f64)>,
+}
+
+/// Runs the fixed TEM probe on the page's models (whichever backend they run on) and returns
+/// JSON `{backend, levels: [[mean, samples…] per level]}` for the end-to-end test.
+#[wasm_bindgen]
+pub async fn terrain_tem_probe() -> Result<String, JsValue> {
+    let Some((tem, backend)) = TEM.with(|t| t.borrow().clone()) else {
+        return Err("the TEM is not loaded".into());
+    };
+    let mut levels = Vec::new();
+    for k in 0..LEVELS {
+        let raw = tem.enhance_async(k, probe_input(k), 1, PROBE_SIDE).await.map_err(|e| JsValue::from_str(&e))?;
+        levels.push(probe_digest(&raw));
+    }
+    Ok(serde_json::json!({ "backend": backend, "levels": levels }).to_string())
+}
+
+/// Reads `url` (relative to the page) as bytes.
+async fn fetch_bytes(url: &str) -> Result<Vec<u8>, String> {
+    use wasm_bindgen_futures::JsFuture;
+    let window = web_sys::window().ok_or("no window")?;
+    let resp: web_sys::Response = JsFuture::from(window.fetch_with_str(url)).await.map_err(|e| format!("{url}: {e:?}"))?.dyn_into().map_err(|_| format!("{url}: not a response"))?;
+    if !resp.ok() {
+        return Err(format!("{url}: HTTP {}", resp.status()));
+    }
+    let buf = JsFuture::from(resp.array_buffer().map_err(|e| format!("{url}: {e:?}"))?).await.map_err(|e| format!("{url}: {e:?}"))?;
+    Ok(js_sys::Uint8Array::new(&buf).to_vec())
+}
+
+/// Whether the page was opened with `?tem=cpu` (runs the TEM on the CPU backend even with
+/// WebGPU, e.g. to compare).
+fn cpu_requested() -> bool {
+    web_sys::window().and_then(|w| w.location().search().ok()).is_some_and(|q| q.contains("tem=cpu"))
+}
+
+/// Starts burn: self-check on the shared GPU device, then loads the TEM weights onto it, or
+/// onto the CPU backend when the GPU path is unavailable or fails (and says so).
+async fn start_ml(gpu: Result<burn::tensor::Device, String>, ml: Rc<RefCell<Ml>>) {
+    let t0 = now_ms();
+    let gpu = match gpu {
+        Ok(device) => match models::self_check(&device).await {
+            Ok(err) if err < 1e-3 => {
+                ml.borrow_mut().status = format!("burn wgpu ready (self-check {:.0} ms, max |Δ| {err:.1e} m)", now_ms() - t0);
+                Ok(device)
+            }
+            Ok(err) => Err(format!("burn wgpu gives wrong results (max |Δ| {err} m)")),
+            Err(e) => Err(format!("burn wgpu failed: {e}")),
+        },
+        Err(e) => Err(e),
+    };
+    let (device, backend) = match gpu {
+        Ok(d) if !cpu_requested() => (d, "WebGPU".to_string()),
+        Ok(_) => (burn::tensor::Device::flex(), "CPU (asked for by ?tem=cpu)".to_string()),
+        Err(e) => {
+            ml.borrow_mut().status = format!("{e}; the TEM runs on the CPU");
+            (burn::tensor::Device::flex(), "CPU (no WebGPU compute)".to_string())
+        }
+    };
+    ml.borrow_mut().loading = Some(0);
+    let mut files = Vec::new();
+    for k in 0..LEVELS {
+        match fetch_bytes(&format!("weights/{}", weight_file(k))).await {
+            Ok(b) => files.push(b),
+            Err(e) => {
+                let mut m = ml.borrow_mut();
+                m.loading = None;
+                m.error = Some(format!("TEM weights could not be loaded ({e}); showing the 32 m world"));
+                return;
+            }
+        }
+        ml.borrow_mut().loading = Some(k + 1);
+    }
+    let mut m = ml.borrow_mut();
+    m.loading = None;
+    match TemSet::from_bytes(files, &device) {
+        Ok(tem) => {
+            let tem = Rc::new(tem);
+            TEM.with(|t| *t.borrow_mut() = Some((tem.clone(), backend.clone())));
+            m.tem = Some((tem, backend));
+        }
+        Err(e) => m.error = Some(format!("TEM weights are broken ({e}); showing the 32 m world")),
+    }
 }
 
 /// The latest frame statistics as JSON (read by the end-to-end test and usable from the
@@ -92,22 +196,9 @@ async fn run() -> Result<(), String> {
     let label = [&info.name, &info.driver, &info.driver_info].into_iter().find(|s| !s.is_empty()).cloned().unwrap_or_else(|| "browser adapter".into());
     let adapter_name = format!("WebGPU · {label}");
 
-    let ml_status = Rc::new(RefCell::new("starting burn on the GPU…".to_string()));
-    match models::device_from_setup(models::WgpuSetup { instance: instance.clone(), adapter: adapter.clone(), device: device.clone(), queue: queue.clone(), backend: wgpu::Backend::BrowserWebGpu }) {
-        Ok(ml_device) => {
-            let status = ml_status.clone();
-            wasm_bindgen_futures::spawn_local(async move {
-                let t0 = now_ms();
-                let text = match models::self_check(&ml_device).await {
-                    Ok(err) if err < 1e-3 => format!("burn wgpu ready (self-check {:.0} ms, max |Δ| {err:.1e} m)", now_ms() - t0),
-                    Ok(err) => format!("burn wgpu gives wrong results (max |Δ| {err} m)"),
-                    Err(e) => format!("burn wgpu failed: {e}"),
-                };
-                *status.borrow_mut() = text;
-            });
-        }
-        Err(e) => *ml_status.borrow_mut() = e,
-    }
+    let ml = Rc::new(RefCell::new(Ml { status: "starting burn on the GPU…".into(), ..Default::default() }));
+    let gpu = models::device_from_setup(models::WgpuSetup { instance: instance.clone(), adapter: adapter.clone(), device: device.clone(), queue: queue.clone(), backend: wgpu::Backend::BrowserWebGpu });
+    wasm_bindgen_futures::spawn_local(start_ml(gpu, ml.clone()));
 
     let hash = location_hash();
     let (share, message) = match ShareState::from_fragment(&hash) {
@@ -136,7 +227,8 @@ async fn run() -> Result<(), String> {
                     renderer,
                     texture: None,
                     env: Environment { adapter: adapter_name, ..Default::default() },
-                    ml_status,
+                    ml,
+                    refine_on: true,
                     message,
                     last_frame_ms: None,
                     last_hash: hash,
@@ -159,7 +251,8 @@ struct WebApp {
     renderer: TerrainRenderer,
     texture: Option<egui::TextureId>,
     env: Environment,
-    ml_status: Rc<RefCell<String>>,
+    ml: Rc<RefCell<Ml>>,
+    refine_on: bool,
     message: Option<String>,
     last_frame_ms: Option<f64>,
     last_hash: String,
@@ -168,6 +261,48 @@ struct WebApp {
 }
 
 impl WebApp {
+    /// Hands finished TEM batches to the app, turns refinement on once the models are ready,
+    /// and starts the next batch (one at a time, so frames keep their budget).
+    fn pump_refinement(&mut self) {
+        let mut ml = self.ml.borrow_mut();
+        for (keys, out, ms) in ml.results.drain(..) {
+            match out {
+                Ok(raw) => self.app.refine_done(&keys, &raw, ms),
+                Err(e) => {
+                    self.app.refine_failed(&keys);
+                    self.message = Some(format!("TEM inference failed: {e}"));
+                }
+            }
+        }
+        let Some((tem, backend)) = ml.tem.clone() else { return };
+        let want = self.refine_on.then(|| backend.clone());
+        if self.app.stats().refine_backend != want.clone().unwrap_or_default() {
+            self.app.set_refinement(want);
+        }
+        if ml.busy || !self.refine_on {
+            return;
+        }
+        // The CPU backend blocks the page while it runs: one quad at a time there.
+        let max = if backend == "WebGPU" { REFINE_BATCH } else { 1 };
+        let jobs = self.app.refine_jobs(max);
+        if jobs.is_empty() {
+            return;
+        }
+        ml.busy = true;
+        drop(ml);
+        let shared = self.ml.clone();
+        wasm_bindgen_futures::spawn_local(async move {
+            let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
+            let level = keys[0].level as usize;
+            let t0 = now_ms();
+            let out = tem.enhance_async(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE).await;
+            let ms = now_ms() - t0;
+            let mut m = shared.borrow_mut();
+            m.results.push((keys, out, ms));
+            m.busy = false;
+        });
+    }
+
     /// A link opened in this same page (the fragment changed under us).
     fn follow_hash(&mut self) {
         let hash = location_hash();
@@ -244,6 +379,7 @@ impl eframe::App for WebApp {
 
         let Some(rs) = frame.wgpu_render_state() else { return };
         let cpu_start = now_ms();
+        self.pump_refinement();
         egui::CentralPanel::no_frame().show(ui, |ui| {
             let rect = ui.max_rect();
             let resp = ui.allocate_rect(rect, egui::Sense::click_and_drag());
@@ -268,14 +404,22 @@ impl eframe::App for WebApp {
             }
         });
 
-        self.env.ml_status = self.ml_status.borrow().clone();
+        {
+            let ml = self.ml.borrow();
+            self.env.ml_status = ml.status.clone();
+            self.env.tem_loading = ml.loading.map(|k| (k, LEVELS));
+            self.env.tem_error = ml.error.clone();
+            self.env.tem_ready = ml.tem.is_some();
+        }
         self.env.source = self.app.source_name();
         let mode = self.app.controller.mode;
         let copied = self.copied_at_ms.is_some_and(|t| now - t < 2000.0);
         let stats = self.app.stats().clone();
         let mut speed = self.app.controller.speed_mps;
         let mut show_lod = self.app.show_lod;
-        let act = self.overlay.show(&ctx, &stats, &self.env, mode, &mut speed, &mut show_lod, self.message.as_deref(), copied);
+        let mut refine_on = self.refine_on;
+        let act = self.overlay.show(&ctx, &stats, &self.env, mode, &mut speed, &mut show_lod, &mut refine_on, self.message.as_deref(), copied);
+        self.refine_on = refine_on;
         self.app.controller.speed_mps = speed;
         self.app.show_lod = show_lod;
         if let Some(m) = act.mode {
@@ -303,6 +447,8 @@ impl eframe::App for WebApp {
             "stats": stats,
             "adapter": self.env.adapter,
             "ml_status": self.env.ml_status,
+            "tem_ready": self.env.tem_ready,
+            "tem_error": self.env.tem_error,
             "source": self.env.source,
             "uploads": self.env.uploads,
             "triangles": self.env.triangles,

@@ -1,4 +1,5 @@
-//! The `terrain` binary as a user runs it: region export, overlap agreement, bad arguments.
+//! The `terrain` binary as a user runs it: region export, overlap agreement, DEM enhancement,
+//! bad arguments.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -47,10 +48,42 @@ fn bad_arguments_are_clear_errors() {
         (vec!["world", "--seed", "1", "--tiles", "0", "0", "1", "1"], "--out"),
         (vec!["world", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--source", "magic"], "unknown source"),
         (vec!["fly"], "unknown command"),
+        (vec!["enhance", "--input", "/tmp/x.tif", "--input-res", "30", "--output-res", "1", "--out", "/tmp/y.tif"], "--input-res must be one of"),
+        (vec!["enhance", "--input", "/tmp/x.tif", "--input-res", "8", "--output-res", "16", "--out", "/tmp/y.tif"], "finer"),
+        (vec!["enhance", "--input", "/nonexistent/in.tif", "--input-res", "32", "--output-res", "16", "--out", "/tmp/y.tif"], "/nonexistent/in.tif"),
     ] {
         let o = run(&args);
         assert_eq!(o.status.code(), Some(2), "{args:?}");
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(err.contains(needle), "{args:?}: {err}");
     }
+}
+
+/// `terrain enhance` on a world export with a no-data hole: same extent, 4× the samples per
+/// side at 8 m, area means close to the input, the hole kept as no-data.
+#[test]
+fn enhance_refines_a_dem_to_the_same_extent() {
+    let (a, b, c) = (tmp("in.tif"), tmp("hole.tif"), tmp("out.tif"));
+    let o = run(&["world", "--seed", "9", "--tiles", "0", "0", "1", "1", "--out", a.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut hf = read(&a).window(10, 20, 70, 50);
+    hf.data[5 * 70 + 7] = f32::NAN;
+    hf.write_tiff(std::io::BufWriter::new(std::fs::File::create(&b).unwrap())).unwrap();
+    let o = run(&["enhance", "--input", b.to_str().unwrap(), "--input-res", "32", "--output-res", "8", "--out", c.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = read(&c);
+    assert_eq!((out.width, out.height, out.spacing_m), (280, 200, 8.0));
+    assert!(out.at(7 * 4 + 2, 5 * 4 + 1).is_nan());
+    assert_eq!(out.data.iter().filter(|v| v.is_nan()).count(), 16);
+    let mut worst = 0f32;
+    for y in 2..48 {
+        for x in 2..68 {
+            if hf.at(x, y).is_nan() {
+                continue;
+            }
+            let m: f32 = (0..16).map(|k| out.at(x * 4 + k % 4, y * 4 + k / 4)).sum::<f32>() / 16.0;
+            worst = worst.max((m - hf.at(x, y)).abs());
+        }
+    }
+    assert!(worst < 15.0, "4×4 means of the output should stay near the 32 m input: {worst} m");
 }

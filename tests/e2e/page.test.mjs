@@ -12,6 +12,7 @@ import path from 'node:path';
 import { fileURLToPath } from 'node:url';
 import { chromium } from 'playwright-core';
 import { PNG } from 'pngjs';
+import { execFileSync } from 'node:child_process';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const dist = process.env.TERRAIN_DIST ?? path.resolve(here, '../../dist');
@@ -62,12 +63,12 @@ after(async () => {
 });
 
 /** Opens the page at `fragment`, collecting console errors and uncaught exceptions. */
-async function open(fragment = '') {
+async function open(fragment = '', query = '') {
   const page = await browser.newPage({ viewport: { width: 960, height: 600 } });
   const errors = [];
   page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
   page.on('pageerror', (e) => errors.push(String(e)));
-  await page.goto(base + (fragment ? '#' + fragment : ''));
+  await page.goto(base + query + (fragment ? '#' + fragment : ''));
   return { page, errors };
 }
 
@@ -212,6 +213,55 @@ test('a malformed link shows a message and the default world', async () => {
   assert.match(s.message ?? '', /broken share link/);
   assert.equal(s.link.includes('seed=1&'), true, `default seed expected, link ${s.link}`);
   await page.screenshot({ path: path.join(out, 'malformed_link.png') });
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
+// Low over rough ground, looking down ahead: the camera is lifted to 3 m above the ground,
+// so the quadtree asks for the finest refined levels.
+const LOW_VIEW = 'v=1&seed=7&cam=3000,0,9000,0.9,-0.45&r=1.5&lod=4';
+const repo = path.resolve(here, '../..');
+const nativeBin = process.env.TERRAIN_BIN ?? path.join(process.env.CARGO_TARGET_DIR ?? path.join(process.env.HOME, '.cache/terrain-target'), 'debug/terrain');
+
+/** Largest |Δ| (metres) between two probe digests (per level: mean + samples). */
+function probeDiff(a, b) {
+  assert.equal(a.levels.length, 5);
+  assert.equal(b.levels.length, 5);
+  let worst = 0;
+  a.levels.forEach((lv, k) => {
+    assert.equal(lv.length, b.levels[k].length);
+    lv.forEach((v, i) => { worst = Math.max(worst, Math.abs(v - b.levels[k][i])); });
+  });
+  return worst;
+}
+
+const nativeProbe = () => JSON.parse(execFileSync(nativeBin, ['tem-probe', '--weights', path.join(repo, 'weights')], { encoding: 'utf8' }));
+
+test('learned detail: the TEM loads, refines on WebGPU and matches the native CPU result', async () => {
+  const { page, errors } = await open(LOW_VIEW);
+  const s = await waitFor(page, (s) => s.tem_ready && s.stats.quads_made >= 8 && s.stats.max_depth_drawn >= 4, 'refined nodes from the TEM', 240_000);
+  assert.equal(s.stats.refine_backend, 'WebGPU');
+  await page.waitForTimeout(3000);
+  const s1 = await stats(page);
+  await page.screenshot({ path: path.join(out, 'refined.png') });
+  const probe = JSON.parse(await page.evaluate(async () => await window.wasmBindings.terrain_tem_probe()));
+  const native = nativeProbe();
+  const diff = probeDiff(probe, native);
+  report.tem_webgpu = { quads_made: s1.stats.quads_made, ms_per_quad: s1.stats.ms_per_quad, max_depth_drawn: s1.stats.max_depth_drawn, patches_cached: s1.stats.patches_cached, probe_max_abs_diff_m: diff, probe_backend: probe.backend };
+  assert.ok(diff < 1e-3, `page WebGPU and native CPU differ by ${diff} m`);
+  assert.ok(s1.stats.ms_per_quad > 0);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
+test('the TEM on the CPU backend (?tem=cpu) refines too and says so', async () => {
+  const { page, errors } = await open(LOW_VIEW, '?tem=cpu');
+  const s = await waitFor(page, (s) => s.tem_ready && s.stats.quads_made >= 2 && s.stats.max_depth_drawn >= 3, 'refined nodes on the CPU', 240_000);
+  assert.match(s.stats.refine_backend, /CPU/);
+  const probe = JSON.parse(await page.evaluate(async () => await window.wasmBindings.terrain_tem_probe()));
+  const diff = probeDiff(probe, nativeProbe());
+  report.tem_cpu_page = { quads_made: s.stats.quads_made, ms_per_quad: s.stats.ms_per_quad, probe_max_abs_diff_m: diff };
+  assert.ok(diff < 1e-3, `page CPU and native CPU differ by ${diff} m`);
   assert.deepEqual(errors, []);
   await page.close();
 });
