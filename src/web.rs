@@ -70,15 +70,15 @@ async fn fetch_bytes(url: &str) -> Result<Vec<u8>, String> {
     Ok(js_sys::Uint8Array::new(&buf).to_vec())
 }
 
-/// Whether the page was opened with `?tem=cpu` (runs the TEM on the CPU backend even with
-/// WebGPU, e.g. to compare).
-fn cpu_requested() -> bool {
-    web_sys::window().and_then(|w| w.location().search().ok()).is_some_and(|q| q.contains("tem=cpu"))
+/// Whether the page was opened with `?tem=<value>`: `cpu` runs the TEM on the CPU backend even
+/// with WebGPU (e.g. to compare), `off` starts with learned detail switched off.
+fn tem_flag(value: &str) -> bool {
+    web_sys::window().and_then(|w| w.location().search().ok()).is_some_and(|q| q.contains(&format!("tem={value}")))
 }
 
 /// Starts burn: self-check on the shared GPU device, then loads the TEM weights onto it, or
 /// onto the CPU backend when the GPU path is unavailable or fails (and says so).
-async fn start_ml(gpu: Result<burn::tensor::Device, String>, ml: Rc<RefCell<Ml>>) {
+async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, ml: Rc<RefCell<Ml>>) {
     let t0 = now_ms();
     let gpu = match gpu {
         Ok(device) => match models::self_check(&device).await {
@@ -92,7 +92,8 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, ml: Rc<RefCell<Ml>>
         Err(e) => Err(e),
     };
     let (device, backend) = match gpu {
-        Ok(d) if !cpu_requested() => (d, "WebGPU".to_string()),
+        Ok(d) if tem_flag("gpu") || (!software && !tem_flag("cpu")) => (d, "WebGPU".to_string()),
+        Ok(_) if software => (burn::tensor::Device::flex(), "CPU (software WebGPU adapter)".to_string()),
         Ok(_) => (burn::tensor::Device::flex(), "CPU (asked for by ?tem=cpu)".to_string()),
         Err(e) => {
             ml.borrow_mut().status = format!("{e}; the TEM runs on the CPU");
@@ -112,16 +113,51 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, ml: Rc<RefCell<Ml>>
             }
         }
         ml.borrow_mut().loading = Some(k + 1);
+        set_loading_note(&format!("Loading the learned detail models {}/{LEVELS}…", k + 1));
     }
-    let mut m = ml.borrow_mut();
-    m.loading = None;
-    match TemSet::from_bytes(files, &device) {
-        Ok(tem) => {
-            let tem = Rc::new(tem);
-            TEM.with(|t| *t.borrow_mut() = Some((tem.clone(), backend.clone())));
-            m.tem = Some((tem, backend));
+    ml.borrow_mut().loading = None;
+    let tem = match TemSet::from_bytes(files, &device) {
+        Ok(tem) => Rc::new(tem),
+        Err(e) => {
+            ml.borrow_mut().error = Some(format!("TEM weights are broken ({e}); showing the 32 m world"));
+            return;
         }
-        Err(e) => m.error = Some(format!("TEM weights are broken ({e}); showing the 32 m world")),
+    };
+    set_loading_note("Preparing the learned detail models…");
+    let t0 = now_ms();
+    for k in 0..if backend == "WebGPU" { LEVELS } else { 0 } {
+        if let Err(e) = tem.enhance_async(k, probe_input(k), 1, PROBE_SIDE).await {
+            ml.borrow_mut().error = Some(format!("TEM failed on {backend} ({e}); showing the 32 m world"));
+            return;
+        }
+    }
+    web_sys::console::log_1(&format!("TEM warm-up on {backend}: {:.0} ms", now_ms() - t0).into());
+    TEM.with(|t| *t.borrow_mut() = Some((tem.clone(), backend.clone())));
+    ml.borrow_mut().tem = Some((tem, backend));
+}
+
+/// The browser's own description of its WebGPU adapter ("vendor architecture") and whether
+/// it is a software (CPU-emulated) adapter such as SwiftShader, read from `adapter.info`.
+async fn browser_adapter_info() -> Option<(String, bool)> {
+    use js_sys::Reflect;
+    let nav = web_sys::window()?.navigator();
+    let gpu = Reflect::get(&nav, &"gpu".into()).ok()?;
+    let request = Reflect::get(&gpu, &"requestAdapter".into()).ok()?.dyn_into::<js_sys::Function>().ok()?;
+    let promise = request.call0(&gpu).ok()?.dyn_into::<js_sys::Promise>().ok()?;
+    let adapter = wasm_bindgen_futures::JsFuture::from(promise).await.ok()?;
+    let info = Reflect::get(&adapter, &"info".into()).ok()?;
+    let field = |k: &str| Reflect::get(&info, &k.into()).ok().and_then(|v| v.as_string()).unwrap_or_default();
+    let (vendor, arch, desc) = (field("vendor"), field("architecture"), field("description"));
+    let fallback = Reflect::get(&info, &"isFallbackAdapter".into()).ok().and_then(|v| v.as_bool()).unwrap_or(false);
+    let text = [vendor, arch, desc].into_iter().filter(|s| !s.is_empty()).collect::<Vec<_>>().join(" ");
+    let software = fallback || text.to_ascii_lowercase().contains("swiftshader") || text.to_ascii_lowercase().contains("llvmpipe");
+    Some((text, software))
+}
+
+/// Replaces the text of the page's loading note (shown until the renderer starts).
+fn set_loading_note(text: &str) {
+    if let Some(el) = web_sys::window().and_then(|w| w.document()).and_then(|d| d.query_selector("#loading p").ok().flatten()) {
+        el.set_text_content(Some(text));
     }
 }
 
@@ -194,11 +230,19 @@ async fn run() -> Result<(), String> {
         .map_err(|e| format!("Could not open the GPU device: {e}"))?;
     let info = adapter.get_info();
     let label = [&info.name, &info.driver, &info.driver_info].into_iter().find(|s| !s.is_empty()).cloned().unwrap_or_else(|| "browser adapter".into());
-    let adapter_name = format!("WebGPU · {label}");
+    let browser_info = browser_adapter_info().await;
+    let software = browser_info.as_ref().is_some_and(|i| i.1);
+    let adapter_name = match &browser_info {
+        Some((text, _)) if !text.is_empty() => format!("WebGPU · {text}"),
+        _ => format!("WebGPU · {label}"),
+    };
 
     let ml = Rc::new(RefCell::new(Ml { status: "starting burn on the GPU…".into(), ..Default::default() }));
     let gpu = models::device_from_setup(models::WgpuSetup { instance: instance.clone(), adapter: adapter.clone(), device: device.clone(), queue: queue.clone(), backend: wgpu::Backend::BrowserWebGpu });
-    wasm_bindgen_futures::spawn_local(start_ml(gpu, ml.clone()));
+    // Load and warm up the TEM before the renderer starts: its GPU kernels are compiled while
+    // the page shows its loading note (creating them later, mid-flight, fails in Chromium's
+    // WebGPU on SwiftShader with "A valid external Instance reference no longer exists").
+    start_ml(gpu, software, ml.clone()).await;
 
     let hash = location_hash();
     let (share, message) = match ShareState::from_fragment(&hash) {
@@ -228,7 +272,9 @@ async fn run() -> Result<(), String> {
                     texture: None,
                     env: Environment { adapter: adapter_name, ..Default::default() },
                     ml,
-                    refine_on: true,
+                    refine_on: !tem_flag("off"),
+                    last_eye: None,
+                    last_cpu_quad_ms: 0.0,
                     message,
                     last_frame_ms: None,
                     last_hash: hash,
@@ -253,6 +299,8 @@ struct WebApp {
     env: Environment,
     ml: Rc<RefCell<Ml>>,
     refine_on: bool,
+    last_eye: Option<(glam::DVec3, f64)>,
+    last_cpu_quad_ms: f64,
     message: Option<String>,
     last_frame_ms: Option<f64>,
     last_hash: String,
@@ -282,14 +330,27 @@ impl WebApp {
         if ml.busy || !self.refine_on {
             return;
         }
-        // The CPU backend blocks the page while it runs: one quad at a time there.
-        let max = if backend == "WebGPU" { REFINE_BATCH } else { 1 };
+        // The CPU backend blocks the page while it runs (≈ 0.3 s a quad in wasm): one quad at a
+        // time, at most one a second, and only while the camera is slow (< 60 m/s), so flights
+        // stay smooth and detail fills in where the user looks.
+        let now = now_ms();
+        let eye = self.app.camera.position_m;
+        let speed = self.last_eye.map_or(0.0, |(p, t)| (eye - p).length() / ((now - t) / 1000.0).max(1e-3));
+        self.last_eye = Some((eye, now));
+        let cpu = backend != "WebGPU";
+        if cpu && (now - self.last_cpu_quad_ms < 1000.0 || speed > 60.0) {
+            return;
+        }
+        let max = if cpu { 1 } else { REFINE_BATCH };
         let jobs = self.app.refine_jobs(max);
         if jobs.is_empty() {
             return;
         }
         ml.busy = true;
         drop(ml);
+        if cpu {
+            self.last_cpu_quad_ms = now;
+        }
         let shared = self.ml.clone();
         wasm_bindgen_futures::spawn_local(async move {
             let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();

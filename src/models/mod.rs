@@ -106,4 +106,28 @@ mod tests {
         let err = self_check_blocking(&device).unwrap();
         assert!(err < 1e-3, "max |Δ| {err} m");
     }
+
+    /// The TEM itself on burn's wgpu backend (lavapipe) against the CPU backend (flex), with
+    /// the shipped weights on the fixed probe of every level: heights agree to < 1 mm.
+    #[test]
+    fn tem_on_wgpu_matches_the_cpu() {
+        use tem::{LEVELS, PROBE_SIDE, TemSet, probe_input};
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let gpu = Device::wgpu_options().init().expect("a Vulkan device (install mesa-vulkan-drivers for lavapipe)");
+        let cpu = Device::flex();
+        let (tg, tc) = (TemSet::load_dir(&dir, &gpu).unwrap(), TemSet::load_dir(&dir, &cpu).unwrap());
+        let mut worst = 0f32;
+        for k in 0..LEVELS {
+            let t = web_time::Instant::now();
+            let a = tg.enhance_blocking(k, probe_input(k), 1, PROBE_SIDE).unwrap();
+            let gpu_ms = t.elapsed().as_secs_f64() * 1e3;
+            let t = web_time::Instant::now();
+            let b = tc.enhance_blocking(k, probe_input(k), 1, PROBE_SIDE).unwrap();
+            let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
+            let d = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+            eprintln!("level {k}: max |Δ| {d:.2e} m, wgpu {gpu_ms:.0} ms, cpu {cpu_ms:.0} ms");
+            worst = worst.max(d);
+        }
+        assert!(worst < 1e-3, "wgpu and CPU differ by {worst} m");
+    }
 }

@@ -237,31 +237,32 @@ function probeDiff(a, b) {
 
 const nativeProbe = () => JSON.parse(execFileSync(nativeBin, ['tem-probe', '--weights', path.join(repo, 'weights')], { encoding: 'utf8' }));
 
-test('learned detail: the TEM loads, refines on WebGPU and matches the native CPU result', async () => {
+test('learned detail: the TEM loads, refines to 1 m and matches the native result', async () => {
   const { page, errors } = await open(LOW_VIEW);
-  const s = await waitFor(page, (s) => s.tem_ready && s.stats.quads_made >= 8 && s.stats.max_depth_drawn >= 4, 'refined nodes from the TEM', 240_000);
-  assert.equal(s.stats.refine_backend, 'WebGPU');
+  const s = await waitFor(page, (s) => s.tem_ready && s.stats.quads_made >= 8 && s.stats.max_depth_drawn >= 6, 'refined nodes from the TEM', 240_000);
+  // On a software WebGPU adapter (SwiftShader here) the page runs the TEM on the CPU backend
+  // and says why; on a hardware adapter it runs on WebGPU.
+  const software = /swiftshader/i.test(s.adapter);
+  assert.equal(s.stats.refine_backend, software ? 'CPU (software WebGPU adapter)' : 'WebGPU');
   await page.waitForTimeout(3000);
   const s1 = await stats(page);
   await page.screenshot({ path: path.join(out, 'refined.png') });
   const probe = JSON.parse(await page.evaluate(async () => await window.wasmBindings.terrain_tem_probe()));
   const native = nativeProbe();
   const diff = probeDiff(probe, native);
-  report.tem_webgpu = { quads_made: s1.stats.quads_made, ms_per_quad: s1.stats.ms_per_quad, max_depth_drawn: s1.stats.max_depth_drawn, patches_cached: s1.stats.patches_cached, probe_max_abs_diff_m: diff, probe_backend: probe.backend };
-  assert.ok(diff < 1e-3, `page WebGPU and native CPU differ by ${diff} m`);
+  report.tem_page = { adapter: s.adapter, backend: s1.stats.refine_backend, quads_made: s1.stats.quads_made, ms_per_quad: s1.stats.ms_per_quad, max_depth_drawn: s1.stats.max_depth_drawn, patches_cached: s1.stats.patches_cached, frame_ms_median: s1.stats.frame_ms_median, probe_backend: probe.backend, probe_max_abs_diff_vs_native_m: diff };
+  assert.ok(diff < 1e-3, `page (${probe.backend}) and native CPU differ by ${diff} m`);
   assert.ok(s1.stats.ms_per_quad > 0);
   assert.deepEqual(errors, []);
   await page.close();
 });
 
-test('the TEM on the CPU backend (?tem=cpu) refines too and says so', async () => {
-  const { page, errors } = await open(LOW_VIEW, '?tem=cpu');
-  const s = await waitFor(page, (s) => s.tem_ready && s.stats.quads_made >= 2 && s.stats.max_depth_drawn >= 3, 'refined nodes on the CPU', 240_000);
-  assert.match(s.stats.refine_backend, /CPU/);
-  const probe = JSON.parse(await page.evaluate(async () => await window.wasmBindings.terrain_tem_probe()));
-  const diff = probeDiff(probe, nativeProbe());
-  report.tem_cpu_page = { quads_made: s.stats.quads_made, ms_per_quad: s.stats.ms_per_quad, probe_max_abs_diff_m: diff };
-  assert.ok(diff < 1e-3, `page CPU and native CPU differ by ${diff} m`);
+test('learned detail can start switched off (?tem=off): the 32 m world only', async () => {
+  const { page, errors } = await open(LOW_VIEW, '?tem=off');
+  await waitFor(page, (s) => s.tem_ready && s.stats.frames > 30 && s.stats.tiles_pending === 0, 'the unrefined view', 240_000);
+  const s = await stats(page);
+  assert.equal(s.stats.quads_made, 0);
+  assert.ok(s.stats.max_depth_drawn <= 2, `depth ${s.stats.max_depth_drawn}`);
   assert.deepEqual(errors, []);
   await page.close();
 });
