@@ -22,8 +22,6 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{Initializer, PaddingConfig2d};
 use burn::nn::{PixelShuffle, PixelShuffleConfig};
 use burn::tensor::activation::relu;
-use burn::tensor::module::interpolate;
-use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor};
 
 /// Gain applied to the normalised local features.
@@ -88,8 +86,7 @@ impl Tem {
     /// scale ([`level_scale_m`]); the result is [B, 1, 2h, 2w] heights in metres at half the
     /// spacing. Pixels within [`RECEPTIVE_OUT_PX`] of the border see the padding.
     pub fn forward(&self, x: Tensor<4>, scale_m: f32) -> Tensor<4> {
-        let [_, _, h, w] = x.dims();
-        let base = interpolate(x.clone(), InterpolateOptions::new(InterpolateMode::Bicubic).with_align_corners(false).with_output_size([2 * h, 2 * w]));
+        let base = self.bicubic2(x.clone());
         let head = self.head.forward(features(x / scale_m));
         let mut b = head.clone();
         for c in &self.body {
@@ -214,6 +211,40 @@ pub fn probe_digest(raw: &[f32]) -> Vec<f64> {
     out
 }
 
+impl Tem {
+    /// Bicubic ×2 (Keys a = −0.75, pixel-area centres, edges clamped — the same numbers as
+    /// `interpolate(Bicubic, align_corners = false)`) as one 5×5 convolution with four fixed
+    /// phase kernels and a pixel shuffle. Browsers' software WebGPU (SwiftShader) stalls for
+    /// minutes on burn's interpolate kernel; convolutions run in milliseconds.
+    fn bicubic2(&self, x: Tensor<4>) -> Tensor<4> {
+        let device = x.device();
+        let [_, _, h, w] = x.dims();
+        // Replicate the border twice (clamping) along both axes.
+        let pad = |t: Tensor<4>, dim: usize, n: usize| {
+            let first = t.clone().narrow(dim, 0, 1);
+            let last = t.clone().narrow(dim, n - 1, 1);
+            Tensor::cat(vec![first.clone(), first, t, last.clone(), last], dim)
+        };
+        let padded = pad(pad(x, 3, w), 2, h);
+        let even = crate::dem::cubic_weights(0.75);
+        let odd = crate::dem::cubic_weights(0.25);
+        let taps = [[even[0], even[1], even[2], even[3], 0.0], [0.0, odd[0], odd[1], odd[2], odd[3]]];
+        let mut kernel = Vec::with_capacity(4 * 25);
+        for dy in 0..2 {
+            for dx in 0..2 {
+                for a in 0..5 {
+                    for b in 0..5 {
+                        kernel.push(taps[dy][a] * taps[dx][b]);
+                    }
+                }
+            }
+        }
+        let weight = Tensor::<4>::from_data(burn::tensor::TensorData::new(kernel, [4, 1, 5, 5]), &device);
+        let phases = burn::tensor::module::conv2d(padded, weight, None, burn::tensor::ops::ConvOptions::new([1, 1], [0, 0], [1, 1], 1));
+        self.shuffle.forward(phases)
+    }
+}
+
 /// Shifts `t` by one pixel along `dim` (size `n`) with the edge replicated: (previous, next).
 fn neighbours(t: &Tensor<4>, dim: usize, n: usize) -> (Tensor<4>, Tensor<4>) {
     let prev = Tensor::cat(vec![t.clone().narrow(dim, 0, 1), t.clone().narrow(dim, 0, n - 1)], dim);
@@ -263,6 +294,23 @@ mod tests {
         let mean0 = y[..1024].iter().sum::<f32>() / 1024.0;
         let mean1 = y[1024..].iter().sum::<f32>() / 1024.0;
         assert!((mean1 - mean0 - 200.0).abs() < 0.01, "{mean0} {mean1}");
+    }
+
+    /// The convolutional bicubic equals burn's interpolate kernel (which the weights were
+    /// trained with) and the CPU reference.
+    #[test]
+    fn convolution_bicubic_equals_interpolate() {
+        use burn::tensor::module::interpolate;
+        use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
+        let device = Device::flex();
+        let m = Tem::new(&device);
+        let data: Vec<f32> = (0..2 * 13 * 17).map(|k| ((k % 17) as f32 * 0.9).sin() * 50.0 + (k / 17) as f32 * 3.0 + 800.0).collect();
+        let x = Tensor::<4>::from_data(TensorData::new(data, [2, 1, 13, 17]), &device);
+        let a: Vec<f32> = m.bicubic2(x.clone()).into_data().try_to_vec::<f32>().unwrap();
+        let b: Vec<f32> = interpolate(x, InterpolateOptions::new(InterpolateMode::Bicubic).with_align_corners(false).with_output_size([26, 34])).into_data().try_to_vec::<f32>().unwrap();
+        assert_eq!(a.len(), b.len());
+        let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
+        assert!(worst < 1e-3, "{worst} m");
     }
 
     #[test]

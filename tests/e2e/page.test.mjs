@@ -257,6 +257,21 @@ test('learned detail: the TEM loads, refines to 1 m and matches the native resul
   await page.close();
 });
 
+test('the TEM on WebGPU (?tem=gpu) refines and matches the native CPU result', async () => {
+  const { page, errors } = await open(LOW_VIEW, '?tem=gpu');
+  const s = await waitFor(page, (s) => s.tem_ready && s.stats.quads_made >= 4 && s.stats.max_depth_drawn >= 4, 'refined nodes from the WebGPU TEM', 300_000);
+  assert.equal(s.stats.refine_backend, 'WebGPU');
+  const t0 = Date.now();
+  const probe = JSON.parse(await page.evaluate(async () => await window.wasmBindings.terrain_tem_probe()));
+  const probeMs = Date.now() - t0;
+  const diff = probeDiff(probe, nativeProbe());
+  report.tem_webgpu = { quads_made: s.stats.quads_made, ms_per_quad: s.stats.ms_per_quad, max_depth_drawn: s.stats.max_depth_drawn, probe_5_levels_ms: probeMs, probe_backend: probe.backend, probe_max_abs_diff_vs_native_m: diff };
+  assert.equal(probe.backend, 'WebGPU');
+  assert.ok(diff < 1e-3, `page WebGPU and native CPU differ by ${diff} m`);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
 test('learned detail can start switched off (?tem=off): the 32 m world only', async () => {
   const { page, errors } = await open(LOW_VIEW, '?tem=off');
   await waitFor(page, (s) => s.tem_ready && s.stats.frames > 30 && s.stats.tiles_pending === 0, 'the unrefined view', 240_000);
