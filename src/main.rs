@@ -154,7 +154,7 @@ fn train_tem(args: &[String]) -> Result<(), String> {
     })?;
     saved?;
     train::save_models(&models, &out)?;
-    println!("{}", serde_json::json!({ "steps": cfg.steps, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_40m_units": losses }));
+    println!("{}", serde_json::json!({ "steps": cfg.steps, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_scale_units": losses }));
     Ok(())
 }
 
