@@ -88,6 +88,12 @@ pub fn self_check_blocking(device: &Device) -> Result<f32, String> {
 mod tests {
     use super::*;
 
+    /// The native wgpu device (burn registers it once per process, so the tests share it).
+    fn test_gpu() -> Device {
+        static GPU: std::sync::OnceLock<Device> = std::sync::OnceLock::new();
+        GPU.get_or_init(|| Device::wgpu_options().init().expect("a Vulkan device (install mesa-vulkan-drivers for lavapipe)")).clone()
+    }
+
     #[test]
     fn reference_blur_preserves_the_mean_inside() {
         let out = reference_output();
@@ -102,8 +108,7 @@ mod tests {
     /// GPU): the kernel must agree with the CPU to well under a millimetre.
     #[test]
     fn burn_wgpu_convolution_matches_the_cpu() {
-        let device = Device::wgpu_options().init().expect("a Vulkan device (install mesa-vulkan-drivers for lavapipe)");
-        let err = self_check_blocking(&device).unwrap();
+        let err = self_check_blocking(&test_gpu()).unwrap();
         assert!(err < 1e-3, "max |Δ| {err} m");
     }
 
@@ -113,7 +118,7 @@ mod tests {
     fn tem_on_wgpu_matches_the_cpu() {
         use tem::{LEVELS, PROBE_SIDE, TemSet, probe_input};
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
-        let gpu = Device::wgpu_options().init().expect("a Vulkan device (install mesa-vulkan-drivers for lavapipe)");
+        let gpu = test_gpu();
         let cpu = Device::flex();
         let (tg, tc) = (TemSet::load_dir(&dir, &gpu).unwrap(), TemSet::load_dir(&dir, &cpu).unwrap());
         let mut worst = 0f32;
