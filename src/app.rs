@@ -295,23 +295,7 @@ impl TerrainApp {
     #[cfg(not(target_arch = "wasm32"))]
     pub fn refine_blocking(&mut self, tem: &crate::models::tem::TemSet, max: usize) -> Result<usize, String> {
         let jobs = self.refine_jobs(max);
-        if jobs.is_empty() {
-            return Ok(0);
-        }
-        let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
-        let level = keys[0].level as usize;
-        let t = web_time::Instant::now();
-        let out = tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE);
-        match out {
-            Ok(raw) => {
-                self.refine_done(&keys, &raw, t.elapsed().as_secs_f64() * 1e3);
-                Ok(keys.len())
-            }
-            Err(e) => {
-                self.refine_failed(&keys);
-                Err(e)
-            }
-        }
+        crate::world::refine::run_blocking(&mut self.refine, tem, jobs)
     }
 
     /// Autopilot: fly level along the heading at the link's speed, following the terrain

@@ -4,7 +4,7 @@
 
 use crate::dem::Heightfield;
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, TemSet};
-use crate::world::refine::{INPUT_SIDE, PatchKey, PatchStore, RefineInput};
+use crate::world::refine::{PatchKey, PatchStore, RefineInput, run_blocking};
 
 /// A DEM as refinement input: pixel (x, y) of the grid is DEM sample (x, y); outside the DEM
 /// the edge is replicated, so edge patches see a plausible context.
@@ -47,21 +47,6 @@ pub fn levels_for(input_res_m: f64, output_res_m: f64) -> Result<(usize, usize),
 /// Progress of [`enhance`]: (level, patches done at that level, patches at that level).
 pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, usize);
 
-/// Runs `jobs` of one level on `tem` and stores them (blocking).
-fn run_batch(store: &mut PatchStore, tem: &TemSet, jobs: Vec<crate::world::refine::RefineJob>) -> Result<usize, String> {
-    let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
-    let level = keys[0].level as usize;
-    let t = web_time::Instant::now();
-    let raw = tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE)?;
-    let ms = t.elapsed().as_secs_f64() * 1e3 / keys.len() as f64;
-    let per = (2 * INPUT_SIDE).pow(2);
-    store.count_batch();
-    for (i, k) in keys.iter().enumerate() {
-        store.complete(*k, &raw[i * per..(i + 1) * per], ms);
-    }
-    Ok(keys.len())
-}
-
 /// Enhances `input` (metres at `input_res_m` per pixel, NaN = no data) to `output_res_m`:
 /// the output covers the same extent with 2^levels times the pixels per side; no-data input
 /// pixels stay no-data (their area in the output is NaN). Returns the result and the
@@ -89,7 +74,7 @@ pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &T
             if jobs.is_empty() {
                 return Err(format!("level {level}: {} patches could not be started", pending.len()));
             }
-            done += run_batch(&mut store, tem, jobs)?;
+            done += run_blocking(&mut store, tem, jobs)?;
             pending.retain(|k| store.get(*k).is_none());
             progress(level, done, total);
         }

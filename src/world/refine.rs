@@ -317,6 +317,31 @@ impl PatchStore {
     }
 }
 
+/// Runs `jobs` (one level) on `tem` now and stores the results in `store` (blocking; native).
+/// Returns how many patches were made; on an error the jobs are forgotten so they can be asked
+/// for again.
+#[cfg(not(target_arch = "wasm32"))]
+pub fn run_blocking(store: &mut PatchStore, tem: &crate::models::tem::TemSet, jobs: Vec<RefineJob>) -> Result<usize, String> {
+    let Some(first) = jobs.first() else { return Ok(0) };
+    let level = first.key.level as usize;
+    let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
+    let t = web_time::Instant::now();
+    let raw = match tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE) {
+        Ok(raw) => raw,
+        Err(e) => {
+            store.abandon(&keys);
+            return Err(e);
+        }
+    };
+    let ms = t.elapsed().as_secs_f64() * 1e3 / keys.len() as f64;
+    let per = (2 * INPUT_SIDE).pow(2);
+    store.count_batch();
+    for (i, k) in keys.iter().enumerate() {
+        store.complete(*k, &raw[i * per..(i + 1) * per], ms);
+    }
+    Ok(keys.len())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -353,13 +378,7 @@ mod tests {
             if jobs.is_empty() {
                 break;
             }
-            let n = jobs.len();
-            let level = jobs[0].key.level as usize;
-            let out = tem.enhance_blocking(level, jobs.iter().flat_map(|j| j.input.clone()).collect(), n, INPUT_SIDE).unwrap();
-            let per = (2 * INPUT_SIDE).pow(2);
-            for (i, j) in jobs.iter().enumerate() {
-                store.complete(j.key, &out[i * per..(i + 1) * per], 0.0);
-            }
+            run_blocking(store, tem, jobs).unwrap();
         }
     }
 
