@@ -269,6 +269,20 @@ pub fn features(xn: Tensor<4>) -> Tensor<4> {
     Tensor::cat(vec![detail, gx, gz, mag], 1)
 }
 
+/// `m` with every weight drawn uniformly from ±`amplitude` (tests: a zero tail would make
+/// every output plain bicubic and prove nothing).
+#[cfg(test)]
+pub(crate) fn randomized(m: Tem, device: &Device, amplitude: f64) -> Tem {
+    struct Random(Device, f64);
+    impl burn::module::ModuleMapper for Random {
+        fn map_float<const D: usize>(&mut self, param: burn::module::Param<Tensor<D>>) -> burn::module::Param<Tensor<D>> {
+            let (device, a) = (self.0.clone(), self.1);
+            param.map(|t| Tensor::<D>::random(t.shape(), burn::tensor::Distribution::Uniform(-a, a), &device))
+        }
+    }
+    m.map(&mut Random(device.clone(), amplitude))
+}
+
 #[cfg(all(test, feature = "train"))]
 mod tests {
     use super::*;
@@ -337,9 +351,7 @@ mod tests {
     #[test]
     fn overlapping_windows_agree_away_from_the_border() {
         let device = Device::flex();
-        let mut m = Tem::new(&device);
-        // Random non-zero weights everywhere (a zero tail would make this trivially bicubic).
-        m = m.map(&mut RandomizeTail(device.clone()));
+        let m = randomized(Tem::new(&device), &device, 0.3);
         let n = 48;
         let global: Vec<f32> = (0..(n + 8) * n).map(|k| ((k % (n + 8)) as f32 * 0.37).sin() * 20.0 + ((k / (n + 8)) as f32 * 0.21).cos() * 15.0).collect();
         let cut = |x0: usize| -> Vec<f32> { (0..n).flat_map(|y| global[y * (n + 8) + x0..y * (n + 8) + x0 + n].to_vec()).collect() };
@@ -360,13 +372,5 @@ mod tests {
         }
         assert!(worst < 1e-3, "overlap differs by {worst} m");
         assert!(worst_inside_border > 1e-3, "the border pixels do see the padding ({worst_inside_border}); else the test proves nothing");
-    }
-
-    struct RandomizeTail(Device);
-    impl burn::module::ModuleMapper for RandomizeTail {
-        fn map_float<const D: usize>(&mut self, param: burn::module::Param<Tensor<D>>) -> burn::module::Param<Tensor<D>> {
-            let device = self.0.clone();
-            param.map(|t| Tensor::<D>::random(t.shape(), burn::tensor::Distribution::Uniform(-0.3, 0.3), &device))
-        }
     }
 }

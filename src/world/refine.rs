@@ -359,16 +359,7 @@ mod tests {
     /// Models with random non-zero weights: if seams matched only because the output was
     /// plain bicubic, this would not show it.
     fn scrambled(device: &Device) -> TemSet {
-        use burn::module::{Module, ModuleMapper, Param};
-        use burn::tensor::{Distribution, Tensor};
-        struct R(Device);
-        impl ModuleMapper for R {
-            fn map_float<const D: usize>(&mut self, p: Param<Tensor<D>>) -> Param<Tensor<D>> {
-                let d = self.0.clone();
-                p.map(|t| Tensor::<D>::random(t.shape(), Distribution::Uniform(-0.05, 0.05), &d))
-            }
-        }
-        let models = TemSet::untrained(device).into_models().into_iter().map(|m| m.map(&mut R(device.clone()))).collect();
+        let models = TemSet::untrained(device).into_models().into_iter().map(|m| crate::models::tem::randomized(m, device, 0.05)).collect();
         TemSet::from_models(models, device).unwrap()
     }
 
