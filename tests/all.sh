@@ -1,27 +1,41 @@
 #!/usr/bin/env bash
-# Every test: native unit and integration tests (world, schedule, LOD, links, CLI, burn on
-# Vulkan/lavapipe), the release build of the page with trunk, and the headless-Chromium
-# end-to-end test of that page on WebGPU. Prints the page's size and the e2e report.
+# Every test: native unit, property and integration tests (world, schedule, LOD, links, DEM
+# readers, CLI, burn on Vulkan/lavapipe, smoke trainings), the release build of the page with
+# trunk, and the headless-Chromium end-to-end test of that page on WebGPU. Prints each step's
+# time, the page's size and the e2e report.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash tests/setup.sh test
 export PATH="$HOME/.cargo/bin:$PATH"
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/terrain-target}"
 # burn's wgpu runtime natively: Vulkan through Mesa's software rasteriser.
 export WGPU_BACKEND="${WGPU_BACKEND:-vulkan}"
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp/xdg-$(id -u)}"; mkdir -p -m 700 "$XDG_RUNTIME_DIR"
 
-start=$(date +%s)
-cargo test --all-targets
-native_done=$(date +%s)
+t0=$(date +%s); last=$t0; report=""
+step() { local now; now=$(date +%s); report+="$1 $((now - last)) s, "; echo "== $1: $((now - last)) s"; last=$now; }
 
+bash tests/setup.sh system
+step "system packages"
+# The page's tools (wasm-bindgen-cli, trunk) compile while the native tests build: on a fresh
+# machine each build alone leaves a core idle for long stretches.
+tools_log="$CARGO_TARGET_DIR/setup-tools.log"; mkdir -p "$CARGO_TARGET_DIR"
+bash tests/setup.sh tools > "$tools_log" 2>&1 &
+tools_pid=$!
+
+cargo test --all-targets --no-run
+step "native build"
+cargo test --all-targets
+step "native tests"
+
+if ! wait "$tools_pid"; then cat "$tools_log"; echo "installing wasm-bindgen-cli/trunk failed" >&2; exit 1; fi
+step "tools (waited)"
 trunk build --release
 wasm=$(ls dist/*.wasm); js=$(ls dist/*.js)
 raw=$(( $(stat -c %s "$wasm") + $(stat -c %s "$js") ))
 gz=$(( $(gzip -9 -c "$wasm" | wc -c) + $(gzip -9 -c "$js" | wc -c) ))
 echo "page size: wasm+js $raw bytes raw, $gz bytes gzip"
-web_done=$(date +%s)
+step "page build"
 
 (cd tests/e2e && node --test --test-concurrency=1 page.test.mjs)
-end=$(date +%s)
-echo "timings: native tests $((native_done - start)) s, page build $((web_done - native_done)) s, e2e $((end - web_done)) s"
+step "e2e"
+echo "timings: ${report}total $(( $(date +%s) - t0 )) s"

@@ -2,6 +2,8 @@
 # Installs what the page and the tests need on a fresh Debian machine; quick when all is there.
 #   bash tests/setup.sh serve   # Rust wasm target, wasm-bindgen-cli, trunk
 #   bash tests/setup.sh test    # the above + Chromium, Mesa's Vulkan (lavapipe), npm packages
+#   bash tests/setup.sh system  # only Chromium, Mesa's Vulkan and the npm packages
+#   bash tests/setup.sh tools   # only the wasm target, wasm-bindgen-cli and trunk
 set -euo pipefail
 cd "$(dirname "$0")/.."
 what="${1:-test}"
@@ -9,22 +11,36 @@ WASM_BINDGEN_VERSION=0.2.130   # must equal the wasm-bindgen version pinned in C
 TRUNK_VERSION=0.21.14          # newest trunk that builds with Rust 1.95
 
 export PATH="$HOME/.cargo/bin:$PATH"
-rustup target list --installed | grep -q wasm32-unknown-unknown || rustup target add wasm32-unknown-unknown
 
-if ! wasm-bindgen --version 2>/dev/null | grep -q "$WASM_BINDGEN_VERSION"; then
-  cargo install wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION"
-fi
-if ! trunk --version 2>/dev/null | grep -q "$TRUNK_VERSION"; then
-  # No update check, no bundled downloads: trunk only runs the tools found on PATH.
-  cargo install --locked trunk --version "$TRUNK_VERSION" --no-default-features --features rustls \
-    || cargo install trunk --version "$TRUNK_VERSION" --no-default-features --features rustls
-fi
+tools() {
+  rustup target list --installed | grep -q wasm32-unknown-unknown || rustup target add wasm32-unknown-unknown
+  # Neither tool ships a prebuilt binary through a registry this machine reaches (crates.io
+  # has sources only, npm and PyPI have neither), so they are compiled once, built for
+  # compile speed: trunk only orchestrates (no optimisation needed), wasm-bindgen rewrites a
+  # 30 MB module (lightly optimised). No LTO, no debug info.
+  export CARGO_PROFILE_RELEASE_LTO=false CARGO_PROFILE_RELEASE_DEBUG=false \
+    CARGO_PROFILE_RELEASE_CODEGEN_UNITS=64 CARGO_PROFILE_RELEASE_STRIP=true
+  if ! wasm-bindgen --version 2>/dev/null | grep -q "$WASM_BINDGEN_VERSION"; then
+    CARGO_PROFILE_RELEASE_OPT_LEVEL=1 cargo install --locked wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION"
+  fi
+  if ! trunk --version 2>/dev/null | grep -q "$TRUNK_VERSION"; then
+    # No update check, no bundled downloads: trunk only runs the tools found on PATH.
+    CARGO_PROFILE_RELEASE_OPT_LEVEL=0 cargo install --locked trunk --version "$TRUNK_VERSION" --no-default-features --features rustls
+  fi
+}
 
-if [ "$what" = test ]; then
+system() {
   SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
   if ! command -v chromium >/dev/null || ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then
     $SUDO apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium mesa-vulkan-drivers >/dev/null
   fi
   (cd tests/e2e && npm ci --no-audit --no-fund --loglevel=error)
-fi
+}
+
+case "$what" in
+  serve|tools) tools ;;
+  system) system ;;
+  test) system; tools ;;
+  *) echo "usage: bash tests/setup.sh [serve|test|system|tools]" >&2; exit 2 ;;
+esac
