@@ -13,6 +13,9 @@ TRUNK_VERSION=0.21.14          # newest trunk that builds with Rust 1.95
 export PATH="$HOME/.cargo/bin:$PATH"
 
 tools() {
+  # cargo install builds in a temporary directory of its own, not in the tests' target dir
+  # (sharing it would make the parallel builds wait for each other's lock).
+  unset CARGO_TARGET_DIR
   rustup target list --installed | grep -q wasm32-unknown-unknown || rustup target add wasm32-unknown-unknown
   # Neither tool ships a prebuilt binary through a registry this machine reaches (crates.io
   # has sources only, npm and PyPI have neither), so they are compiled once, built for
