@@ -24,7 +24,7 @@ tools() {
   export CARGO_PROFILE_RELEASE_LTO=false CARGO_PROFILE_RELEASE_DEBUG=false \
     CARGO_PROFILE_RELEASE_CODEGEN_UNITS=64 CARGO_PROFILE_RELEASE_STRIP=true
   if ! wasm-bindgen --version 2>/dev/null | grep -q "$WASM_BINDGEN_VERSION"; then
-    CARGO_PROFILE_RELEASE_OPT_LEVEL=1 cargo install --locked wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION"
+    CARGO_PROFILE_RELEASE_OPT_LEVEL=1 cargo install wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION"
   fi
   if ! trunk --version 2>/dev/null | grep -q "$TRUNK_VERSION"; then
     # No update check, no bundled downloads: trunk only runs the tools found on PATH.
