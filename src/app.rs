@@ -83,6 +83,9 @@ pub struct TerrainApp {
     world: WorldStream,
     nodes: NodeCache,
     refine: PatchStore,
+    /// Counts the worlds this app has shown: every new world gets a new epoch, and results of
+    /// jobs made for an older one are dropped.
+    epoch: u64,
     refine_backend: Option<String>,
     /// The camera.
     pub camera: Camera,
@@ -103,7 +106,8 @@ impl TerrainApp {
             settings: s.clone(),
             world,
             nodes: NodeCache::new(),
-            refine: PatchStore::new(0),
+            refine: PatchStore::new(0, 0),
+            epoch: 0,
             refine_backend: None,
             camera: Camera::default(),
             controller: CameraController::default(),
@@ -134,7 +138,8 @@ impl TerrainApp {
         if world_changed {
             self.world = Self::make_world(&s);
             self.nodes = NodeCache::new();
-            self.refine = PatchStore::new(0);
+            self.epoch += 1;
+            self.refine = PatchStore::new(0, self.epoch);
         }
         self.set_view(&s);
         self.settings = s;
@@ -162,6 +167,11 @@ impl TerrainApp {
     /// Name of the tile source.
     pub fn source_name(&self) -> String {
         self.world.source_name()
+    }
+
+    /// The epoch of the world shown now (see [`RefineJob::epoch`]).
+    pub fn epoch(&self) -> u64 {
+        self.epoch
     }
 
     /// Current statistics.
@@ -267,28 +277,39 @@ impl TerrainApp {
         self.refine.next_jobs(&self.world, max)
     }
 
-    /// Stores the results of a batch: `raw` is the models' output for `keys` in order
-    /// ((2·INPUT_SIDE)² metres each), `ms` the batch's time.
-    pub fn refine_done(&mut self, keys: &[PatchKey], raw: &[f32], ms: f64) {
+    /// Stores the results of a batch made for world `epoch`: `raw` is the models' output for
+    /// `keys` in order ((2·INPUT_SIDE)² metres each), `ms` the batch's time. A batch of an
+    /// older world (the seed, noise or radius changed while it ran) is dropped whole.
+    pub fn refine_done(&mut self, epoch: u64, keys: &[PatchKey], raw: &[f32], ms: f64) {
         let per = (2 * INPUT_SIDE).pow(2);
-        if raw.len() != per * keys.len() {
+        if epoch == self.epoch && raw.len() != per * keys.len() {
             self.refine.abandon(keys);
             return;
         }
-        self.refine.count_batch();
+        if epoch == self.epoch {
+            self.refine.count_batch();
+        }
         for (i, k) in keys.iter().enumerate() {
             // Patches of tiles that left during inference are not kept.
-            if self.world.contains(k.tile()) {
-                self.refine.complete(*k, &raw[i * per..(i + 1) * per], ms / keys.len() as f64);
+            let raw = raw.get(i * per..(i + 1) * per).unwrap_or(&[]);
+            if epoch != self.epoch || self.world.contains(k.tile()) {
+                self.refine.complete(epoch, *k, raw, ms / keys.len() as f64);
             } else {
                 self.refine.abandon(&[*k]);
             }
         }
     }
 
-    /// Forgets jobs whose inference failed.
-    pub fn refine_failed(&mut self, keys: &[PatchKey]) {
-        self.refine.abandon(keys);
+    /// Forgets jobs of world `epoch` whose inference failed, so they can be asked for again.
+    pub fn refine_failed(&mut self, epoch: u64, keys: &[PatchKey]) {
+        if epoch == self.epoch {
+            self.refine.abandon(keys);
+        }
+    }
+
+    /// Counters of the learned refinement of the current world.
+    pub fn refine_stats(&self) -> crate::world::RefineStats {
+        self.refine.stats()
     }
 
     /// Runs up to `max` TEM jobs now on `tem` (blocking; native). Returns how many ran.
@@ -383,6 +404,86 @@ mod tests {
         app.set_refinement(None);
         app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
         assert!(app.stats().max_depth_drawn <= BASE_DATA_DEPTH);
+    }
+
+    /// An app with refinement on, low above rough ground looking down, after enough frames
+    /// that the quadtree asks for refined patches.
+    fn low_refining_app() -> TerrainApp {
+        let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, ..ShareState::default() });
+        app.set_refinement(Some("CPU".into()));
+        for _ in 0..60 {
+            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        }
+        let p = app.camera.position_m;
+        app.camera.position_m.y = app.ground_at(p.x, p.z).unwrap() as f64 + 60.0;
+        app.camera.pitch = -0.6;
+        app
+    }
+
+    /// A TEM batch still running when the world changes (here: a new seed) comes back tagged
+    /// with the old epoch and is dropped: nothing of the old world lands in the new one. The
+    /// same batch delivered for the current world is stored (control).
+    #[test]
+    fn a_batch_of_an_older_world_is_dropped() {
+        let mut app = low_refining_app();
+        let mut jobs = Vec::new();
+        for _ in 0..20 {
+            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+            jobs = app.refine_jobs(REFINE_BATCH);
+            if !jobs.is_empty() {
+                break;
+            }
+        }
+        assert!(!jobs.is_empty(), "the low view asks for refined patches");
+        let old_epoch = jobs[0].epoch;
+        assert_eq!(old_epoch, app.epoch());
+        let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
+        let raw = vec![123.0f32; (2 * INPUT_SIDE).pow(2) * keys.len()];
+        // The world changes while the batch runs.
+        let new = ShareState { seed: app.settings().seed + 1, ..app.share_state() };
+        app.apply(new);
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        assert_eq!(app.epoch(), old_epoch + 1);
+        app.refine_done(old_epoch, &keys, &raw, 10.0);
+        let s = app.refine_stats();
+        assert_eq!((s.quads_made, s.cached, s.stale_dropped), (0, 0, keys.len() as u64), "stale batch must not land: {s:?}");
+        // The same kind of batch for the current world lands.
+        let mut fresh = Vec::new();
+        for _ in 0..20 {
+            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+            fresh = app.refine_jobs(REFINE_BATCH);
+            if !fresh.is_empty() {
+                break;
+            }
+        }
+        let keys: Vec<PatchKey> = fresh.iter().map(|j| j.key).collect();
+        app.refine_done(app.epoch(), &keys, &vec![5.0f32; (2 * INPUT_SIDE).pow(2) * keys.len()], 10.0);
+        assert_eq!(app.refine_stats().quads_made, keys.len() as u64);
+        assert!(!keys.is_empty());
+    }
+
+    /// While no refinement jobs are taken (inference busy or rate-limited), a long flight keeps
+    /// the request list to this frame's wants: never more requests than nodes drawn, and the
+    /// last third of the flight no higher than the first.
+    #[test]
+    fn patch_requests_stay_bounded_while_no_jobs_are_taken() {
+        let mut app = low_refining_app();
+        let mut counts = Vec::new();
+        for _ in 0..600 {
+            app.camera.position_m.x += 40.0;
+            let p = app.camera.position_m;
+            if let Some(g) = app.ground_at(p.x, p.z) {
+                app.camera.position_m.y = g as f64 + 60.0;
+            }
+            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+            let (r, drawn) = (app.refine_stats().requests, app.stats().nodes_drawn);
+            assert!(r <= drawn, "{r} requests for {drawn} nodes drawn");
+            counts.push(r);
+        }
+        let third = counts.len() / 3;
+        let (first, last) = (counts[..third].iter().max().unwrap(), counts[2 * third..].iter().max().unwrap());
+        assert!(*first > 0, "the flight asks for refinement");
+        assert!(*last <= first + first / 2, "requests grew from {first} to {last}");
     }
 
     #[test]

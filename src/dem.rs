@@ -2,7 +2,7 @@
 //! users have (GeoTIFF/TIFF, 16-bit PNG heightmaps, Mapbox terrain-RGB PNG), a TIFF writer, and
 //! the resampling the resolution ladder needs (area averaging down, bicubic ×2 up).
 
-use std::io::{BufRead, Read, Seek, Write};
+use std::io::{BufRead, Read, Seek, SeekFrom, Write};
 use std::path::Path;
 
 use tiff::decoder::{Decoder, DecodingResult};
@@ -21,35 +21,33 @@ pub struct Heightfield {
     pub spacing_m: f64,
     /// Heights (metres), `width × height`, index `row * width + col`.
     pub data: Vec<f32>,
+    /// Where the grid lies on Earth, when the file said so (GeoTIFF).
+    pub geo: Option<GeoRef>,
+}
+
+/// A grid's place in a projected coordinate system (GeoTIFF's tiepoint and CRS keys).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GeoRef {
+    /// Model coordinates (metres: x east, y north) of the outer north-west corner of sample
+    /// (0, 0).
+    pub origin_m: [f64; 2],
+    /// EPSG code of the projected CRS, when known; `None` is a local metric frame (written as
+    /// user-defined).
+    pub epsg: Option<u16>,
 }
 
 /// Why a heightfield could not be read or written.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum DemError {
     /// The file could not be opened, read or written.
-    Io(std::io::Error),
+    #[error("I/O error: {0}")]
+    Io(#[from] std::io::Error),
     /// The file is corrupt or uses a layout this reader does not support.
+    #[error("unreadable file: {0}")]
     Format(String),
     /// The data is not a usable heightfield (the message says why).
+    #[error("not a usable heightfield: {0}")]
     Invalid(String),
-}
-
-impl std::fmt::Display for DemError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            DemError::Io(e) => write!(f, "I/O error: {e}"),
-            DemError::Format(e) => write!(f, "unreadable file: {e}"),
-            DemError::Invalid(e) => write!(f, "not a usable heightfield: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for DemError {}
-
-impl From<std::io::Error> for DemError {
-    fn from(e: std::io::Error) -> Self {
-        DemError::Io(e)
-    }
 }
 
 impl From<tiff::TiffError> for DemError {
@@ -64,14 +62,77 @@ impl From<png::DecodingError> for DemError {
     }
 }
 
-/// GeoTIFF's ModelPixelScaleTag: (x, y, z) size of a pixel in model units (metres here).
+/// GeoTIFF's ModelPixelScaleTag: (x, y, z) size of a pixel in model units.
 const MODEL_PIXEL_SCALE: u16 = 33550;
+/// GeoTIFF's ModelTiepointTag: (i, j, k, x, y, z) raster point (i, j) at model (x, y).
+const MODEL_TIEPOINT: u16 = 33922;
+/// GeoTIFF's GeoKeyDirectoryTag: header (1, 1, 0, n) then n × (key, location, count, value).
+const GEO_KEY_DIRECTORY: u16 = 34735;
+/// GeoKeys this crate reads and writes.
+mod geokey {
+    /// GTModelTypeGeoKey: 1 projected, 2 geographic (degrees), 3 geocentric.
+    pub const MODEL_TYPE: u16 = 1024;
+    /// GTRasterTypeGeoKey: 1 pixel is area, 2 pixel is point.
+    pub const RASTER_TYPE: u16 = 1025;
+    /// ProjectedCSTypeGeoKey: EPSG code, 32767 user-defined.
+    pub const PROJECTED_CS: u16 = 3072;
+    /// ProjLinearUnitsGeoKey: 9001 metre, 9002 foot, 9003 US survey foot.
+    pub const LINEAR_UNITS: u16 = 3076;
+}
 /// GDAL's no-data tag: the value (as ASCII) that marks missing samples.
 const GDAL_NODATA: u16 = 42113;
 /// Heights beyond this magnitude (metres) are not terrain on Earth: the file is not in metres.
 const ABSURD_M: f32 = 12_000.0;
-/// Largest heightfield read (samples).
-const MAX_SAMPLES: u64 = 1 << 28;
+/// Largest heightfield read (samples): 2²⁶, e.g. 8192 × 8192 (256 MiB as f32).
+pub const MAX_SAMPLES: u64 = 1 << 26;
+/// Largest expansion of compressed image data over its file that a reader believes: deflate
+/// peaks near 1032:1. A header that claims more raw bytes than this times the file's size
+/// (plus [`SLACK_BYTES`]) is forged or truncated, and is refused before anything is allocated.
+const MAX_EXPANSION: u64 = 1100;
+/// Bytes any file may expand to regardless of its size (small images, headers).
+const SLACK_BYTES: u64 = 1 << 20;
+/// Largest pixel spacing read as degrees (a metric grid has spacings far above this).
+const MAX_DEGREE_SPACING: f64 = 0.1;
+/// Largest difference between the east–west and north–south size of a degree pixel (as a
+/// fraction) that is read as a square grid; beyond it the file must be reprojected first.
+const MAX_DEGREE_ANISOTROPY: f64 = 0.02;
+
+/// Checks declared image dimensions before any allocation: at most [`MAX_SAMPLES`] samples,
+/// and at most `raw_bytes` that `file_len` bytes can plausibly hold.
+fn check_size(w: u64, h: u64, bytes_per_pixel: u64, file_len: u64, what: &str) -> Result<(), DemError> {
+    let samples = w.saturating_mul(h);
+    if w == 0 || h == 0 {
+        return Err(DemError::Invalid(format!("{what} of {w}×{h} samples is empty")));
+    }
+    if samples > MAX_SAMPLES {
+        return Err(DemError::Invalid(format!("{what} of {w}×{h} samples is larger than the {MAX_SAMPLES} samples (8192 × 8192) read at once: crop or downsample it first")));
+    }
+    let raw = samples.saturating_mul(bytes_per_pixel.max(1));
+    if raw > file_len.saturating_mul(MAX_EXPANSION).saturating_add(SLACK_BYTES) {
+        return Err(DemError::Format(format!("{what} claims {w}×{h} samples ({raw} bytes) but the file has {file_len} bytes: it is truncated or its header is wrong")));
+    }
+    Ok(())
+}
+
+/// Length of a seekable stream; the position is back at the start afterwards.
+fn stream_len<S: Seek>(s: &mut S) -> Result<u64, DemError> {
+    let n = s.seek(SeekFrom::End(0))?;
+    s.seek(SeekFrom::Start(0))?;
+    Ok(n)
+}
+
+/// Metres per degree of longitude and of latitude at latitude `lat_deg` (WGS 84).
+pub fn metres_per_degree(lat_deg: f64) -> (f64, f64) {
+    let p = lat_deg.to_radians();
+    let lon = 111_412.84 * p.cos() - 93.5 * (3.0 * p).cos() + 0.118 * (5.0 * p).cos();
+    let lat = 111_132.92 - 559.82 * (2.0 * p).cos() + 1.175 * (4.0 * p).cos() - 0.0023 * (6.0 * p).cos();
+    (lon, lat)
+}
+
+/// Value of GeoKey `key` in a GeoKeyDirectory (only keys stored inline, as all read here are).
+fn geo_key(dir: &[u16], key: u16) -> Option<u16> {
+    dir.get(4..)?.chunks_exact(4).find(|e| e[0] == key && e[1] == 0).map(|e| e[3])
+}
 
 /// How grey PNG values map to metres: `height = value × metres_per_unit + offset_m`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -95,7 +156,13 @@ impl Heightfield {
     /// If `data.len() != width * height`.
     pub fn new(width: usize, height: usize, spacing_m: f64, data: Vec<f32>) -> Self {
         assert_eq!(data.len(), width * height, "heightfield data must hold width × height samples");
-        Self { width, height, spacing_m, data }
+        Self { width, height, spacing_m, data, geo: None }
+    }
+
+    /// The same grid placed at `geo`.
+    pub fn with_geo(mut self, geo: Option<GeoRef>) -> Self {
+        self.geo = geo;
+        self
     }
 
     /// Height (metres) at column `x`, row `y`.
@@ -152,12 +219,24 @@ impl Heightfield {
         hf.validate()
     }
 
-    /// Writes a single-band float32 TIFF (metres) with the pixel size in GeoTIFF's
-    /// ModelPixelScaleTag and NaN as no-data.
+    /// Writes a single-band float32 GeoTIFF (metres, NaN as no-data): the pixel size
+    /// (ModelPixelScale), the north-west corner (ModelTiepoint; (0, 0) without a [`GeoRef`])
+    /// and GeoKeys for a projected CRS in metres, pixel-is-area, with its EPSG code when known
+    /// (else user-defined, a local frame).
     pub fn write_tiff<W: Write + Seek>(&self, out: W) -> Result<(), DemError> {
         let mut enc = TiffEncoder::new(out)?;
         let mut image = enc.new_image::<colortype::Gray32Float>(self.width as u32, self.height as u32)?;
+        let geo = self.geo.unwrap_or(GeoRef { origin_m: [0.0, 0.0], epsg: None });
         image.encoder().write_tag(Tag::Unknown(MODEL_PIXEL_SCALE), &[self.spacing_m, self.spacing_m, 0.0][..])?;
+        image.encoder().write_tag(Tag::Unknown(MODEL_TIEPOINT), &[0.0, 0.0, 0.0, geo.origin_m[0], geo.origin_m[1], 0.0][..])?;
+        let keys: [u16; 20] = [
+            1, 1, 0, 4,
+            geokey::MODEL_TYPE, 0, 1, 1,
+            geokey::RASTER_TYPE, 0, 1, 1,
+            geokey::PROJECTED_CS, 0, 1, geo.epsg.unwrap_or(32767),
+            geokey::LINEAR_UNITS, 0, 1, 9001,
+        ];
+        image.encoder().write_tag(Tag::Unknown(GEO_KEY_DIRECTORY), &keys[..])?;
         image.encoder().write_tag(Tag::Unknown(GDAL_NODATA), "nan")?;
         image.write_data(&self.data)?;
         Ok(())
@@ -165,18 +244,26 @@ impl Heightfield {
 
     /// Reads a single-band TIFF of heights in metres (float32/64 or 8/16/32-bit integers).
     /// Samples equal to GDAL's no-data value become NaN. The spacing comes from
-    /// ModelPixelScaleTag when present, else `default_spacing_m`. The data is not validated
-    /// (see [`Heightfield::validate`]).
-    pub fn read_tiff<R: Read + Seek>(input: R, default_spacing_m: f64) -> Result<Self, DemError> {
-        let mut dec = Decoder::new(input)?;
-        let (w, h) = dec.dimensions()?;
-        if w == 0 || h == 0 || (w as u64) * (h as u64) > MAX_SAMPLES {
-            return Err(DemError::Invalid(format!("absurd size {w}×{h}")));
-        }
-        let spacing = match dec.get_tag_f64_vec(Tag::Unknown(MODEL_PIXEL_SCALE)) {
-            Ok(v) if !v.is_empty() && v[0].is_finite() && v[0] > 0.0 => v[0],
-            _ => default_spacing_m,
+    /// ModelPixelScaleTag when present (metres, feet converted; degrees of a geographic CRS
+    /// converted at the grid's latitude when the pixels are square within 2 %, refused
+    /// otherwise), else `default_spacing_m`. Dimensions are checked against [`MAX_SAMPLES`]
+    /// and the file's size before anything is allocated. The data is not validated (see
+    /// [`Heightfield::validate`]).
+    pub fn read_tiff<R: Read + Seek>(mut input: R, default_spacing_m: f64) -> Result<Self, DemError> {
+        let file_len = stream_len(&mut input)?;
+        let limits = {
+            let mut l = tiff::decoder::Limits::default();
+            l.decoding_buffer_size = (MAX_SAMPLES * 8) as usize;
+            l
         };
+        let mut dec = Decoder::new(input)?.with_limits(limits);
+        let (w, h) = dec.dimensions()?;
+        let bits: u64 = dec.get_tag_u16_vec(Tag::BitsPerSample).map(|v| v.iter().map(|&b| b as u64).sum()).unwrap_or(8);
+        check_size(w as u64, h as u64, bits.div_ceil(8), file_len, "the TIFF")?;
+        let scale = dec.get_tag_f64_vec(Tag::Unknown(MODEL_PIXEL_SCALE)).ok().filter(|v| v.len() >= 2 && v[..2].iter().all(|s| s.is_finite() && *s > 0.0));
+        let tie = dec.get_tag_f64_vec(Tag::Unknown(MODEL_TIEPOINT)).ok().filter(|v| v.len() >= 6 && v.iter().all(|x| x.is_finite()));
+        let keys = dec.get_tag_u16_vec(Tag::Unknown(GEO_KEY_DIRECTORY)).unwrap_or_default();
+        let (spacing, geo) = georeference(scale.as_deref(), tie.as_deref(), &keys, h, default_spacing_m)?;
         let nodata: Option<f64> = dec.get_tag_ascii_string(Tag::Unknown(GDAL_NODATA)).ok().and_then(|s| s.trim_matches(|c: char| c.is_whitespace() || c == '\0').parse().ok());
         let mut data: Vec<f32> = match dec.read_image()? {
             DecodingResult::F32(v) => v,
@@ -194,19 +281,22 @@ impl Heightfield {
             let nd = nd as f32;
             data.iter_mut().filter(|v| **v == nd).for_each(|v| *v = f32::NAN);
         }
-        Ok(Heightfield::new(w as usize, h as usize, spacing, data))
+        Ok(Heightfield::new(w as usize, h as usize, spacing, data).with_geo(geo))
     }
 
     /// Reads a PNG heightmap: 16- or 8-bit grey (`height = value × scale + offset`), or 8-bit
     /// RGB/RGBA as Mapbox terrain-RGB (`height = −10000 + (R·65536 + G·256 + B) × 0.1`;
     /// fully transparent pixels are no-data). Not validated.
-    pub fn read_png<R: BufRead + Seek>(input: R, scale: PngScale, spacing_m: f64) -> Result<Self, DemError> {
-        let mut reader = png::Decoder::new(input).read_info()?;
-        let size = reader.output_buffer_size().ok_or_else(|| DemError::Invalid("PNG too large".into()))?;
+    /// Dimensions are checked against [`MAX_SAMPLES`] and the file's size before anything is
+    /// allocated.
+    pub fn read_png<R: BufRead + Seek>(mut input: R, scale: PngScale, spacing_m: f64) -> Result<Self, DemError> {
+        let file_len = stream_len(&mut input)?;
+        let limits = png::Limits { bytes: (MAX_SAMPLES * 8) as usize };
+        let mut reader = png::Decoder::new_with_limits(input, limits).read_info()?;
         let (w, h) = (reader.info().width as usize, reader.info().height as usize);
-        if (w as u64) * (h as u64) > MAX_SAMPLES {
-            return Err(DemError::Invalid(format!("absurd size {w}×{h}")));
-        }
+        let bytes_per_pixel = reader.info().bytes_per_pixel() as u64;
+        check_size(w as u64, h as u64, bytes_per_pixel, file_len, "the PNG")?;
+        let size = reader.output_buffer_size().ok_or_else(|| DemError::Invalid("PNG too large".into()))?;
         let mut buf = vec![0u8; size];
         let frame = reader.next_frame(&mut buf)?;
         let line = frame.line_size;
@@ -234,13 +324,15 @@ impl Heightfield {
         Ok(Heightfield::new(w, h, spacing_m, data))
     }
 
-    /// The `w × h` window whose top-left sample is (x0, y0).
+    /// The `w × h` window whose top-left sample is (x0, y0), placed where it lies.
     pub fn window(&self, x0: usize, y0: usize, w: usize, h: usize) -> Heightfield {
         let mut data = Vec::with_capacity(w * h);
         for y in y0..y0 + h {
             data.extend_from_slice(&self.data[y * self.width + x0..y * self.width + x0 + w]);
         }
-        Heightfield::new(w, h, self.spacing_m, data)
+        let s = self.spacing_m;
+        let geo = self.geo.map(|g| GeoRef { origin_m: [g.origin_m[0] + x0 as f64 * s, g.origin_m[1] - y0 as f64 * s], ..g });
+        Heightfield::new(w, h, s, data).with_geo(geo)
     }
 
     /// Halves the resolution by 2×2 box means (spacing doubles); a mean touching no-data is
@@ -375,6 +467,42 @@ impl Heightfield {
     }
 }
 
+/// The pixel spacing (metres) and georeference from GeoTIFF tags: `scale` (ModelPixelScale),
+/// `tie` (ModelTiepoint), `keys` (GeoKeyDirectory, may be empty) of an image `rows` high.
+fn georeference(scale: Option<&[f64]>, tie: Option<&[f64]>, keys: &[u16], rows: u32, default_spacing_m: f64) -> Result<(f64, Option<GeoRef>), DemError> {
+    let model = geo_key(keys, geokey::MODEL_TYPE);
+    let Some(s) = scale else { return Ok((default_spacing_m, None)) };
+    let corner = tie.map(|t| [t[3] - t[0] * s[0], t[4] + t[1] * s[1]]);
+    let geographic = model == Some(2) || (model.is_none() && s[0] < MAX_DEGREE_SPACING && corner.is_some_and(|c| c[0].abs() <= 180.0 && c[1].abs() <= 90.0));
+    if geographic {
+        let Some([_, north]) = corner else {
+            return Err(DemError::Invalid(format!("the pixel size {}° is in degrees but the file has no tiepoint to tell its latitude: give the spacing in metres", s[0])));
+        };
+        let lat = north - 0.5 * rows as f64 * s[1];
+        if !(-89.0..=89.0).contains(&lat) {
+            return Err(DemError::Invalid(format!("latitude {lat:.2}° is too close to a pole for degree pixels")));
+        }
+        let (per_lon, per_lat) = metres_per_degree(lat);
+        let (sx, sy) = (s[0] * per_lon, s[1] * per_lat);
+        if ((sx - sy) / sy).abs() > MAX_DEGREE_ANISOTROPY {
+            return Err(DemError::Invalid(format!(
+                "the pixels are {sx:.1} m × {sy:.1} m ({}° × {}° at {lat:.1}°): heightfields need square pixels, so reproject the file to a metric CRS (e.g. UTM) first",
+                s[0], s[1]
+            )));
+        }
+        return Ok((0.5 * (sx + sy), None));
+    }
+    let unit_m = match geo_key(keys, geokey::LINEAR_UNITS) {
+        None | Some(9001) => 1.0,
+        Some(9002) => 0.3048,
+        Some(9003) => 1200.0 / 3937.0,
+        Some(u) => return Err(DemError::Invalid(format!("linear unit {u} (EPSG) is not supported: metres or feet"))),
+    };
+    let epsg = geo_key(keys, geokey::PROJECTED_CS).filter(|&c| c != 32767 && c != 0);
+    let geo = corner.map(|c| GeoRef { origin_m: [c[0] * unit_m, c[1] * unit_m], epsg });
+    Ok((s[0] * unit_m, geo))
+}
+
 /// Keys cubic convolution weights (a = −0.75) for the 4 taps around fractional offset `t`.
 pub fn cubic_weights(t: f32) -> [f32; 4] {
     let a = -0.75f32;
@@ -426,12 +554,78 @@ mod tests {
         assert!((hf.valid_fraction() - 5.0 / 6.0).abs() < 1e-9);
     }
 
+    /// The shared DEMs read at their size, and exactly the samples equal to the file's GDAL
+    /// no-data value (read here with the tiff crate directly) become NaN.
     #[test]
-    fn shared_dems_read_with_their_spacing() {
+    fn shared_dems_read_with_their_spacing_and_no_data() {
         let hf = Heightfield::read_path(&shared("dem/pypi_lidar_dem_1m.tif"), Some(1.0), PngScale::default()).unwrap();
         assert_eq!((hf.width, hf.height), (400, 400));
-        let chiri = Heightfield::read_path(&shared("dem/landlab_chiri_1m.tif"), Some(1.0), PngScale::default()).unwrap();
-        assert!((chiri.valid_fraction() - 0.469).abs() < 0.01, "{}", chiri.valid_fraction());
+        let path = shared("dem/landlab_chiri_1m.tif");
+        let chiri = Heightfield::read_path(&path, Some(1.0), PngScale::default()).unwrap();
+        let mut dec = Decoder::new(std::fs::File::open(&path).unwrap()).unwrap();
+        let nodata: f64 = dec.get_tag_ascii_string(Tag::Unknown(GDAL_NODATA)).ok().and_then(|s| s.trim_matches(|c: char| c.is_whitespace() || c == '\0').parse().ok()).unwrap_or(f64::NAN);
+        let raw: Vec<f64> = match dec.read_image().unwrap() {
+            DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
+            DecodingResult::F64(v) => v,
+            other => panic!("unexpected sample type {:?}", std::mem::discriminant(&other)),
+        };
+        let missing = raw.iter().filter(|&&v| v as f32 == nodata as f32 || v.is_nan()).count();
+        assert!(missing > 0 && missing < raw.len(), "the file has some no-data");
+        assert_eq!(chiri.data.iter().filter(|v| v.is_nan()).count(), missing);
+        assert!(chiri.data.iter().zip(&raw).all(|(a, b)| a.is_nan() || *a == *b as f32));
+    }
+
+    /// A GeoTIFF written with a georeference reads back with the same corner, EPSG code and
+    /// spacing; without one it is placed at (0, 0) in a user-defined metric frame.
+    #[test]
+    fn geotiff_tiepoint_and_crs_round_trip() {
+        let geo = GeoRef { origin_m: [500_000.5, 4_649_776.25], epsg: Some(32632) };
+        let hf = Heightfield::new(3, 2, 25.0, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]).with_geo(Some(geo));
+        let mut buf = Cursor::new(Vec::new());
+        hf.write_tiff(&mut buf).unwrap();
+        buf.set_position(0);
+        let back = Heightfield::read_tiff(buf, f64::NAN).unwrap();
+        assert_eq!((back.spacing_m, back.geo), (25.0, Some(geo)));
+        let mut buf = Cursor::new(Vec::new());
+        Heightfield::new(1, 1, 2.0, vec![9.0]).write_tiff(&mut buf).unwrap();
+        buf.set_position(0);
+        assert_eq!(Heightfield::read_tiff(buf, f64::NAN).unwrap().geo, Some(GeoRef { origin_m: [0.0, 0.0], epsg: None }));
+    }
+
+    /// Writes a geographic (degree) GeoTIFF of `w × h` with pixel size `sx° × sy°`, north-west
+    /// corner at (`lon`, `lat`).
+    fn degree_tiff(w: u32, h: u32, sx: f64, sy: f64, lon: f64, lat: f64) -> Cursor<Vec<u8>> {
+        let mut buf = Cursor::new(Vec::new());
+        {
+            let mut enc = TiffEncoder::new(&mut buf).unwrap();
+            let mut img = enc.new_image::<colortype::Gray32Float>(w, h).unwrap();
+            img.encoder().write_tag(Tag::Unknown(MODEL_PIXEL_SCALE), &[sx, sy, 0.0][..]).unwrap();
+            img.encoder().write_tag(Tag::Unknown(MODEL_TIEPOINT), &[0.0, 0.0, 0.0, lon, lat, 0.0][..]).unwrap();
+            img.encoder().write_tag(Tag::Unknown(GEO_KEY_DIRECTORY), &[1u16, 1, 0, 2, geokey::MODEL_TYPE, 0, 1, 2, 2048, 0, 1, 4326][..]).unwrap();
+            img.write_data(&vec![100f32; (w * h) as usize]).unwrap();
+        }
+        buf.set_position(0);
+        buf
+    }
+
+    /// Degree pixels are converted to metres at the grid's latitude (1″ × 1″ near the
+    /// equator ≈ 30.8 m); where a degree pixel is far from square (1″ at 46° N is 21.5 m ×
+    /// 30.9 m) the reader refuses and says why, instead of taking degrees for metres.
+    #[test]
+    fn degree_pixels_are_converted_or_refused() {
+        let arcsec = 1.0 / 3600.0;
+        let hf = Heightfield::read_tiff(degree_tiff(4, 4, arcsec, arcsec, 10.0, 0.5), f64::NAN).unwrap();
+        let (lon_m, lat_m) = metres_per_degree(0.5 - 2.0 * arcsec);
+        assert!((hf.spacing_m - 0.5 * (lon_m + lat_m) * arcsec).abs() < 1e-9 && (30.7..30.95).contains(&hf.spacing_m), "{}", hf.spacing_m);
+        assert_eq!(hf.geo, None, "degrees are not a projected frame");
+        let e = Heightfield::read_tiff(degree_tiff(4, 4, arcsec, arcsec, 7.0, 46.0), f64::NAN).unwrap_err().to_string();
+        assert!(e.contains("21.5 m × 30.9 m") && e.contains("reproject"), "{e}");
+        // 1.44″ × 1″ at 46° N is square in metres again.
+        let ok = Heightfield::read_tiff(degree_tiff(4, 4, 1.44 * arcsec, arcsec, 7.0, 46.0), f64::NAN).unwrap();
+        assert!((30.5..31.2).contains(&ok.spacing_m), "{}", ok.spacing_m);
+        // One degree per metre at the equator: 111 km per degree, never 1 m.
+        let (lon, lat) = metres_per_degree(0.0);
+        assert!((lon - 111_319.5).abs() < 1.0 && (lat - 110_574.3).abs() < 1.0, "{lon} {lat}");
     }
 
     #[test]

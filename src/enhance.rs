@@ -44,6 +44,24 @@ pub fn levels_for(input_res_m: f64, output_res_m: f64) -> Result<(usize, usize),
     Ok((first, last))
 }
 
+/// Largest output `enhance` makes (samples): 2²⁷ (e.g. 11,585 × 11,585). The output, the
+/// stored patches of the last level (≈ 1.6× the output) and the level above them take about
+/// 1.5 GiB at this size.
+pub const MAX_OUTPUT_SAMPLES: u64 = 1 << 27;
+
+/// The size (width, height) of the output for an input of `width × height` refined over
+/// `levels` levels, or an error if it exceeds [`MAX_OUTPUT_SAMPLES`].
+pub fn output_size(width: usize, height: usize, levels: usize) -> Result<(usize, usize), String> {
+    let f = 1u64 << levels;
+    let (w, h) = ((width as u64).saturating_mul(f), (height as u64).saturating_mul(f));
+    if w.saturating_mul(h) > MAX_OUTPUT_SAMPLES {
+        return Err(format!(
+            "the output would be {w} × {h} samples, more than the {MAX_OUTPUT_SAMPLES} this command makes at once: crop the input or choose a coarser --output-res"
+        ));
+    }
+    Ok((w as usize, h as usize))
+}
+
 /// Progress of [`enhance`]: (level, patches done at that level, patches at that level).
 pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, usize);
 
@@ -56,35 +74,31 @@ pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &T
     if input.width == 0 || input.height == 0 {
         return Err("the input DEM is empty".into());
     }
+    let (w, h) = output_size(input.width, input.height, last - first + 1)?;
     let filled = input.fill_nodata().ok_or("the input DEM has no valid sample (all no-data)")?;
     let source = DemInput::new(filled);
-    let mut store = PatchStore::new(first);
+    let mut store = PatchStore::new(first, 0);
     for level in first..=last {
         let scale = 2usize << (level - first);
-        let (w, h) = (input.width * scale, input.height * scale);
-        let (nx, ny) = (w.div_ceil(PATCH) as i64, h.div_ceil(PATCH) as i64);
+        let (lw, lh) = (input.width * scale, input.height * scale);
+        let (nx, ny) = (lw.div_ceil(PATCH) as i64, lh.div_ceil(PATCH) as i64);
         let total = (nx * ny) as usize;
         let mut done = 0;
-        let mut pending: Vec<PatchKey> = (0..ny).flat_map(|y| (0..nx).map(move |x| PatchKey { level: level as u8, x, y })).collect();
-        while !pending.is_empty() {
-            for (i, k) in pending.iter().enumerate() {
-                store.request(*k, i as f64);
-            }
-            let jobs = store.next_jobs(&source, batch.max(1));
-            if jobs.is_empty() {
-                return Err(format!("level {level}: {} patches could not be started", pending.len()));
+        // Every patch of the level, in row order, in batches: each parent is stored already.
+        let keys: Vec<PatchKey> = (0..ny).flat_map(|y| (0..nx).map(move |x| PatchKey { level: level as u8, x, y })).collect();
+        for chunk in keys.chunks(batch.max(1)) {
+            let jobs = store.jobs_for(chunk, &source);
+            if jobs.len() != chunk.len() {
+                return Err(format!("level {level}: {} patches could not be started", chunk.len() - jobs.len()));
             }
             done += run_blocking(&mut store, tem, jobs)?;
-            pending.retain(|k| store.get(*k).is_none());
             progress(level, done, total);
         }
         if level > first {
             store.drop_level(level - 1);
         }
     }
-    let levels = last - first + 1;
-    let f = 1usize << levels;
-    let (w, h) = (input.width * f, input.height * f);
+    let f = w / input.width;
     let mut data = Vec::with_capacity(w * h);
     for py in 0..h {
         for px in 0..w {
@@ -92,7 +106,8 @@ pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &T
             data.push(v);
         }
     }
-    Ok((Heightfield::new(w, h, LEVEL_SPACING_M[last], data), store.stats()))
+    // Same extent: the north-west corner stays where it was.
+    Ok((Heightfield::new(w, h, LEVEL_SPACING_M[last], data).with_geo(input.geo), store.stats()))
 }
 
 #[cfg(test)]
@@ -108,6 +123,23 @@ mod tests {
         assert!(levels_for(30.0, 1.0).unwrap_err().contains("--input-res"));
         assert!(levels_for(32.0, 3.0).unwrap_err().contains("--output-res"));
         assert!(levels_for(8.0, 16.0).is_err());
+    }
+
+    /// A 10,000² input at ×32 would be 10¹¹ samples: refused before any work, with the
+    /// limit in the message; the largest allowed size passes the check.
+    #[test]
+    fn outputs_beyond_the_limit_are_refused_up_front() {
+        let e = output_size(10_000, 10_000, 5).unwrap_err();
+        assert!(e.contains("320000 × 320000") && e.contains(&MAX_OUTPUT_SAMPLES.to_string()), "{e}");
+        assert_eq!(output_size(362, 362, 5).unwrap(), (11_584, 11_584));
+        assert!(output_size(363, 363, 5).is_err(), "11,616² > 2²⁷");
+        assert!(output_size(usize::MAX / 2, 3, 5).is_err(), "no overflow");
+        let tem = TemSet::untrained(&Device::flex());
+        let big = Heightfield::new(400, 400, 32.0, vec![100.0; 400 * 400]);
+        let mut calls = 0;
+        let err = enhance(&big, 32.0, 1.0, &tem, 4, &mut |_, _, _| calls += 1).unwrap_err();
+        assert!(err.contains("crop the input"), "{err}");
+        assert_eq!(calls, 0, "refused before any patch was made");
     }
 
     /// Untrained models are bicubic at every level: the enhanced DEM keeps the input's extent,

@@ -8,139 +8,272 @@
 //! spacing. `terrain tem-probe` prints the digest of the fixed probe per level (CPU), which the
 //! browser test compares with the page's WebGPU result.
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 
+use clap::{Parser, Subcommand, ValueEnum};
 use terrain::world::{NoiseParams, ProceduralSource, TileSource, export};
 
-const USAGE: &str = "usage:
-  terrain world --seed S --tiles X0 Y0 W H --out region.tif [--source procedural]
-  terrain enhance --input in.tif --input-res 32 --output-res 1 --out out.tif [--weights DIR] [--batch N]
-  terrain tem-probe [--weights DIR]
-  terrain train-tem --dem-dir DIR [--steps N] [--finetune N] [--checkpoint-every N] [--batch B] [--chain L] [--seed S] [--out weights]
-  terrain eval-tem --dem-dir DIR [--weights weights] [--windows N]";
+/// Most tiles `terrain world` writes at once (64 × 64 tiles: 8192² samples, 256 MiB).
+const MAX_EXPORT_TILES: u64 = 4096;
 
-fn world(args: &[String]) -> Result<(), String> {
-    let mut seed: Option<u64> = None;
-    let mut tiles: Option<(i32, i32, u32, u32)> = None;
-    let mut out: Option<String> = None;
-    let mut source = "procedural".to_string();
-    let mut it = args.iter();
-    let num = |v: Option<&String>, what: &str| -> Result<i64, String> {
-        let v = v.ok_or_else(|| format!("{what} is missing"))?;
-        v.parse::<i64>().map_err(|_| format!("{what} '{v}' is not a whole number"))
-    };
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--seed" => {
-                let v = it.next().ok_or("--seed needs a value")?;
-                seed = Some(v.parse().map_err(|_| format!("seed '{v}' is not a whole number ≥ 0"))?);
-            }
-            "--tiles" => {
-                let x0 = num(it.next(), "X0")?;
-                let y0 = num(it.next(), "Y0")?;
-                let w = num(it.next(), "W")?;
-                let h = num(it.next(), "H")?;
-                if w < 1 || h < 1 || w * h > 4096 {
-                    return Err(format!("W×H must be between 1 and 4096 tiles, got {w}×{h}"));
-                }
-                if [x0, y0, x0 + w, y0 + h].iter().any(|v| v.abs() > i32::MAX as i64 / 2) {
-                    return Err("tile coordinates are out of range".into());
-                }
-                tiles = Some((x0 as i32, y0 as i32, w as u32, h as u32));
-            }
-            "--out" => out = Some(it.next().ok_or("--out needs a path")?.clone()),
-            "--source" => source = it.next().ok_or("--source needs a value")?.clone(),
-            other => return Err(format!("unknown argument '{other}'")),
-        }
+/// The terrain tool's command line: export the world, refine DEMs with the learned ladder,
+/// train and evaluate the models.
+#[derive(Parser, Debug)]
+#[command(name = "terrain", version, about, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// Where tiles come from.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum Source {
+    /// Seeded fBm noise (the page's procedural world).
+    Procedural,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Write the 32 m heights (metres) of a rectangle of tiles as a float32 GeoTIFF.
+    World {
+        /// World seed.
+        #[arg(long)]
+        seed: u64,
+        /// Tiles [X0, X0+W) × [Y0, Y0+H): 128 × 128 samples each.
+        #[arg(long, num_args = 4, value_names = ["X0", "Y0", "W", "H"], allow_negative_numbers = true, required = true)]
+        tiles: Vec<i64>,
+        /// Output GeoTIFF.
+        #[arg(long)]
+        out: PathBuf,
+        /// Tile source.
+        #[arg(long, value_enum, default_value_t = Source::Procedural)]
+        source: Source,
+    },
+    /// Refine a DEM (float32 TIFF in metres or 16-bit PNG) with the learned ×2 ladder.
+    Enhance {
+        /// Input DEM (.tif, .tiff, .png).
+        #[arg(long)]
+        input: PathBuf,
+        /// Input spacing (m per pixel): 32, 16, 8, 4 or 2.
+        #[arg(long)]
+        input_res: f64,
+        /// Output spacing (m per pixel): 16, 8, 4, 2 or 1, finer than the input.
+        #[arg(long)]
+        output_res: f64,
+        /// Output GeoTIFF.
+        #[arg(long)]
+        out: PathBuf,
+        /// Folder of the TEM weights (default: ./weights, else the crate's).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+        /// Patches per model call.
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
+        batch: u32,
+    },
+    /// Print the digest of the fixed TEM probe per level (CPU), for the browser test.
+    TemProbe {
+        /// Folder of the TEM weights.
+        #[arg(long)]
+        weights: Option<PathBuf>,
+    },
+    /// Write the TEM weights and the probe (input and our output) of every level as JSON, for
+    /// reference runtimes (tools/tem_vs_onnx.py rebuilds the network in ONNX Runtime).
+    TemExport {
+        /// Folder of the TEM weights.
+        #[arg(long)]
+        weights: Option<PathBuf>,
+        /// Output JSON file.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Time TEM inference on the CPU (threads: RAYON_NUM_THREADS): prints JSON with the
+    /// median milliseconds per quad (input 100² incl. margin → 200²).
+    TemBench {
+        /// Level of the ladder (0 = 32 → 16 m).
+        #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..5))]
+        level: u32,
+        /// Quads per model call.
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+        batch: u32,
+        /// Timed calls (after one warm-up call).
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+        repeats: u32,
+        /// Folder of the TEM weights.
+        #[arg(long)]
+        weights: Option<PathBuf>,
+    },
+    /// Train the five TEM models on the CPU (feature `train`).
+    #[cfg(feature = "train")]
+    TrainTem(TrainArgs),
+    /// Evaluate the TEM on the held-out east third of every DEM (feature `train`).
+    #[cfg(feature = "train")]
+    EvalTem {
+        /// Folder of DEMs (float32 TIFF) with manifest.json.
+        #[arg(long)]
+        dem_dir: PathBuf,
+        /// Folder of the TEM weights.
+        #[arg(long, default_value = "weights")]
+        weights: PathBuf,
+        /// Validation windows per level.
+        #[arg(long, default_value_t = 64)]
+        windows: usize,
+    },
+}
+
+/// Arguments of `terrain train-tem`.
+#[cfg(feature = "train")]
+#[derive(clap::Args, Debug)]
+struct TrainArgs {
+    /// Folder of DEMs (float32 TIFF) with manifest.json.
+    #[arg(long)]
+    dem_dir: PathBuf,
+    /// Chained optimiser steps.
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Single-level fine-tuning steps on real data after the chained ones.
+    #[arg(long)]
+    finetune: Option<usize>,
+    /// Save a checkpoint every N steps (0: never).
+    #[arg(long, default_value_t = 100)]
+    checkpoint_every: usize,
+    /// Chains per step.
+    #[arg(long)]
+    batch: Option<usize>,
+    /// Consecutive levels per chain (1..=5).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=5))]
+    chain: Option<u32>,
+    /// Adam learning rate.
+    #[arg(long)]
+    lr: Option<f64>,
+    /// Seed of the sampler.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Output folder of the weights.
+    #[arg(long, default_value = "weights")]
+    out: PathBuf,
+}
+
+/// The tile rectangle of `--tiles X0 Y0 W H`, checked without overflow: W, H ≥ 1, W·H ≤
+/// [`MAX_EXPORT_TILES`], every coordinate within ±2³⁰.
+fn tile_rect(t: &[i64]) -> Result<(i32, i32, u32, u32), String> {
+    let [x0, y0, w, h] = <[i64; 4]>::try_from(t).map_err(|_| "--tiles takes X0 Y0 W H".to_string())?;
+    if w < 1 || h < 1 || (w as i128) * (h as i128) > MAX_EXPORT_TILES as i128 {
+        return Err(format!("W×H must be between 1 and {MAX_EXPORT_TILES} tiles, got {w}×{h}"));
     }
-    let seed = seed.ok_or("--seed is required")?;
-    let (x0, y0, w, h) = tiles.ok_or("--tiles X0 Y0 W H is required")?;
-    let out = out.ok_or("--out is required")?;
-    let src: Box<dyn TileSource> = match source.as_str() {
-        "procedural" => Box::new(ProceduralSource::new(NoiseParams::default())),
-        other => return Err(format!("unknown source '{other}' (available: procedural)")),
+    let limit = 1i64 << 30;
+    if [x0, y0, x0.saturating_add(w), y0.saturating_add(h)].iter().any(|v| v.abs() > limit) {
+        return Err(format!("tile coordinates must stay within ±{limit}"));
+    }
+    Ok((x0 as i32, y0 as i32, w as u32, h as u32))
+}
+
+fn world(seed: u64, tiles: &[i64], out: &std::path::Path, source: Source) -> Result<(), String> {
+    let (x0, y0, w, h) = tile_rect(tiles)?;
+    let src: Box<dyn TileSource> = match source {
+        Source::Procedural => Box::new(ProceduralSource::new(NoiseParams::default())),
     };
     let hf = export::region(seed, src, x0, y0, w, h);
-    let file = std::fs::File::create(&out).map_err(|e| format!("cannot create {out}: {e}"))?;
-    hf.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {out}: {e}"))?;
-    eprintln!("wrote {out}: {}×{} samples at {} m", hf.width, hf.height, hf.spacing_m);
+    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    hf.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    eprintln!("wrote {}: {}×{} samples at {} m", out.display(), hf.width, hf.height, hf.spacing_m);
     Ok(())
 }
 
 /// The weights folder: `--weights`, else `weights/` here, else the crate's own.
-fn weights_dir(args: &[String]) -> std::path::PathBuf {
-    if let Some(w) = flag(args, "--weights") {
-        return w.into();
+fn weights_dir(given: Option<PathBuf>) -> PathBuf {
+    if let Some(w) = given {
+        return w;
     }
-    let here = std::path::PathBuf::from("weights");
-    if here.join("manifest.json").exists() { here } else { std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/weights")) }
+    let here = PathBuf::from("weights");
+    if here.join("manifest.json").exists() { here } else { PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/weights")) }
 }
 
-fn enhance(args: &[String]) -> Result<(), String> {
+fn enhance(input: &std::path::Path, input_res: f64, output_res: f64, out: &std::path::Path, weights: Option<PathBuf>, batch: usize) -> Result<(), String> {
     use terrain::dem::{Heightfield, PngScale};
-    let input = flag(args, "--input").ok_or("--input is required")?;
-    let out = flag(args, "--out").ok_or("--out is required")?;
-    let input_res: f64 = flag(args, "--input-res").ok_or("--input-res is required")?.parse().map_err(|_| "--input-res must be a number (m per pixel)")?;
-    let output_res: f64 = flag(args, "--output-res").ok_or("--output-res is required")?.parse().map_err(|_| "--output-res must be a number (m per pixel)")?;
-    let batch: usize = parse_or(args, "--batch", 4)?;
-    terrain::enhance::levels_for(input_res, output_res)?;
-    let hf = Heightfield::read_path(std::path::Path::new(input), Some(input_res), PngScale::default()).map_err(|e| format!("{input}: {e}"))?;
+    let (first, last) = terrain::enhance::levels_for(input_res, output_res)?;
+    let hf = Heightfield::read_path(input, Some(input_res), PngScale::default()).map_err(|e| format!("{}: {e}", input.display()))?;
+    terrain::enhance::output_size(hf.width, hf.height, last - first + 1)?;
     let device = burn::tensor::Device::flex();
-    let dir = weights_dir(args);
-    let tem = terrain::models::tem::TemSet::load_dir(&dir, &device)?;
+    let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(weights), &device)?;
     let t = std::time::Instant::now();
-    let mut last = (usize::MAX, 0);
+    let mut last_report = (usize::MAX, 0);
     let (result, stats) = terrain::enhance::enhance(&hf, input_res, output_res, &tem, batch, &mut |level, done, total| {
-        if level != last.0 || done * 10 / total.max(1) != last.1 {
-            last = (level, done * 10 / total.max(1));
+        if level != last_report.0 || done * 10 / total.max(1) != last_report.1 {
+            last_report = (level, done * 10 / total.max(1));
             eprintln!("level {level} ({} m): {done}/{total} patches", terrain::models::tem::LEVEL_SPACING_M[level]);
         }
     })?;
-    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {out}: {e}"))?;
-    result.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {out}: {e}"))?;
+    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    result.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
     eprintln!(
-        "wrote {out}: {}×{} at {} m from {}×{} at {input_res} m; {} patches in {:.1} s ({:.1} ms per patch)",
-        result.width, result.height, result.spacing_m, hf.width, hf.height, stats.quads_made, t.elapsed().as_secs_f64(), stats.ms_per_quad()
+        "wrote {}: {}×{} at {} m from {}×{} at {input_res} m; {} patches in {:.1} s ({:.1} ms per patch)",
+        out.display(), result.width, result.height, result.spacing_m, hf.width, hf.height, stats.quads_made, t.elapsed().as_secs_f64(), stats.ms_per_quad()
     );
     Ok(())
 }
 
-fn tem_probe(args: &[String]) -> Result<(), String> {
-    use terrain::models::tem::{LEVELS, PROBE_SIDE, TemSet, probe_digest, probe_input};
+fn tem_probe(weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::models::tem::{LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json};
     let device = burn::tensor::Device::flex();
-    let tem = TemSet::load_dir(&weights_dir(args), &device)?;
-    let digests = (0..LEVELS).map(|k| tem.enhance_blocking(k, probe_input(k), 1, PROBE_SIDE).map(|raw| probe_digest(&raw))).collect::<Result<Vec<_>, _>>()?;
-    println!("{}", serde_json::json!({ "backend": "cpu (burn flex)", "levels": digests }));
+    let tem = TemSet::load_dir(&weights_dir(weights), &device)?;
+    let levels = (0..LEVELS).map(|k| tem.enhance_blocking(k, probe_input(k), 1, PROBE_SIDE)).collect::<Result<Vec<_>, _>>()?;
+    println!("{}", probe_json("cpu (burn flex)", &levels));
     Ok(())
 }
 
-/// Value of `--name` in `args`, if given.
-fn flag<'a>(args: &'a [String], name: &str) -> Option<&'a str> {
-    args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).map(String::as_str)
+fn tem_export(weights: Option<PathBuf>, out: &std::path::Path) -> Result<(), String> {
+    use terrain::models::tem::{FEATURE_GAIN, LEVELS, PROBE_SIDE, TemSet, level_scale_m, probe_input};
+    let device = burn::tensor::Device::flex();
+    let tem = TemSet::load_dir(&weights_dir(weights), &device)?;
+    let mut levels = Vec::new();
+    for k in 0..LEVELS {
+        let output = tem.enhance_blocking(k, probe_input(k), 1, PROBE_SIDE)?;
+        levels.push(serde_json::json!({
+            "level": k, "scale_m": level_scale_m(k), "feature_gain": FEATURE_GAIN,
+            "convs": tem.model(k).convs_json(), "probe_input": probe_input(k), "probe_output": output,
+        }));
+    }
+    let json = serde_json::json!({ "probe_side": PROBE_SIDE, "levels": levels });
+    std::fs::write(out, json.to_string()).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    eprintln!("wrote {}", out.display());
+    Ok(())
 }
 
-fn parse_or<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> Result<T, String> {
-    flag(args, name).map_or(Ok(default), |v| v.parse().map_err(|_| format!("{name} '{v}' is not valid")))
+fn tem_bench(level: usize, batch: usize, repeats: usize, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::models::tem::{PROBE_SIDE, TemSet, probe_input};
+    let device = burn::tensor::Device::flex();
+    let tem = TemSet::load_dir(&weights_dir(weights), &device)?;
+    let input: Vec<f32> = (0..batch).flat_map(|_| probe_input(level)).collect();
+    tem.enhance_blocking(level, input.clone(), batch, PROBE_SIDE)?;
+    let mut ms: Vec<f64> = (0..repeats)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            tem.enhance_blocking(level, input.clone(), batch, PROBE_SIDE).map(|_| t.elapsed().as_secs_f64() * 1e3 / batch as f64)
+        })
+        .collect::<Result<_, _>>()?;
+    ms.sort_by(f64::total_cmp);
+    println!("{}", serde_json::json!({ "level": level, "batch": batch, "repeats": repeats, "ms_per_quad": ms[ms.len() / 2], "min_ms_per_quad": ms[0] }));
+    Ok(())
 }
 
 #[cfg(feature = "train")]
-fn train_tem(args: &[String]) -> Result<(), String> {
+fn train_tem(a: TrainArgs) -> Result<(), String> {
     use terrain::train::{self, TrainConfig};
-    let dir = std::path::PathBuf::from(flag(args, "--dem-dir").ok_or("--dem-dir is required")?);
-    let out = std::path::PathBuf::from(flag(args, "--out").unwrap_or("weights"));
+    let out = a.out;
     let d = TrainConfig::default();
     let cfg = TrainConfig {
-        steps: parse_or(args, "--steps", d.steps)?,
-        finetune_steps: parse_or(args, "--finetune", d.finetune_steps)?,
-        batch: parse_or(args, "--batch", d.batch)?,
-        chain_levels: parse_or(args, "--chain", d.chain_levels)?,
-        lr: parse_or(args, "--lr", d.lr)?,
-        seed: parse_or(args, "--seed", d.seed)?,
+        steps: a.steps.unwrap_or(d.steps),
+        finetune_steps: a.finetune.unwrap_or(d.finetune_steps),
+        batch: a.batch.unwrap_or(d.batch),
+        chain_levels: a.chain.map_or(d.chain_levels, |c| c as usize),
+        lr: a.lr.unwrap_or(d.lr),
+        seed: a.seed.unwrap_or(d.seed),
     };
-    let dems = train::pairs::load_dems(&dir)?;
+    let dems = train::pairs::load_dems(&a.dem_dir)?;
     eprintln!("{} DEMs loaded; {cfg:?}", dems.len());
     let device = burn::tensor::Device::flex().autodiff();
-    let every: usize = parse_or(args, "--checkpoint-every", 100)?;
+    let every = a.checkpoint_every;
     let mut saved: Result<(), String> = Ok(());
     let (models, losses) = train::train_tem(&dems, &cfg, &device, |step, loss, secs, models| {
         if step % 10 == 0 {
@@ -159,11 +292,8 @@ fn train_tem(args: &[String]) -> Result<(), String> {
 }
 
 #[cfg(feature = "train")]
-fn eval_tem(args: &[String]) -> Result<(), String> {
+fn eval_tem(dir: PathBuf, weights: PathBuf, windows: usize) -> Result<(), String> {
     use terrain::train;
-    let dir = std::path::PathBuf::from(flag(args, "--dem-dir").ok_or("--dem-dir is required")?);
-    let weights = std::path::PathBuf::from(flag(args, "--weights").unwrap_or("weights"));
-    let windows: usize = parse_or(args, "--windows", 64)?;
     let device = burn::tensor::Device::flex();
     let models = train::load_models(&weights, &device)?;
     let dems = train::pairs::load_dems(&dir)?;
@@ -198,13 +328,13 @@ fn eval_tem(args: &[String]) -> Result<(), String> {
     let refs: Vec<&terrain::dem::Heightfield> = sixteen.iter().collect();
     chained.extend(train::eval_chained(&tem, &train::validation_windows(&refs, 256, 4), 32.0, "real (16 m)")?);
     println!();
-    println!("chained (terrain enhance path)     in→out     windows  RMSE bicubic  RMSE TEM   gain   PSNR bic  PSNR TEM  seam ratio  TEM RMSE by distance to quad edge (px: 0,1,2-3,4-7,8-15,16+)");
+    println!("chained (terrain enhance path)     in→out     windows  RMSE bicubic  RMSE TEM   gain   PSNR bic  PSNR TEM  seam ratio TEM/bicubic/truth  TEM RMSE by distance to quad edge (px: 0,1,2-3,4-7,8-15,16+)");
     for e in &chained {
         let gain = 100.0 * (1.0 - e.rmse_tem / e.rmse_bicubic.max(1e-12));
         let edge: Vec<String> = e.rmse_by_quad_edge_distance.iter().map(|v| format!("{v:.3}")).collect();
         println!(
-            "{:34} {:>3}→{:<3} m ×{:<3} {:5}  {:10.4} m  {:8.4} m  {:5.1}%  {:7.2}  {:8.2}  {:9.3}  {}",
-            e.data, e.input_m, e.output_m, (e.input_m / e.output_m) as u32, e.windows, e.rmse_bicubic, e.rmse_tem, gain, e.psnr_bicubic, e.psnr_tem, e.seam_ratio, edge.join(" ")
+            "{:34} {:>3}→{:<3} m ×{:<3} {:5}  {:10.4} m  {:8.4} m  {:5.1}%  {:7.2}  {:8.2}  {:5.3}/{:5.3}/{:5.3}  {}",
+            e.data, e.input_m, e.output_m, (e.input_m / e.output_m) as u32, e.windows, e.rmse_bicubic, e.rmse_tem, gain, e.psnr_bicubic, e.psnr_tem, e.seam_ratio, e.seam_ratio_bicubic, e.seam_ratio_truth, edge.join(" ")
         );
     }
     println!("{}", serde_json::json!({ "one_level": evals, "chained": chained }));
@@ -212,26 +342,24 @@ fn eval_tem(args: &[String]) -> Result<(), String> {
 }
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let result = match args.first().map(String::as_str) {
-        Some("world") => world(&args[1..]),
-        Some("enhance") => enhance(&args[1..]),
-        Some("tem-probe") => tem_probe(&args[1..]),
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::World { seed, tiles, out, source } => world(seed, &tiles, &out, source),
+        Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
+        Command::TemProbe { weights } => tem_probe(weights),
+        Command::TemExport { weights, out } => tem_export(weights, &out),
+        Command::TemBench { level, batch, repeats, weights } => tem_bench(level as usize, batch as usize, repeats as usize, weights),
         #[cfg(feature = "train")]
-        Some("train-tem") => train_tem(&args[1..]),
+        Command::TrainTem(a) => train_tem(a),
         #[cfg(feature = "train")]
-        Some("eval-tem") => eval_tem(&args[1..]),
-        Some("-h" | "--help") | None => {
-            println!("{USAGE}");
-            return ExitCode::SUCCESS;
-        }
-        Some(other) => Err(format!("unknown command '{other}'\n{USAGE}")),
+        Command::EvalTem { dem_dir, weights, windows } => eval_tem(dem_dir, weights, windows),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            // Usage errors exit 2 (clap); a command that could not do its work exits 1.
             eprintln!("terrain: {e}");
-            ExitCode::from(2)
+            ExitCode::from(1)
         }
     }
 }

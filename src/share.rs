@@ -3,7 +3,11 @@
 //!
 //! Format (version 1): `#v=1&seed=S&cam=X,Y,Z,YAW,PITCH&r=R&lod=PX&noise=KIND,OCT,PERS,LAC,WAVE,AMP,BASE&auto=V`
 //! with metres for positions, radians for angles, tiles for R, pixels for PX and m/s for V.
-//! Unknown keys are ignored so older pages can open newer links.
+//! Unknown keys are ignored so older pages can open newer links. Keys and values are
+//! percent-decoded (`application/x-www-form-urlencoded`, as browsers encode them).
+//!
+//! The page's query string (`?tem=gpu|cpu|off`) holds options of this page load, not of the
+//! world: [`PageOptions`].
 
 use crate::world::{NoiseKind, NoiseParams};
 
@@ -44,16 +48,13 @@ impl Default for ShareState {
 }
 
 /// Why a fragment could not be read.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("broken share link: {0}")]
 pub struct ShareError(pub String);
 
-impl std::fmt::Display for ShareError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "broken share link: {}", self.0)
-    }
-}
-
-impl std::error::Error for ShareError {}
+/// Largest camera heading accepted from a link (radians, either sign); the page keeps its
+/// heading in [0, 2π).
+pub const MAX_LINK_YAW: f64 = 1000.0;
 
 fn numbers<const N: usize>(key: &str, value: &str) -> Result<[f64; N], ShareError> {
     let parts: Vec<&str> = value.split(',').collect();
@@ -94,8 +95,11 @@ impl ShareState {
         if f.trim().is_empty() {
             return Ok(s);
         }
-        for pair in f.split('&').filter(|p| !p.is_empty()) {
-            let (key, value) = pair.split_once('=').ok_or_else(|| ShareError(format!("'{pair}' is not key=value")))?;
+        if let Some(pair) = f.split('&').find(|p| !p.is_empty() && !p.contains('=')) {
+            return Err(ShareError(format!("'{pair}' is not key=value")));
+        }
+        for (key, value) in form_urlencoded::parse(f.as_bytes()) {
+            let (key, value) = (key.as_ref(), value.as_ref());
             match key {
                 "v" if value != "1" => return Err(ShareError(format!("unknown link version '{value}'"))),
                 "v" => {}
@@ -104,6 +108,9 @@ impl ShareState {
                     let [x, y, z, yaw, pitch] = numbers::<5>(key, value)?;
                     if [x, y, z].iter().any(|c| c.abs() > 1e9) {
                         return Err(ShareError("camera is too far out (over 10⁹ m)".into()));
+                    }
+                    if yaw.abs() > MAX_LINK_YAW {
+                        return Err(ShareError(format!("camera heading {yaw} rad is outside ±{MAX_LINK_YAW} rad")));
                     }
                     s.position_m = [x, y, z];
                     s.yaw = yaw as f32;
@@ -149,6 +156,53 @@ impl ShareState {
             }
         }
         Ok(s)
+    }
+}
+
+/// Where the page runs the TEM, from `?tem=`: the adapter decides (`Auto`), or the user asks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TemChoice {
+    /// WebGPU on a hardware adapter, the CPU on a software one.
+    #[default]
+    Auto,
+    /// WebGPU even on a software adapter (`?tem=gpu`).
+    Gpu,
+    /// The CPU backend even with WebGPU (`?tem=cpu`).
+    Cpu,
+    /// Learned detail starts switched off (`?tem=off`).
+    Off,
+}
+
+/// Options of one page load, read from the query string (`?tem=…`).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct PageOptions {
+    /// Where the TEM runs.
+    pub tem: TemChoice,
+}
+
+impl PageOptions {
+    /// Reads a query string (with or without the leading '?'), percent-decoded, exact keys and
+    /// values only (`?xtem=cpu` or `?tem=cpu2` are not `tem=cpu`). Returns the options and a
+    /// notice for values it did not understand (those keep their default).
+    pub fn from_query(query: &str) -> (PageOptions, Option<String>) {
+        let q = query.strip_prefix('?').unwrap_or(query);
+        let mut o = PageOptions::default();
+        let mut notice = None;
+        for (key, value) in form_urlencoded::parse(q.as_bytes()) {
+            if key == "tem" {
+                o.tem = match value.as_ref() {
+                    "auto" => TemChoice::Auto,
+                    "gpu" => TemChoice::Gpu,
+                    "cpu" => TemChoice::Cpu,
+                    "off" => TemChoice::Off,
+                    other => {
+                        notice = Some(format!("unknown ?tem={other} (expected gpu, cpu, off or auto); the page chooses"));
+                        TemChoice::Auto
+                    }
+                };
+            }
+        }
+        (o, notice)
     }
 }
 
@@ -198,11 +252,54 @@ mod tests {
             "justtext",
             "auto=inf",
             "%%%&&==",
+            "cam=0,0,0,1e39,0",
+            "cam=0,0,0,-1001,0",
+            "cam=0,0,0,0,-1e400",
+            "r=1e999",
+            "noise=fbm,8,0.5,2,1e39,2400,0",
+            "seed=%31%32x",
         ] {
             let r = ShareState::from_fragment(bad);
             assert!(r.is_err(), "'{bad}' should be rejected, got {r:?}");
             assert!(!r.unwrap_err().to_string().is_empty());
         }
+    }
+
+    /// Browsers may percent-encode a fragment (',' as %2C, ' ' as %20 or '+'): it reads as
+    /// the plain one.
+    #[test]
+    fn percent_encoded_links_read_like_plain_ones() {
+        let plain = ShareState::from_fragment("seed=77&cam=10,20,30,1.5,-0.25&noise=ridged,6,0.5,2,9000,1500,-20").unwrap();
+        let enc = ShareState::from_fragment("se%65d=77&cam=10%2C20%2C30%2C1.5%2C-0.25&noise=ridged%2C6%2C0.5%2C2%2C9000%2C1500%2C-20").unwrap();
+        assert_eq!(enc, plain);
+        assert_eq!(plain.seed, 77);
+        assert_eq!(ShareState::from_fragment("cam=1,%202,3,0,0").unwrap().position_m, [1.0, 2.0, 3.0]);
+    }
+
+    /// Every camera a link can set is finite: the yaw of 1e39 that once gave a NaN camera is
+    /// refused, and the largest accepted heading stays finite in f32.
+    #[test]
+    fn linked_cameras_are_finite() {
+        let e = ShareState::from_fragment("cam=0,0,0,1e39,0").unwrap_err().to_string();
+        assert!(e.contains("heading"), "{e}");
+        let s = ShareState::from_fragment(&format!("cam=0,0,0,{MAX_LINK_YAW},1e30")).unwrap();
+        assert!(s.yaw.is_finite() && s.yaw.sin().is_finite() && s.pitch == 1.55);
+    }
+
+    /// `?tem=` is read as a parameter: exact key, exact value, percent-decoded; near misses
+    /// are not taken for it, unknown values give a notice and the automatic choice.
+    #[test]
+    fn page_options_read_exact_tem_values() {
+        let tem = |q: &str| PageOptions::from_query(q).0.tem;
+        assert_eq!(tem(""), TemChoice::Auto);
+        assert_eq!(tem("?tem=cpu"), TemChoice::Cpu);
+        assert_eq!(tem("?a=1&tem=gpu"), TemChoice::Gpu);
+        assert_eq!(tem("?t%65m=off"), TemChoice::Off);
+        assert_eq!(tem("?xtem=cpu"), TemChoice::Auto);
+        assert_eq!(tem("?tem=cpu2"), TemChoice::Auto);
+        assert_eq!(tem("?tem=cpu&tem=off"), TemChoice::Off, "the last value wins");
+        assert!(PageOptions::from_query("?tem=cpu2").1.unwrap().contains("cpu2"));
+        assert!(PageOptions::from_query("?tem=cpu").1.is_none());
     }
 
     #[test]

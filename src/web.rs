@@ -10,12 +10,13 @@ use wasm_bindgen::prelude::*;
 
 use crate::app::{MESH_KEEP_FRAMES, REFINE_BATCH, TerrainApp};
 use crate::models;
-use crate::models::tem::{LEVELS, PROBE_SIDE, TemSet, probe_digest, probe_input, weight_file};
+use crate::models::tem::{LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json, weight_file};
 use crate::world::PatchKey;
 use crate::world::refine::INPUT_SIDE;
 use crate::render::camera::ControlInput;
 use crate::render::gpu::TerrainRenderer;
-use crate::share::ShareState;
+use crate::models::runtime::{self, Backend, CpuReason};
+use crate::share::{PageOptions, ShareState, TemChoice};
 use crate::ui::{Environment, Overlay};
 
 const NO_WEBGPU: &str = "This page needs WebGPU, which this browser does not offer. Try a current Chrome, Edge or Safari (or enable WebGPU in the browser's settings).";
@@ -39,12 +40,12 @@ struct Ml {
     error: Option<String>,
     /// A batch is running.
     busy: bool,
-    /// Finished batches: keys, raw output or error, milliseconds.
-    results: Vec<(Vec<PatchKey>, Result<Vec<f32>, String>, f64)>,
+    /// Finished batches: world epoch, keys, raw output or error, milliseconds.
+    results: Vec<(u64, Vec<PatchKey>, Result<Vec<f32>, String>, f64)>,
 }
 
 /// Runs the fixed TEM probe on the page's models (whichever backend they run on) and returns
-/// JSON `{backend, levels: [[mean, samples…] per level]}` for the end-to-end test.
+/// JSON `{backend, levels: [[every height…] per level]}` for the end-to-end test.
 #[wasm_bindgen]
 pub async fn terrain_tem_probe() -> Result<String, JsValue> {
     let Some((tem, backend)) = TEM.with(|t| t.borrow().clone()) else {
@@ -53,9 +54,16 @@ pub async fn terrain_tem_probe() -> Result<String, JsValue> {
     let mut levels = Vec::new();
     for k in 0..LEVELS {
         let raw = tem.enhance_async(k, probe_input(k), 1, PROBE_SIDE).await.map_err(|e| JsValue::from_str(&e))?;
-        levels.push(probe_digest(&raw));
+        levels.push(raw);
     }
-    Ok(serde_json::json!({ "backend": backend, "levels": levels }).to_string())
+    Ok(probe_json(&backend, &levels))
+}
+
+/// Bytes of the page's wasm linear memory now (it only grows; the end-to-end test samples it
+/// during a long flight to show it stops growing).
+#[wasm_bindgen]
+pub fn terrain_wasm_memory_bytes() -> f64 {
+    (core::arch::wasm32::memory_size(0) * 65_536) as f64
 }
 
 /// Reads `url` (relative to the page) as bytes.
@@ -70,15 +78,15 @@ async fn fetch_bytes(url: &str) -> Result<Vec<u8>, String> {
     Ok(js_sys::Uint8Array::new(&buf).to_vec())
 }
 
-/// Whether the page was opened with `?tem=<value>`: `cpu` runs the TEM on the CPU backend even
-/// with WebGPU (e.g. to compare), `off` starts with learned detail switched off.
-fn tem_flag(value: &str) -> bool {
-    web_sys::window().and_then(|w| w.location().search().ok()).is_some_and(|q| q.contains(&format!("tem={value}")))
+/// The page's options from its query string (`?tem=…`) and a notice for values it did not
+/// understand.
+fn page_options() -> (PageOptions, Option<String>) {
+    PageOptions::from_query(&web_sys::window().and_then(|w| w.location().search().ok()).unwrap_or_default())
 }
 
 /// Starts burn: self-check on the shared GPU device, then loads the TEM weights onto it, or
 /// onto the CPU backend when the GPU path is unavailable or fails (and says so).
-async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, ml: Rc<RefCell<Ml>>) {
+async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, choice: TemChoice, ml: Rc<RefCell<Ml>>) {
     let t0 = now_ms();
     let gpu = match gpu {
         Ok(device) => match models::self_check(&device).await {
@@ -91,14 +99,14 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, ml:
         },
         Err(e) => Err(e),
     };
-    let (device, backend) = match gpu {
-        Ok(d) if tem_flag("gpu") || (!software && !tem_flag("cpu")) => (d, "WebGPU".to_string()),
-        Ok(_) if software => (burn::tensor::Device::flex(), "CPU (software WebGPU adapter)".to_string()),
-        Ok(_) => (burn::tensor::Device::flex(), "CPU (asked for by ?tem=cpu)".to_string()),
-        Err(e) => {
-            ml.borrow_mut().status = format!("{e}; the TEM runs on the CPU");
-            (burn::tensor::Device::flex(), "CPU (no WebGPU compute)".to_string())
-        }
+    let chosen = runtime::choose(choice, gpu.as_ref().map(|_| ()).map_err(Clone::clone), software);
+    if let Backend::Cpu(CpuReason::NoGpuCompute(e)) = &chosen {
+        ml.borrow_mut().status = format!("{e}; the TEM runs on the CPU");
+    }
+    let backend = chosen.label();
+    let device = match gpu {
+        Ok(d) if chosen.is_gpu() => d,
+        _ => burn::tensor::Device::flex(),
     };
     ml.borrow_mut().loading = Some(0);
     let mut files = Vec::new();
@@ -125,7 +133,7 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, ml:
     };
     set_loading_note("Preparing the learned detail models…");
     let t0 = now_ms();
-    for k in 0..if backend == "WebGPU" { LEVELS } else { 0 } {
+    for k in 0..if chosen.is_gpu() { LEVELS } else { 0 } {
         if let Err(e) = tem.enhance_async(k, probe_input(k), 1, PROBE_SIDE).await {
             ml.borrow_mut().error = Some(format!("TEM failed on {backend} ({e}); showing the 32 m world"));
             return;
@@ -241,11 +249,12 @@ async fn run() -> Result<(), String> {
     let gpu = models::device_from_setup(models::WgpuSetup { instance: instance.clone(), adapter: adapter.clone(), device: device.clone(), queue: queue.clone(), backend: wgpu::Backend::BrowserWebGpu });
     // Load and warm up the TEM before the renderer starts: its GPU kernels are compiled while
     // the page shows its loading note, not in the middle of a flight (17 s on SwiftShader).
-    start_ml(gpu, software, ml.clone()).await;
+    let (page_opts, options_notice) = page_options();
+    start_ml(gpu, software, page_opts.tem, ml.clone()).await;
 
     let hash = location_hash();
     let (share, message) = match ShareState::from_fragment(&hash) {
-        Ok(s) => (s, None),
+        Ok(s) => (s, options_notice),
         Err(e) => (ShareState::default(), Some(format!("{e}. Showing the default world instead."))),
     };
 
@@ -271,7 +280,7 @@ async fn run() -> Result<(), String> {
                     texture: None,
                     env: Environment { adapter: adapter_name, ..Default::default() },
                     ml,
-                    refine_on: !tem_flag("off"),
+                    refine_on: page_opts.tem != TemChoice::Off,
                     last_eye: None,
                     last_cpu_quad_ms: 0.0,
                     message,
@@ -312,11 +321,11 @@ impl WebApp {
     /// and starts the next batch (one at a time, so frames keep their budget).
     fn pump_refinement(&mut self) {
         let mut ml = self.ml.borrow_mut();
-        for (keys, out, ms) in ml.results.drain(..) {
+        for (epoch, keys, out, ms) in ml.results.drain(..) {
             match out {
-                Ok(raw) => self.app.refine_done(&keys, &raw, ms),
+                Ok(raw) => self.app.refine_done(epoch, &keys, &raw, ms),
                 Err(e) => {
-                    self.app.refine_failed(&keys);
+                    self.app.refine_failed(epoch, &keys);
                     self.message = Some(format!("TEM inference failed: {e}"));
                 }
             }
@@ -353,12 +362,12 @@ impl WebApp {
         let shared = self.ml.clone();
         wasm_bindgen_futures::spawn_local(async move {
             let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
-            let level = keys[0].level as usize;
+            let (level, epoch) = (keys[0].level as usize, jobs[0].epoch);
             let t0 = now_ms();
             let out = tem.enhance_async(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE).await;
             let ms = now_ms() - t0;
             let mut m = shared.borrow_mut();
-            m.results.push((keys, out, ms));
+            m.results.push((epoch, keys, out, ms));
             m.busy = false;
         });
     }

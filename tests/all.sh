@@ -16,25 +16,34 @@ step() { local now; now=$(date +%s); report+="$1 $((now - last)) s, "; echo "== 
 
 bash tests/setup.sh system
 step "system packages"
-# The page's tools (wasm-bindgen-cli, trunk) compile while the native tests build: on a fresh
-# machine each build alone leaves a core idle for long stretches.
-tools_log="$CARGO_TARGET_DIR/setup-tools.log"; mkdir -p "$CARGO_TARGET_DIR"
-bash tests/setup.sh tools > "$tools_log" 2>&1 &
-tools_pid=$!
 
-cargo test --all-targets --no-run
+# The page (its tools, wasm-bindgen-cli and trunk, then its release build) is made while the
+# native tests build and run: each build alone leaves a core idle for long stretches on a
+# 2-core machine. They share the target dir without waiting for each other: cargo locks
+# target/debug for the tests and target/release + target/wasm32-unknown-unknown for the page.
+mkdir -p "$CARGO_TARGET_DIR"
+page_log="$CARGO_TARGET_DIR/page-build.log"
+(
+  p0=$(date +%s)
+  bash tests/setup.sh tools
+  p1=$(date +%s)
+  trunk build --release
+  echo "page job: tools $((p1 - p0)) s, trunk build $(( $(date +%s) - p1 )) s"
+) > "$page_log" 2>&1 &
+page_pid=$!
+
+cargo test --all-targets --no-run --timings
 step "native build"
 cargo test --all-targets
 step "native tests"
 
-if ! wait "$tools_pid"; then cat "$tools_log"; echo "installing wasm-bindgen-cli/trunk failed" >&2; exit 1; fi
-step "tools (waited)"
-trunk build --release
+if ! wait "$page_pid"; then cat "$page_log"; echo "building the page failed" >&2; exit 1; fi
+tail -1 "$page_log"
 wasm=$(ls dist/*.wasm); js=$(ls dist/*.js)
 raw=$(( $(stat -c %s "$wasm") + $(stat -c %s "$js") ))
 gz=$(( $(gzip -9 -c "$wasm" | wc -c) + $(gzip -9 -c "$js" | wc -c) ))
 echo "page size: wasm+js $raw bytes raw, $gz bytes gzip"
-step "page build"
+step "page build (waited for)"
 
 (cd tests/e2e && node --test --test-concurrency=1 page.test.mjs)
 step "e2e"

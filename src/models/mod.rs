@@ -2,6 +2,7 @@
 //! the page, Vulkan natively — with a start-up self-check that runs a real convolution kernel
 //! and compares it with a CPU reference) and the models themselves ([`tem`]).
 
+pub mod runtime;
 pub mod tem;
 
 use burn::tensor::module::conv2d;

@@ -98,6 +98,29 @@ impl Tem {
     }
 }
 
+impl Tem {
+    /// Every convolution's weights ([cout, cin, 3, 3], row-major) and bias as JSON
+    /// (`{"head": {"shape", "w", "b"}, "body.0": …, "merge": …, "tail": …}`), for reference
+    /// runtimes that rebuild the network (tools/tem_vs_onnx.py).
+    pub fn convs_json(&self) -> serde_json::Value {
+        let one = |c: &Conv2d| {
+            let w = c.weight.val();
+            let shape = w.dims().to_vec();
+            let w: Vec<f32> = w.into_data().try_to_vec::<f32>().unwrap_or_default();
+            let b: Option<Vec<f32>> = c.bias.as_ref().map(|b| b.val().into_data().try_to_vec::<f32>().unwrap_or_default());
+            serde_json::json!({ "shape": shape, "w": w, "b": b })
+        };
+        let mut m = serde_json::Map::new();
+        m.insert("head".into(), one(&self.head));
+        for (i, c) in self.body.iter().enumerate() {
+            m.insert(format!("body.{i}"), one(c));
+        }
+        m.insert("merge".into(), one(&self.merge));
+        m.insert("tail".into(), one(&self.tail));
+        serde_json::Value::Object(m)
+    }
+}
+
 /// File name of level `k`'s weights (burnpack) in `weights/`.
 pub fn weight_file(k: usize) -> String {
     format!("tem_{k}_{}m.bpk", LEVEL_SPACING_M[k])
@@ -202,13 +225,11 @@ pub fn probe_input(level: usize) -> Vec<f32> {
         .collect()
 }
 
-/// A compact digest of a probe output ((2·PROBE_SIDE)² metres): its mean and 97 samples on a
-/// fixed stride (metres).
-pub fn probe_digest(raw: &[f32]) -> Vec<f64> {
-    let mean = raw.iter().map(|&v| v as f64).sum::<f64>() / raw.len().max(1) as f64;
-    let mut out = vec![mean];
-    out.extend(raw.iter().step_by(raw.len() / 96).map(|&v| v as f64));
-    out
+/// The probe output of every level as JSON: `{"backend": …, "levels": [[h, …] per level]}`,
+/// every one of the (2·PROBE_SIDE)² heights (metres) of each level, so two backends are
+/// compared on whole outputs.
+pub fn probe_json(backend: &str, levels: &[Vec<f32>]) -> String {
+    serde_json::json!({ "backend": backend, "levels": levels }).to_string()
 }
 
 impl Tem {
@@ -287,6 +308,34 @@ pub(crate) fn randomized(m: Tem, device: &Device, amplitude: f64) -> Tem {
 mod tests {
     use super::*;
     use burn::tensor::TensorData;
+
+    /// Broken weight files (garbage, truncated, empty) are errors that name the file, never
+    /// panics; the intact set loads.
+    #[test]
+    fn broken_weight_files_are_errors_naming_the_file() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let good: Vec<Vec<u8>> = (0..LEVELS).map(|k| std::fs::read(dir.join(weight_file(k))).unwrap()).collect();
+        let device = Device::flex();
+        assert!(TemSet::from_bytes(good.clone(), &device).is_ok());
+        let half = good[2][..good[2].len() / 2].to_vec();
+        let mut flipped = good[2].clone();
+        for b in flipped.iter_mut().step_by(97) {
+            *b ^= 0x5a;
+        }
+        for (what, bytes) in [("garbage", b"not a burnpack file at all".to_vec()), ("truncated", half), ("empty", Vec::new()), ("flipped", flipped)] {
+            let mut files = good.clone();
+            files[2] = bytes;
+            let r = std::panic::catch_unwind(|| TemSet::from_bytes(files, &device).map(|_| ()));
+            let r = r.unwrap_or_else(|_| panic!("{what} weights panicked"));
+            if what != "flipped" {
+                let e = r.unwrap_err();
+                assert!(e.contains(&weight_file(2)), "{what}: {e}");
+            } else if let Err(e) = r {
+                assert!(e.contains(&weight_file(2)), "{what}: {e}");
+            }
+        }
+        assert!(TemSet::from_bytes(good[..4].to_vec(), &device).err().unwrap().contains("4 TEM weight files"));
+    }
 
     #[test]
     fn has_the_papers_parameter_count() {

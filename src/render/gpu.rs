@@ -1,7 +1,6 @@
 //! The wgpu renderer: draws the selected quadtree nodes, the sky and the water into an
 //! offscreen colour target (which the UI shows), with reverse-Z depth.
 
-use std::collections::HashMap;
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
@@ -10,7 +9,8 @@ use wgpu::util::DeviceExt;
 
 use super::camera::Camera;
 use super::mesh::{Vertex, node_indices, node_vertices};
-use crate::world::quadtree::{NodeData, NodeId};
+use super::resident::ResidentMeshes;
+use crate::world::quadtree::NodeData;
 
 /// Colour format of the offscreen target (linear values, stored sRGB).
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
@@ -76,12 +76,6 @@ pub struct RenderStats {
     pub resident: usize,
 }
 
-struct GpuMesh {
-    buffer: wgpu::Buffer,
-    /// Address of the node data it was built from: a refined replacement gets a new mesh.
-    source: usize,
-    last_used: u64,
-}
 
 struct Target {
     size: [u32; 2],
@@ -100,9 +94,8 @@ pub struct TerrainRenderer {
     index_count: u32,
     instances: wgpu::Buffer,
     instance_capacity: usize,
-    meshes: HashMap<NodeId, GpuMesh>,
+    meshes: ResidentMeshes<wgpu::Buffer>,
     target: Option<Target>,
-    frame: u64,
 }
 
 impl TerrainRenderer {
@@ -185,7 +178,7 @@ impl TerrainRenderer {
         });
         let instance_capacity = 256;
         let instances = Self::instance_buffer(device, instance_capacity);
-        Self { globals, bind_group, sky, terrain, water, indices, index_count: idx.len() as u32, instances, instance_capacity, meshes: HashMap::new(), target: None, frame: 0 }
+        Self { globals, bind_group, sky, terrain, water, indices, index_count: idx.len() as u32, instances, instance_capacity, meshes: ResidentMeshes::default(), target: None }
     }
 
     fn instance_buffer(device: &wgpu::Device, n: usize) -> wgpu::Buffer {
@@ -235,7 +228,6 @@ impl TerrainRenderer {
     /// are uploaded on first use and kept while drawn; meshes unused for `keep_frames` frames
     /// are dropped.
     pub fn render(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, nodes: &[Arc<NodeData>], params: &FrameParams, keep_frames: u64) -> RenderStats {
-        self.frame += 1;
         self.ensure_target(device, params.size);
         let mut stats = RenderStats { nodes: nodes.len(), ..Default::default() };
         let cam = &params.camera;
@@ -252,22 +244,16 @@ impl TerrainRenderer {
         queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&g));
 
         let mut inst = Vec::with_capacity(nodes.len());
+        self.meshes.begin_frame();
         for n in nodes {
-            let source = Arc::as_ptr(n) as usize;
-            let fresh = self.meshes.get(&n.id).is_none_or(|m| m.source != source);
-            if fresh {
-                let verts = node_vertices(n);
-                let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            let uploaded = self.meshes.use_mesh(n.id, n.version, || {
+                device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                     label: Some("node mesh"),
-                    contents: bytemuck::cast_slice(&verts),
+                    contents: bytemuck::cast_slice(&node_vertices(n)),
                     usage: wgpu::BufferUsages::VERTEX,
-                });
-                self.meshes.insert(n.id, GpuMesh { buffer, source, last_used: self.frame });
-                stats.uploads += 1;
-            }
-            if let Some(m) = self.meshes.get_mut(&n.id) {
-                m.last_used = self.frame;
-            }
+                })
+            });
+            stats.uploads += uploaded as usize;
             let (x, z) = n.id.origin_m();
             inst.push(Instance { offset: [(x - cam.position_m.x) as f32, -cam.position_m.y as f32, (z - cam.position_m.z) as f32], depth: n.id.depth as f32 });
         }
@@ -278,8 +264,7 @@ impl TerrainRenderer {
         if !inst.is_empty() {
             queue.write_buffer(&self.instances, 0, bytemuck::cast_slice(&inst));
         }
-        let frame = self.frame;
-        self.meshes.retain(|_, m| frame - m.last_used <= keep_frames);
+        self.meshes.evict_unused(keep_frames);
         stats.resident = self.meshes.len();
 
         let target = self.target.as_ref().expect("target ensured above");
@@ -310,7 +295,7 @@ impl TerrainRenderer {
             pass.set_vertex_buffer(1, self.instances.slice(..));
             for (k, n) in nodes.iter().enumerate() {
                 if let Some(m) = self.meshes.get(&n.id) {
-                    pass.set_vertex_buffer(0, m.buffer.slice(..));
+                    pass.set_vertex_buffer(0, m.slice(..));
                     pass.draw_indexed(0..self.index_count, 0, k as u32..k as u32 + 1);
                     stats.triangles += self.index_count as usize / 3;
                 }

@@ -123,8 +123,29 @@ mod tests {
             }
         }
         assert_eq!(border_edges, 4 * NODE_QUADS);
-        // The surface covers the node's square exactly: 2 triangles per quad.
-        assert_eq!(NODE_QUADS * NODE_QUADS * 6 / 3, 2 * NODE_QUADS * NODE_QUADS);
+    }
+
+    /// The surface triangles of the index buffer are 2 per quad, all wound the same way, and
+    /// their areas (projected on the ground) add up to the node's square exactly.
+    #[test]
+    fn surface_triangles_tile_the_node_square() {
+        let idx = node_indices();
+        let grid = (NODE_GRID * NODE_GRID) as u16;
+        let surface: Vec<&[u16]> = idx.chunks_exact(3).filter(|t| t.iter().all(|&i| i < grid)).collect();
+        assert_eq!(surface.len(), 2 * NODE_QUADS * NODE_QUADS);
+        let xz = |i: u16| ((i as usize % NODE_GRID) as f64, (i as usize / NODE_GRID) as f64);
+        let cross = |t: &[u16]| {
+            let (a, b, c) = (xz(t[0]), xz(t[1]), xz(t[2]));
+            (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0)
+        };
+        let sign = cross(surface[0]).signum();
+        let mut area = 0.0;
+        for t in &surface {
+            let c = cross(t);
+            assert!(c * sign > 0.0, "triangle {t:?} is wound the other way or degenerate");
+            area += c.abs() / 2.0;
+        }
+        assert_eq!(area, (NODE_QUADS * NODE_QUADS) as f64);
     }
 
     #[test]

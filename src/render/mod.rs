@@ -3,6 +3,7 @@
 pub mod camera;
 pub mod gpu;
 pub mod mesh;
+pub mod resident;
 
 pub use camera::{Camera, CameraController, CameraMode, ControlInput};
 pub use gpu::{FrameParams, RenderStats, TerrainRenderer};

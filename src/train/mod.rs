@@ -283,8 +283,30 @@ pub struct ChainEval {
     /// [1,2), [2,4), [4,8), [8,16), [16,64); pixels within 16 px of the window border left out.
     pub rmse_by_quad_edge_distance: [f64; 6],
     /// Seam ratio: mean |height step| between neighbouring pixels across quad edges divided by
-    /// the mean step elsewhere (1 = the edges are invisible; bicubic gives its own ratio).
+    /// the mean step elsewhere (1 = the edges are invisible).
     pub seam_ratio: f64,
+    /// The same ratio for direct bicubic upsampling of the same input (its baseline).
+    pub seam_ratio_bicubic: f64,
+    /// The same ratio for the ground truth (what real terrain gives on those pixel columns).
+    pub seam_ratio_truth: f64,
+}
+
+/// Sums of |height step| between horizontal neighbours of `hf` across quad edges (x + 1 a
+/// multiple of PATCH) and elsewhere: ((sum, count) across, (sum, count) elsewhere).
+fn seam_steps(hf: &crate::dem::Heightfield, acc: &mut [(f64, usize); 2]) {
+    for y in 0..hf.height {
+        for x in 0..hf.width.saturating_sub(1) {
+            let step = (hf.at(x + 1, y) - hf.at(x, y)).abs() as f64;
+            let slot = &mut acc[if (x + 1) % PATCH == 0 { 0 } else { 1 }];
+            slot.0 += step;
+            slot.1 += 1;
+        }
+    }
+}
+
+/// Mean step across quad edges over the mean step elsewhere.
+fn seam_ratio(acc: &[(f64, usize); 2]) -> f64 {
+    if acc[0].1 == 0 { f64::NAN } else { (acc[0].0 / acc[0].1 as f64) / (acc[1].0 / acc[1].1.max(1) as f64).max(1e-12) }
 }
 
 /// Evaluates the chained TEM through [`crate::enhance::enhance`] on square `windows` (metres at
@@ -301,7 +323,7 @@ pub fn eval_chained(tem: &crate::models::tem::TemSet, windows: &[crate::dem::Hei
         let mut e = ChainEval { data: data.into(), input_m, output_m, windows: windows.len(), ..Default::default() };
         let (mut se_t, mut se_b, mut count) = (0f64, 0f64, 0usize);
         let mut edge = [(0f64, 0usize); 6];
-        let (mut seam, mut inner) = ((0f64, 0usize), (0f64, 0usize));
+        let mut seams = [[(0f64, 0usize); 2]; 3];
         for w in windows {
             let down = |hf: &Heightfield, times: usize| (0..times).fold(hf.clone(), |a, _| a.downsample2());
             let input = down(w, levels);
@@ -325,14 +347,11 @@ pub fn eval_chained(tem: &crate::models::tem::TemSet, windows: &[crate::dem::Hei
                         edge[b].0 += dt * dt;
                         edge[b].1 += 1;
                     }
-                    if x + 1 < side {
-                        let step = (out.at(x + 1, y) - out.at(x, y)).abs() as f64;
-                        let slot = if (x + 1) % PATCH == 0 { &mut seam } else { &mut inner };
-                        slot.0 += step;
-                        slot.1 += 1;
-                    }
                 }
             }
+            seam_steps(&out, &mut seams[0]);
+            seam_steps(&bic, &mut seams[1]);
+            seam_steps(&truth, &mut seams[2]);
             let range = truth.data.iter().fold(f32::MIN, |a, &b| a.max(b)) - truth.data.iter().fold(f32::MAX, |a, &b| a.min(b));
             let np = (side * side) as f64;
             e.psnr_tem += 20.0 * (range.max(1e-3) as f64 / (st / np).sqrt().max(1e-9)).log10() / windows.len() as f64;
@@ -346,7 +365,9 @@ pub fn eval_chained(tem: &crate::models::tem::TemSet, windows: &[crate::dem::Hei
         for (slot, (s, c)) in e.rmse_by_quad_edge_distance.iter_mut().zip(edge) {
             *slot = if c == 0 { f64::NAN } else { (s / c as f64).sqrt() };
         }
-        e.seam_ratio = if seam.1 == 0 { f64::NAN } else { (seam.0 / seam.1 as f64) / (inner.0 / inner.1.max(1) as f64).max(1e-12) };
+        e.seam_ratio = seam_ratio(&seams[0]);
+        e.seam_ratio_bicubic = seam_ratio(&seams[1]);
+        e.seam_ratio_truth = seam_ratio(&seams[2]);
         rows.push(e);
     }
     Ok(rows)

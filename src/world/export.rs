@@ -1,9 +1,9 @@
 //! Writing a rectangle of tiles as one heightfield: the CLI's `terrain world`.
 
-use super::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
+use super::coord::{BASE_SPACING_M, TILE_SAMPLES, TILE_SIZE_M, TileCoord};
 use super::stream::WorldStream;
 use super::tile::TileSource;
-use crate::dem::Heightfield;
+use crate::dem::{GeoRef, Heightfield};
 
 /// The 32 m heights (metres) of tiles [x0, x0 + w) × [y0, y0 + h) of world `seed`, as one
 /// heightfield of (w·128) × (h·128) samples, row 0 at the north (lowest z).
@@ -24,7 +24,11 @@ pub fn region(seed: u64, source: Box<dyn TileSource>, x0: i32, y0: i32, w: u32, 
             }
         }
     }
-    Heightfield::new(width, height, BASE_SPACING_M, data)
+    // The world's own metric frame (x east, z south; GeoTIFF's y points north): sample i covers
+    // [32 i − 16, 32 i + 16) m.
+    let half = BASE_SPACING_M / 2.0;
+    let corner = [x0 as f64 * TILE_SIZE_M - half, -(y0 as f64 * TILE_SIZE_M - half)];
+    Heightfield::new(width, height, BASE_SPACING_M, data).with_geo(Some(GeoRef { origin_m: corner, epsg: None }))
 }
 
 #[cfg(test)]

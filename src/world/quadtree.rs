@@ -84,6 +84,15 @@ pub struct NodeData {
     /// How far the skirts hang below the edges (metres): at least the height range of the
     /// finest known samples along any edge, which bounds the gap to any neighbour's edge.
     pub skirt_m: f32,
+    /// Content version: unique to every node data built in this process (a clone keeps it),
+    /// so caches keyed by (id, version) never take a rebuilt node for an older one.
+    pub version: u64,
+}
+
+/// The next [`NodeData::version`].
+fn next_version() -> u64 {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
 impl NodeData {
@@ -142,7 +151,7 @@ impl NodeData {
                 max_m = max_m.max(h);
             }
         }
-        NodeData { id, heights, min_m, max_m, skirt_m }
+        NodeData { id, heights, min_m, max_m, skirt_m, version: next_version() }
     }
 
     /// World-space bounding box (metres) including the skirts.
@@ -287,8 +296,12 @@ impl NodeCache {
     /// `build_budget` nodes this call); otherwise draw the node itself. Below the base depth a
     /// node also has to be rough enough ([`ROUGHNESS_PER_SPACING`]); the refined patch its
     /// children need is requested from `refine` (nearest first) when missing. Nodes outside the
-    /// frustum are skipped. Every visible part of every tile is covered exactly once.
+    /// frustum are skipped. Every visible part of every tile is covered exactly once. The
+    /// store's earlier requests are replaced by this view's.
     pub fn select(&mut self, tiles: &[TileCoord], world: &WorldStream, mut refine: Option<&mut PatchStore>, view: &LodView, build_budget: &mut usize) -> Vec<Arc<NodeData>> {
+        if let Some(store) = refine.as_deref_mut() {
+            store.clear_requests();
+        }
         let mut out = Vec::new();
         for &t in tiles {
             if let Some(root) = self.get_or_build(NodeId::root(t), world, None, build_budget) {

@@ -1,0 +1,82 @@
+//! Where the models run in the page: the choice between the shared WebGPU device and burn's
+//! CPU backend, and why. Pure policy, so it is tested natively; the browser shell only reports
+//! what it found (adapter kind, self-check result) and acts on the answer.
+
+use crate::share::TemChoice;
+
+/// Why the models run on the CPU.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum CpuReason {
+    /// The WebGPU adapter is a software rasteriser (SwiftShader, llvmpipe): the CPU backend is
+    /// faster than a CPU-emulated GPU.
+    SoftwareAdapter,
+    /// The user asked for it (`?tem=cpu`).
+    Asked,
+    /// WebGPU compute failed its self-check or is missing (the message says how).
+    NoGpuCompute(String),
+}
+
+/// The backend the models run on.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Backend {
+    /// burn's wgpu backend on the renderer's WebGPU device.
+    Gpu,
+    /// burn's CPU backend, and why.
+    Cpu(CpuReason),
+}
+
+impl Backend {
+    /// The overlay's name for it ("WebGPU", "CPU (software WebGPU adapter)", …).
+    pub fn label(&self) -> String {
+        match self {
+            Backend::Gpu => "WebGPU".into(),
+            Backend::Cpu(CpuReason::SoftwareAdapter) => "CPU (software WebGPU adapter)".into(),
+            Backend::Cpu(CpuReason::Asked) => "CPU (asked for by ?tem=cpu)".into(),
+            Backend::Cpu(CpuReason::NoGpuCompute(_)) => "CPU (no WebGPU compute)".into(),
+        }
+    }
+
+    /// Whether this is the GPU.
+    pub fn is_gpu(&self) -> bool {
+        matches!(self, Backend::Gpu)
+    }
+}
+
+/// Chooses the backend: the GPU when its self-check passed (`gpu` is `Ok`) and either the
+/// user asked for it or the adapter is a hardware one not overridden by `?tem=cpu`; else the
+/// CPU with the reason. `Off` and `Auto` choose alike (off only starts with detail hidden).
+pub fn choose(choice: TemChoice, gpu: Result<(), String>, software_adapter: bool) -> Backend {
+    match gpu {
+        Err(e) => Backend::Cpu(CpuReason::NoGpuCompute(e)),
+        Ok(()) => match choice {
+            TemChoice::Gpu => Backend::Gpu,
+            TemChoice::Cpu => Backend::Cpu(CpuReason::Asked),
+            TemChoice::Auto | TemChoice::Off if software_adapter => Backend::Cpu(CpuReason::SoftwareAdapter),
+            TemChoice::Auto | TemChoice::Off => Backend::Gpu,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every combination of choice, self-check and adapter kind gives the documented backend.
+    #[test]
+    fn the_backend_follows_choice_self_check_and_adapter() {
+        use TemChoice::*;
+        let ok = || Ok(());
+        assert_eq!(choose(Auto, ok(), false), Backend::Gpu);
+        assert_eq!(choose(Off, ok(), false), Backend::Gpu);
+        assert_eq!(choose(Auto, ok(), true), Backend::Cpu(CpuReason::SoftwareAdapter));
+        assert_eq!(choose(Gpu, ok(), true), Backend::Gpu);
+        assert_eq!(choose(Cpu, ok(), false), Backend::Cpu(CpuReason::Asked));
+        for c in [Auto, Gpu, Cpu, Off] {
+            let b = choose(c, Err("device lost".into()), false);
+            assert_eq!(b, Backend::Cpu(CpuReason::NoGpuCompute("device lost".into())));
+            assert_eq!(b.label(), "CPU (no WebGPU compute)");
+        }
+        assert_eq!(choose(Auto, ok(), true).label(), "CPU (software WebGPU adapter)");
+        assert!(Backend::Gpu.is_gpu() && !choose(Cpu, ok(), false).is_gpu());
+    }
+}

@@ -1,0 +1,147 @@
+#!/usr/bin/env python3
+"""Our TEM CPU inference against ONNX Runtime on the same network, side by side.
+
+Builds each level's graph (features, head, body, merge, pixel shuffle, tail, bicubic base) in
+ONNX from the shipped weights (exported by `terrain tem-export`), checks that ONNX Runtime gives
+our output on the fixed probe (max |dh| < 1 mm), then times one quad (input 100x100 incl.
+margin -> 200x200) at batch 1 and 4 with 1 thread and all threads, in ONNX Runtime and in ours
+(`terrain tem-bench`, the same thread counts), and prints ms per quad and ours/reference.
+
+    pip install onnxruntime onnx numpy
+    cargo build --release && python3 tools/tem_vs_onnx.py [--bin target/release/terrain]
+"""
+import argparse
+import json
+import os
+import subprocess
+import tempfile
+import time
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+from onnx import TensorProto, helper, numpy_helper
+
+
+def cubic_weights(t, a=-0.75):
+    near = lambda x: ((a + 2) * x - (a + 3)) * x * x + 1
+    far = lambda x: ((a * x - 5 * a) * x + 8 * a) * x - 4 * a
+    return [far(t + 1), near(t), near(1 - t), far(2 - t)]
+
+
+def build(level, side):
+    """ONNX model of one TEM level for input [B, 1, side, side] (metres)."""
+    inits, nodes = [], []
+
+    def const(name, arr):
+        inits.append(numpy_helper.from_array(np.asarray(arr, dtype=np.float32), name))
+        return name
+
+    def conv(x, name, w, b, pad):
+        out = name + "_out"
+        ins = [x, const(name + "_w", w)] + ([const(name + "_b", b)] if b is not None else [])
+        nodes.append(helper.make_node("Conv", ins, [out], pads=[pad] * 4, name=name))
+        return out
+
+    def op(kind, ins, name, **attrs):
+        nodes.append(helper.make_node(kind, ins, [name], name=name, **attrs))
+        return name
+
+    scale, gain = level["scale_m"], level["feature_gain"]
+    const_i64(inits, "pads1", [0, 0, 1, 1, 0, 0, 1, 1])
+    const_i64(inits, "pads2", [0, 0, 2, 2, 0, 0, 2, 2])
+    xn = op("Div", ["x", const("scale", [scale])], "xn")
+    xp = op("Pad", [xn, "pads1"], "xp", mode="edge")
+    box = np.full((3, 3), -1 / 9.0)
+    box[1, 1] += 1
+    gx = np.zeros((3, 3)); gx[1, 0], gx[1, 2] = -0.5, 0.5
+    gz = np.zeros((3, 3)); gz[0, 1], gz[2, 1] = -0.5, 0.5
+    k = np.stack([box, gx, gz])[:, None] * gain
+    f3 = conv(xp, "feat", k, None, 0)
+    g = op("Slice", [f3, const_i64(inits, "s1", [1]), const_i64(inits, "e3", [3]), const_i64(inits, "ax1", [1])], "grad")
+    mag = op("ReduceSum", [op("Abs", [g], "absg"), const_i64(inits, "ax1b", [1])], "mag", keepdims=1)
+    feats = op("Concat", [f3, mag], "feats", axis=1)
+    c = level["convs"]
+    head = conv(feats, "head", c["head"]["w"], c["head"]["b"], 1)
+    b = head
+    for i in range(4):
+        b = op("Relu", [conv(b, f"body{i}", c[f"body.{i}"]["w"], c[f"body.{i}"]["b"], 1)], f"relu{i}")
+    merged = op("Add", [conv(b, "merge", c["merge"]["w"], c["merge"]["b"], 1), head], "merged")
+    shuffled = op("DepthToSpace", [merged], "shuffled", blocksize=2, mode="CRD")
+    residual = conv(shuffled, "tail", c["tail"]["w"], c["tail"]["b"], 1)
+    even, odd = cubic_weights(0.75), cubic_weights(0.25)
+    taps = [even + [0.0], [0.0] + odd]
+    bk = np.array([[np.outer(taps[dy], taps[dx]) for dy in range(2) for dx in range(2)]]).transpose(1, 0, 2, 3)
+    xp2 = op("Pad", ["x", "pads2"], "xp2", mode="edge")
+    base = op("DepthToSpace", [conv(xp2, "bicubic", bk, None, 0)], "base", blocksize=2, mode="CRD")
+    op("Add", [base, op("Mul", [residual, const("scale2", [scale])], "res_m")], "y")
+    graph = helper.make_graph(
+        nodes, f"tem_{level['level']}",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, ["B", 1, side, side])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, ["B", 1, 2 * side, 2 * side])],
+        inits,
+    )
+    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+
+
+def const_i64(inits, name, v):
+    inits.append(numpy_helper.from_array(np.array(v, dtype=np.int64), name))
+    return name
+
+
+def session(model, threads):
+    o = ort.SessionOptions()
+    o.intra_op_num_threads = threads
+    o.inter_op_num_threads = 1
+    o.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    return ort.InferenceSession(model.SerializeToString(), o, providers=["CPUExecutionProvider"])
+
+
+def time_ms(fn, repeats):
+    fn()
+    best = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        best.append((time.perf_counter() - t) * 1e3)
+    return float(np.median(best))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    here = os.path.dirname(os.path.abspath(__file__))
+    target = os.environ.get("CARGO_TARGET_DIR", os.path.join(here, "..", "target"))
+    ap.add_argument("--bin", default=os.path.join(target, "release", "terrain"))
+    ap.add_argument("--weights", default=os.path.join(here, "..", "weights"))
+    ap.add_argument("--level", type=int, default=0)
+    ap.add_argument("--repeats", type=int, default=10)
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "tem.json")
+        subprocess.run([a.bin, "tem-export", "--weights", a.weights, "--out", path], check=True)
+        exported = json.load(open(path))
+    lv = exported["levels"][a.level]
+    side = exported["probe_side"]
+    model = build(lv, side)
+    onnx.checker.check_model(model)
+    x = np.array(lv["probe_input"], dtype=np.float32).reshape(1, 1, side, side)
+    want = np.array(lv["probe_output"], dtype=np.float32).reshape(1, 1, 2 * side, 2 * side)
+    got = session(model, 1).run(["y"], {"x": x})[0]
+    diff = float(np.abs(got - want).max())
+    print(f"level {a.level}: ONNX Runtime {ort.__version__} vs ours on the probe: max |dh| {diff:.2e} m")
+    assert diff < 1e-3, "the ONNX graph is not our network"
+    cores = os.cpu_count()
+    print(f"{'threads':>7} {'batch':>5} {'ORT ms/quad':>12} {'ours ms/quad':>13} {'ours/ORT':>9}")
+    for threads in sorted({1, cores}):
+        for batch in (1, 4):
+            s = session(model, threads)
+            xb = np.repeat(x, batch, axis=0)
+            ref = time_ms(lambda: s.run(["y"], {"x": xb}), a.repeats) / batch
+            env = dict(os.environ, RAYON_NUM_THREADS=str(threads))
+            out = subprocess.run([a.bin, "tem-bench", "--level", str(a.level), "--batch", str(batch), "--repeats", str(a.repeats)], check=True, capture_output=True, text=True, env=env)
+            ours = json.loads(out.stdout)["ms_per_quad"]
+            print(f"{threads:>7} {batch:>5} {ref:>12.2f} {ours:>13.2f} {ours / ref:>9.2f}")
+
+
+if __name__ == "__main__":
+    main()
