@@ -61,7 +61,7 @@ def build(level, side):
     g = op("Slice", [f3, const_i64(inits, "s1", [1]), const_i64(inits, "e3", [3]), const_i64(inits, "ax1", [1])], "grad")
     mag = op("ReduceSum", [op("Abs", [g], "absg"), const_i64(inits, "ax1b", [1])], "mag", keepdims=1)
     feats = op("Concat", [f3, mag], "feats", axis=1)
-    c = level["convs"]
+    c = {k: {"w": np.array(v["w"]).reshape(v["shape"]), "b": v["b"]} for k, v in level["convs"].items()}
     head = conv(feats, "head", c["head"]["w"], c["head"]["b"], 1)
     b = head
     for i in range(4):
