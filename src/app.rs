@@ -420,20 +420,26 @@ mod tests {
         app
     }
 
+    /// Runs up to 20 frames until the app asks for TEM jobs; returns them (empty if it never
+    /// did).
+    fn frames_until_jobs(app: &mut TerrainApp) -> Vec<RefineJob> {
+        for _ in 0..20 {
+            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+            let jobs = app.refine_jobs(REFINE_BATCH);
+            if !jobs.is_empty() {
+                return jobs;
+            }
+        }
+        Vec::new()
+    }
+
     /// A TEM batch still running when the world changes (here: a new seed) comes back tagged
     /// with the old epoch and is dropped: nothing of the old world lands in the new one. The
     /// same batch delivered for the current world is stored (control).
     #[test]
     fn a_batch_of_an_older_world_is_dropped() {
         let mut app = low_refining_app();
-        let mut jobs = Vec::new();
-        for _ in 0..20 {
-            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
-            jobs = app.refine_jobs(REFINE_BATCH);
-            if !jobs.is_empty() {
-                break;
-            }
-        }
+        let jobs = frames_until_jobs(&mut app);
         assert!(!jobs.is_empty(), "the low view asks for refined patches");
         let old_epoch = jobs[0].epoch;
         assert_eq!(old_epoch, app.epoch());
@@ -448,15 +454,7 @@ mod tests {
         let s = app.refine_stats();
         assert_eq!((s.quads_made, s.cached, s.stale_dropped), (0, 0, keys.len() as u64), "stale batch must not land: {s:?}");
         // The same kind of batch for the current world lands.
-        let mut fresh = Vec::new();
-        for _ in 0..20 {
-            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
-            fresh = app.refine_jobs(REFINE_BATCH);
-            if !fresh.is_empty() {
-                break;
-            }
-        }
-        let keys: Vec<PatchKey> = fresh.iter().map(|j| j.key).collect();
+        let keys: Vec<PatchKey> = frames_until_jobs(&mut app).iter().map(|j| j.key).collect();
         app.refine_done(app.epoch(), &keys, &vec![5.0f32; (2 * INPUT_SIDE).pow(2) * keys.len()], 10.0);
         assert_eq!(app.refine_stats().quads_made, keys.len() as u64);
         assert!(!keys.is_empty());

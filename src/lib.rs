@@ -7,6 +7,8 @@
 //! [`share`] reads and writes links, [`dem`] reads and writes heightfields, [`models`] hosts
 //! the neural networks and their runtime, `enhance` refines whole DEMs (native).
 
+#![warn(missing_docs)]
+
 pub mod app;
 pub mod dem;
 #[cfg(not(target_arch = "wasm32"))]
