@@ -25,20 +25,26 @@ fn world(c: &mut Criterion) {
     c.bench_function("node mesh 33x33 + skirts", |b| b.iter(|| black_box(node_vertices(&node))));
 }
 
-/// TEM inference per refined quad on the CPU backend (burn flex): one level-0 window of
-/// 100² heights → 200² (the stored patch keeps 164²), alone and in a batch of 4.
+/// TEM inference per refined quad on the CPU (the project's kernels, shipped weights): one
+/// level-0 window of 100² heights → 200² (the stored patch keeps 164²), alone and in a batch
+/// of 4, on 1 thread and on every core. tools/tem_vs_onnx.py compares the same configurations
+/// with ONNX Runtime.
 fn tem(c: &mut Criterion) {
-    use terrain::models::tem::TemSet;
+    use terrain::models::cpu::default_threads;
+    use terrain::models::tem::{Exec, TemSet};
     use terrain::world::refine::INPUT_SIDE;
-    let device = burn::tensor::Device::flex();
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
-    let tem = TemSet::load_dir(&dir, &device).unwrap_or_else(|_| TemSet::untrained(&device));
     let input: Vec<f32> = (0..INPUT_SIDE * INPUT_SIDE).map(|k| ((k % INPUT_SIDE) as f32 * 0.2).sin() * 40.0 + (k / INPUT_SIDE) as f32).collect();
+    let four: Vec<f32> = (0..4).flat_map(|_| input.clone()).collect();
     let mut g = c.benchmark_group("tem cpu");
     g.sample_size(10);
-    g.bench_function("1 quad (level 0, 100² → 200²)", |b| b.iter(|| black_box(tem.enhance_blocking(0, input.clone(), 1, INPUT_SIDE).unwrap())));
-    let four: Vec<f32> = (0..4).flat_map(|_| input.clone()).collect();
-    g.bench_function("batch of 4 quads", |b| b.iter(|| black_box(tem.enhance_blocking(0, four.clone(), 4, INPUT_SIDE).unwrap())));
+    let mut threads = vec![1, default_threads()];
+    threads.dedup();
+    for t in threads {
+        let tem = TemSet::load_dir(&dir, &Exec::Cpu { threads: t }).expect("weights/");
+        g.bench_function(format!("1 quad, {t} thread(s) (level 0, 100² → 200²)"), |b| b.iter(|| black_box(tem.enhance_blocking(0, input.clone(), 1, INPUT_SIDE).unwrap())));
+        g.bench_function(format!("batch of 4 quads, {t} thread(s)"), |b| b.iter(|| black_box(tem.enhance_blocking(0, four.clone(), 4, INPUT_SIDE).unwrap())));
+    }
     g.finish();
 }
 

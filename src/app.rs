@@ -380,8 +380,7 @@ mod tests {
     /// above rough ground draws nodes below 32 m, built from TEM patches.
     #[test]
     fn refinement_draws_nodes_below_the_base_depth() {
-        let device = burn::tensor::Device::flex();
-        let tem = crate::models::tem::TemSet::untrained(&device);
+        let tem = crate::models::tem::TemSet::untrained(&crate::models::tem::Exec::cpu());
         let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, ..ShareState::default() });
         app.set_refinement(Some("CPU".into()));
         for _ in 0..60 {

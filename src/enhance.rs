@@ -113,7 +113,7 @@ pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &T
 #[cfg(test)]
 mod tests {
     use super::*;
-    use burn::tensor::Device;
+    use crate::models::tem::Exec;
 
     #[test]
     fn levels_follow_the_resolutions() {
@@ -134,7 +134,7 @@ mod tests {
         assert_eq!(output_size(362, 362, 5).unwrap(), (11_584, 11_584));
         assert!(output_size(363, 363, 5).is_err(), "11,616² > 2²⁷");
         assert!(output_size(usize::MAX / 2, 3, 5).is_err(), "no overflow");
-        let tem = TemSet::untrained(&Device::flex());
+        let tem = TemSet::untrained(&Exec::cpu());
         let big = Heightfield::new(400, 400, 32.0, vec![100.0; 400 * 400]);
         let mut calls = 0;
         let err = enhance(&big, 32.0, 1.0, &tem, 4, &mut |_, _, _| calls += 1).unwrap_err();
@@ -150,7 +150,7 @@ mod tests {
         let mut data: Vec<f32> = (0..w * h).map(|k| ((k % w) as f32 * 0.4).sin() * 30.0 + (k / w) as f32 * 2.0 + 500.0).collect();
         data[3 * w + 5] = f32::NAN;
         let hf = Heightfield::new(w, h, 32.0, data);
-        let tem = TemSet::untrained(&Device::flex());
+        let tem = TemSet::untrained(&Exec::cpu());
         let mut calls = 0;
         let (out, stats) = enhance(&hf, 32.0, 8.0, &tem, 4, &mut |_, _, _| calls += 1).unwrap();
         assert_eq!((out.width, out.height, out.spacing_m), (w * 4, h * 4, 8.0));

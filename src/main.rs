@@ -87,9 +87,12 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Time TEM inference on the CPU (threads: RAYON_NUM_THREADS): prints JSON with the
-    /// median milliseconds per quad (input 100² incl. margin → 200²).
+    /// Time TEM inference on the CPU: prints JSON with the median milliseconds per quad
+    /// (input 100² incl. margin → 200²).
     TemBench {
+        /// Threads (default: every core).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
+        threads: Option<u32>,
         /// Level of the ladder (0 = 32 → 16 m).
         #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..5))]
         level: u32,
@@ -194,8 +197,7 @@ fn enhance(input: &std::path::Path, input_res: f64, output_res: f64, out: &std::
     let (first, last) = terrain::enhance::levels_for(input_res, output_res)?;
     let hf = Heightfield::read_path(input, Some(input_res), PngScale::default()).map_err(|e| format!("{}: {e}", input.display()))?;
     terrain::enhance::output_size(hf.width, hf.height, last - first + 1)?;
-    let device = burn::tensor::Device::flex();
-    let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(weights), &device)?;
+    let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(weights), &terrain::models::tem::Exec::cpu())?;
     let t = std::time::Instant::now();
     let mut last_report = (usize::MAX, 0);
     let (result, stats) = terrain::enhance::enhance(&hf, input_res, output_res, &tem, batch, &mut |level, done, total| {
@@ -214,24 +216,22 @@ fn enhance(input: &std::path::Path, input_res: f64, output_res: f64, out: &std::
 }
 
 fn tem_probe(weights: Option<PathBuf>) -> Result<(), String> {
-    use terrain::models::tem::{LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json};
-    let device = burn::tensor::Device::flex();
-    let tem = TemSet::load_dir(&weights_dir(weights), &device)?;
+    use terrain::models::tem::{Exec, LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json};
+    let tem = TemSet::load_dir(&weights_dir(weights), &Exec::cpu())?;
     let levels = (0..LEVELS).map(|k| tem.enhance_blocking(k, probe_input(k), 1, PROBE_SIDE)).collect::<Result<Vec<_>, _>>()?;
-    println!("{}", probe_json("cpu (burn flex)", &levels));
+    println!("{}", probe_json("cpu", &levels));
     Ok(())
 }
 
 fn tem_export(weights: Option<PathBuf>, out: &std::path::Path) -> Result<(), String> {
-    use terrain::models::tem::{FEATURE_GAIN, LEVELS, PROBE_SIDE, TemSet, level_scale_m, probe_input};
-    let device = burn::tensor::Device::flex();
-    let tem = TemSet::load_dir(&weights_dir(weights), &device)?;
+    use terrain::models::tem::{Exec, FEATURE_GAIN, LEVELS, PROBE_SIDE, TemSet, level_scale_m, probe_input};
+    let tem = TemSet::load_dir(&weights_dir(weights), &Exec::cpu())?;
     let mut levels = Vec::new();
     for k in 0..LEVELS {
         let output = tem.enhance_blocking(k, probe_input(k), 1, PROBE_SIDE)?;
         levels.push(serde_json::json!({
             "level": k, "scale_m": level_scale_m(k), "feature_gain": FEATURE_GAIN,
-            "convs": tem.model(k).convs_json(), "probe_input": probe_input(k), "probe_output": output,
+            "convs": tem.convs_json(k), "probe_input": probe_input(k), "probe_output": output,
         }));
     }
     let json = serde_json::json!({ "probe_side": PROBE_SIDE, "levels": levels });
@@ -240,10 +240,10 @@ fn tem_export(weights: Option<PathBuf>, out: &std::path::Path) -> Result<(), Str
     Ok(())
 }
 
-fn tem_bench(level: usize, batch: usize, repeats: usize, weights: Option<PathBuf>) -> Result<(), String> {
-    use terrain::models::tem::{PROBE_SIDE, TemSet, probe_input};
-    let device = burn::tensor::Device::flex();
-    let tem = TemSet::load_dir(&weights_dir(weights), &device)?;
+fn tem_bench(level: usize, batch: usize, repeats: usize, threads: Option<u32>, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::models::tem::{Exec, PROBE_SIDE, TemSet, probe_input};
+    let exec = threads.map_or_else(Exec::cpu, |t| Exec::Cpu { threads: t as usize });
+    let tem = TemSet::load_dir(&weights_dir(weights), &exec)?;
     let input: Vec<f32> = (0..batch).flat_map(|_| probe_input(level)).collect();
     tem.enhance_blocking(level, input.clone(), batch, PROBE_SIDE)?;
     let mut ms: Vec<f64> = (0..repeats)
@@ -253,7 +253,7 @@ fn tem_bench(level: usize, batch: usize, repeats: usize, weights: Option<PathBuf
         })
         .collect::<Result<_, _>>()?;
     ms.sort_by(f64::total_cmp);
-    println!("{}", serde_json::json!({ "level": level, "batch": batch, "repeats": repeats, "ms_per_quad": ms[ms.len() / 2], "min_ms_per_quad": ms[0] }));
+    println!("{}", serde_json::json!({ "level": level, "batch": batch, "repeats": repeats, "backend": tem.backend(), "ms_per_quad": ms[ms.len() / 2], "min_ms_per_quad": ms[0] }));
     Ok(())
 }
 
@@ -308,7 +308,7 @@ fn eval_tem(dir: PathBuf, weights: PathBuf, windows: usize) -> Result<(), String
         );
     }
     // Chained from the coarsest input through the `enhance` path.
-    let tem = terrain::models::tem::TemSet::from_models(models, &device)?;
+    let tem = terrain::models::tem::TemSet::from_models(models, &terrain::models::tem::Exec::cpu())?;
     let mut chained = Vec::new();
     // Self-similar ×32: the largest validation regions, native pixels taken as 1 m.
     let big: Vec<&terrain::dem::Heightfield> = dems.iter().map(|d| &d.hf).collect();
@@ -348,7 +348,7 @@ fn main() -> ExitCode {
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),
         Command::TemExport { weights, out } => tem_export(weights, &out),
-        Command::TemBench { level, batch, repeats, weights } => tem_bench(level as usize, batch as usize, repeats as usize, weights),
+        Command::TemBench { level, batch, repeats, threads, weights } => tem_bench(level as usize, batch as usize, repeats as usize, threads, weights),
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
         #[cfg(feature = "train")]

@@ -10,7 +10,7 @@ use wasm_bindgen::prelude::*;
 
 use crate::app::{MESH_KEEP_FRAMES, REFINE_BATCH, TerrainApp};
 use crate::models;
-use crate::models::tem::{LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json, weight_file};
+use crate::models::tem::{Exec, LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json, weight_file};
 use crate::world::PatchKey;
 use crate::world::refine::INPUT_SIDE;
 use crate::render::camera::ControlInput;
@@ -66,11 +66,17 @@ pub fn terrain_wasm_memory_bytes() -> f64 {
     (core::arch::wasm32::memory_size(0) * 65_536) as f64
 }
 
-/// Reads `url` (relative to the page) as bytes.
-async fn fetch_bytes(url: &str) -> Result<Vec<u8>, String> {
-    use wasm_bindgen_futures::JsFuture;
+/// Starts fetching `url`: the request is in flight when this returns, so several can
+/// download at once.
+fn start_fetch(url: &str) -> Result<wasm_bindgen_futures::JsFuture, String> {
     let window = web_sys::window().ok_or("no window")?;
-    let resp: web_sys::Response = JsFuture::from(window.fetch_with_str(url)).await.map_err(|e| format!("{url}: {e:?}"))?.dyn_into().map_err(|_| format!("{url}: not a response"))?;
+    Ok(wasm_bindgen_futures::JsFuture::from(window.fetch_with_str(url)))
+}
+
+/// The body of a fetch started by [`start_fetch`].
+async fn fetched_bytes(url: &str, request: wasm_bindgen_futures::JsFuture) -> Result<Vec<u8>, String> {
+    use wasm_bindgen_futures::JsFuture;
+    let resp: web_sys::Response = request.await.map_err(|e| format!("{url}: {e:?}"))?.dyn_into().map_err(|_| format!("{url}: not a response"))?;
     if !resp.ok() {
         return Err(format!("{url}: HTTP {}", resp.status()));
     }
@@ -104,14 +110,17 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, cho
         ml.borrow_mut().status = format!("{e}; the TEM runs on the CPU");
     }
     let backend = chosen.label();
-    let device = match gpu {
-        Ok(d) if chosen.is_gpu() => d,
-        _ => burn::tensor::Device::flex(),
+    let exec = match gpu {
+        Ok(d) if chosen.is_gpu() => Exec::Burn(d),
+        _ => Exec::cpu(),
     };
     ml.borrow_mut().loading = Some(0);
     let mut files = Vec::new();
-    for k in 0..LEVELS {
-        match fetch_bytes(&format!("weights/{}", weight_file(k))).await {
+    // All five requests go out at once; their bodies are read in level order.
+    let urls: Vec<String> = (0..LEVELS).map(|k| format!("weights/{}", weight_file(k))).collect();
+    let requests: Vec<_> = urls.iter().map(|u| start_fetch(u)).collect();
+    for (k, (url, request)) in urls.iter().zip(requests).enumerate() {
+        match async { fetched_bytes(url, request?).await }.await {
             Ok(b) => files.push(b),
             Err(e) => {
                 let mut m = ml.borrow_mut();
@@ -124,7 +133,7 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, cho
         set_loading_note(&format!("Loading the learned detail models {}/{LEVELS}…", k + 1));
     }
     ml.borrow_mut().loading = None;
-    let tem = match TemSet::from_bytes(files, &device) {
+    let tem = match TemSet::from_bytes(files, &exec) {
         Ok(tem) => Rc::new(tem),
         Err(e) => {
             ml.borrow_mut().error = Some(format!("TEM weights are broken ({e}); showing the 32 m world"));

@@ -137,8 +137,7 @@ def main():
             s = session(model, threads)
             xb = np.repeat(x, batch, axis=0)
             ref = time_ms(lambda: s.run(["y"], {"x": xb}), a.repeats) / batch
-            env = dict(os.environ, RAYON_NUM_THREADS=str(threads))
-            out = subprocess.run([a.bin, "tem-bench", "--level", str(a.level), "--batch", str(batch), "--repeats", str(a.repeats)], check=True, capture_output=True, text=True, env=env)
+            out = subprocess.run([a.bin, "tem-bench", "--level", str(a.level), "--batch", str(batch), "--repeats", str(a.repeats), "--threads", str(threads)], check=True, capture_output=True, text=True)
             ours = json.loads(out.stdout)["ms_per_quad"]
             print(f"{threads:>7} {batch:>5} {ref:>12.2f} {ours:>13.2f} {ours / ref:>9.2f}")
 

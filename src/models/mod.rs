@@ -2,6 +2,7 @@
 //! the page, Vulkan natively — with a start-up self-check that runs a real convolution kernel
 //! and compares it with a CPU reference) and the models themselves ([`tem`]).
 
+pub mod cpu;
 pub mod runtime;
 pub mod tem;
 
@@ -113,15 +114,13 @@ mod tests {
         assert!(err < 1e-3, "max |Δ| {err} m");
     }
 
-    /// The TEM itself on burn's wgpu backend (lavapipe) against the CPU backend (flex), with
-    /// the shipped weights on the fixed probe of every level: heights agree to < 1 mm.
+    /// The TEM itself on burn's wgpu backend (lavapipe) against the project's CPU kernels,
+    /// with the shipped weights on the fixed probe of every level: heights agree to < 1 mm.
     #[test]
     fn tem_on_wgpu_matches_the_cpu() {
-        use tem::{LEVELS, PROBE_SIDE, TemSet, probe_input};
+        use tem::{Exec, LEVELS, PROBE_SIDE, TemSet, probe_input};
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
-        let gpu = test_gpu();
-        let cpu = Device::flex();
-        let (tg, tc) = (TemSet::load_dir(&dir, &gpu).unwrap(), TemSet::load_dir(&dir, &cpu).unwrap());
+        let (tg, tc) = (TemSet::load_dir(&dir, &Exec::Burn(test_gpu())).unwrap(), TemSet::load_dir(&dir, &Exec::cpu()).unwrap());
         let mut worst = 0f32;
         for k in 0..LEVELS {
             let t = web_time::Instant::now();

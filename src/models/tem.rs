@@ -24,6 +24,8 @@ use burn::nn::{PixelShuffle, PixelShuffleConfig};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
+use crate::models::cpu::{self, Conv3, Map, Post};
+
 /// Gain applied to the normalised local features.
 pub const FEATURE_GAIN: f32 = 10.0;
 /// Number of TEM levels.
@@ -98,115 +100,385 @@ impl Tem {
     }
 }
 
-impl Tem {
-    /// Every convolution's weights ([cout, cin, 3, 3], row-major) and bias as JSON
-    /// (`{"head": {"shape", "w", "b"}, "body.0": …, "merge": …, "tail": …}`), for reference
-    /// runtimes that rebuild the network (tools/tem_vs_onnx.py).
-    pub fn convs_json(&self) -> serde_json::Value {
-        let one = |c: &Conv2d| {
-            let w = c.weight.val();
-            let shape = w.dims().to_vec();
-            let w: Vec<f32> = w.into_data().try_to_vec::<f32>().unwrap_or_default();
-            let b: Option<Vec<f32>> = c.bias.as_ref().map(|b| b.val().into_data().try_to_vec::<f32>().unwrap_or_default());
-            serde_json::json!({ "shape": shape, "w": w, "b": b })
-        };
-        let mut m = serde_json::Map::new();
-        m.insert("head".into(), one(&self.head));
-        for (i, c) in self.body.iter().enumerate() {
-            m.insert(format!("body.{i}"), one(c));
-        }
-        m.insert("merge".into(), one(&self.merge));
-        m.insert("tail".into(), one(&self.tail));
-        serde_json::Value::Object(m)
-    }
-}
 
 /// File name of level `k`'s weights (burnpack) in `weights/`.
 pub fn weight_file(k: usize) -> String {
     format!("tem_{k}_{}m.bpk", LEVEL_SPACING_M[k])
 }
 
-/// The five TEM models of the ladder on one device, ready for inference.
+/// Loads the five burn models of the ladder from `dir` onto `device` (training, fine-tuning,
+/// WebGPU/Vulkan inference).
+#[cfg(not(target_arch = "wasm32"))]
+pub fn load_models(dir: &std::path::Path, device: &Device) -> Result<Vec<Tem>, String> {
+    (0..LEVELS).map(|k| load_model(&read_weight_file(dir, k)?, k, device)).collect()
+}
+
+#[cfg(not(target_arch = "wasm32"))]
+fn read_weight_file(dir: &std::path::Path, k: usize) -> Result<Vec<u8>, String> {
+    let path = dir.join(weight_file(k));
+    std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// One burn model from burnpack bytes (level `k`, for the error message).
+fn load_model(bytes: &[u8], k: usize, device: &Device) -> Result<Tem, String> {
+    use burn::store::{BurnpackStore, ModuleSnapshot};
+    let mut m = Tem::new(device);
+    let mut store = BurnpackStore::from_bytes(Some(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec())));
+    let r = m.load_from(&mut store).map_err(|e| format!("{}: {e:?}", weight_file(k)))?;
+    if !r.missing.is_empty() {
+        return Err(format!("{}: missing tensors {:?}", weight_file(k), r.missing));
+    }
+    Ok(m)
+}
+
+/// Where a [`TemSet`] runs.
+#[derive(Clone, Debug)]
+pub enum Exec {
+    /// The project's own CPU kernels ([`crate::models::cpu`]) on this many threads.
+    Cpu {
+        /// Threads (1 = the calling thread only).
+        threads: usize,
+    },
+    /// burn on a device (WebGPU in the page, Vulkan natively).
+    Burn(Device),
+}
+
+impl Exec {
+    /// The CPU on every core natively, one thread in the page.
+    pub fn cpu() -> Self {
+        Exec::Cpu { threads: crate::models::cpu::default_threads() }
+    }
+}
+
+enum Engine {
+    Burn { models: Vec<Tem>, device: Device },
+    Cpu { models: Vec<TemCpu>, threads: usize, scratch: std::sync::Mutex<Vec<Scratch>> },
+}
+
+/// The five TEM models of the ladder, ready for inference on the CPU or a burn device.
 pub struct TemSet {
-    models: Vec<Tem>,
-    device: Device,
+    engine: Engine,
 }
 
 impl TemSet {
-    /// Untrained models (each exactly bicubic) on `device`.
-    pub fn untrained(device: &Device) -> Self {
-        Self { models: (0..LEVELS).map(|_| Tem::new(device)).collect(), device: device.clone() }
+    fn cpu(models: Vec<TemCpu>, threads: usize) -> Self {
+        Self { engine: Engine::Cpu { models, threads, scratch: Default::default() } }
     }
 
-    /// Wraps trained models.
-    pub fn from_models(models: Vec<Tem>, device: &Device) -> Result<Self, String> {
+    /// Untrained models (each exactly bicubic).
+    pub fn untrained(exec: &Exec) -> Self {
+        match exec {
+            Exec::Cpu { threads } => Self::cpu((0..LEVELS).map(|_| TemCpu::untrained()).collect(), *threads),
+            Exec::Burn(device) => Self { engine: Engine::Burn { models: (0..LEVELS).map(|_| Tem::new(device)).collect(), device: device.clone() } },
+        }
+    }
+
+    /// Wraps trained burn models (on the CPU their weights are copied into its kernels).
+    pub fn from_models(models: Vec<Tem>, exec: &Exec) -> Result<Self, String> {
         if models.len() != LEVELS {
             return Err(format!("{} TEM models given, {LEVELS} needed", models.len()));
         }
-        Ok(Self { models, device: device.clone() })
+        Ok(match exec {
+            Exec::Cpu { threads } => Self::cpu(models.iter().map(TemCpu::from_model).collect::<Result<_, _>>()?, *threads),
+            Exec::Burn(device) => Self { engine: Engine::Burn { models: models.into_iter().map(|m| m.to_device(device)).collect(), device: device.clone() } },
+        })
     }
 
-    /// Loads the five models from burnpack bytes (level order) onto `device`. A broken or
-    /// mismatching file is a clear error naming it.
-    pub fn from_bytes(files: Vec<Vec<u8>>, device: &Device) -> Result<Self, String> {
-        use burn::store::{BurnpackStore, ModuleSnapshot};
+    /// Wraps CPU models on `threads` threads.
+    pub fn from_cpu(models: Vec<TemCpu>, threads: usize) -> Result<Self, String> {
+        if models.len() != LEVELS {
+            return Err(format!("{} TEM models given, {LEVELS} needed", models.len()));
+        }
+        Ok(Self::cpu(models, threads.max(1)))
+    }
+
+    /// Loads the five models from burnpack bytes (level order). A broken or mismatching file
+    /// is a clear error naming it.
+    pub fn from_bytes(files: Vec<Vec<u8>>, exec: &Exec) -> Result<Self, String> {
         if files.len() != LEVELS {
             return Err(format!("{} TEM weight files given, {LEVELS} needed", files.len()));
         }
-        let mut models = Vec::with_capacity(LEVELS);
-        for (k, bytes) in files.into_iter().enumerate() {
-            let mut m = Tem::new(device);
-            let mut store = BurnpackStore::from_bytes(Some(burn::tensor::Bytes::from_bytes_vec(bytes)));
-            let r = m.load_from(&mut store).map_err(|e| format!("{}: {e:?}", weight_file(k)))?;
-            if !r.missing.is_empty() {
-                return Err(format!("{}: missing tensors {:?}", weight_file(k), r.missing));
+        Ok(match exec {
+            Exec::Cpu { threads } => {
+                let models = files.iter().enumerate().map(|(k, b)| TemCpu::from_burnpack(b).map_err(|e| format!("{}: {e}", weight_file(k)))).collect::<Result<_, _>>()?;
+                Self::cpu(models, *threads)
             }
-            models.push(m);
-        }
-        Ok(Self { models, device: device.clone() })
+            Exec::Burn(device) => {
+                let models = files.iter().enumerate().map(|(k, b)| load_model(b, k, device)).collect::<Result<_, _>>()?;
+                Self { engine: Engine::Burn { models, device: device.clone() } }
+            }
+        })
     }
 
-    /// Loads the five models from `dir/tem_{k}_{s}m.bpk` onto `device`.
+    /// Loads the five models from `dir/tem_{k}_{s}m.bpk`.
     #[cfg(not(target_arch = "wasm32"))]
-    pub fn load_dir(dir: &std::path::Path, device: &Device) -> Result<Self, String> {
-        let files = (0..LEVELS)
-            .map(|k| std::fs::read(dir.join(weight_file(k))).map_err(|e| format!("{}: {e}", dir.join(weight_file(k)).display())))
-            .collect::<Result<Vec<_>, _>>()?;
-        Self::from_bytes(files, device)
+    pub fn load_dir(dir: &std::path::Path, exec: &Exec) -> Result<Self, String> {
+        let files = (0..LEVELS).map(|k| read_weight_file(dir, k)).collect::<Result<Vec<_>, _>>()?;
+        Self::from_bytes(files, exec)
     }
 
-    /// The model of level `k`.
-    pub fn model(&self, level: usize) -> &Tem {
-        &self.models[level]
+    /// Where the models run: "cpu" or burn's device name.
+    pub fn backend(&self) -> String {
+        match &self.engine {
+            Engine::Cpu { threads, .. } => format!("cpu ({threads} thread{})", if *threads == 1 { "" } else { "s" }),
+            Engine::Burn { device, .. } => format!("{device:?}"),
+        }
     }
 
-    /// The five models, level order.
-    pub fn into_models(self) -> Vec<Tem> {
-        self.models
-    }
-
-    /// The device the models live on.
-    pub fn device(&self) -> &Device {
-        &self.device
+    /// Every convolution's weights and biases of level `level` as JSON (see
+    /// [`TemCpu::convs_json`]); `None` for models on a burn device.
+    pub fn convs_json(&self, level: usize) -> Option<serde_json::Value> {
+        match &self.engine {
+            Engine::Cpu { models, .. } => Some(models[level].convs_json()),
+            Engine::Burn { .. } => None,
+        }
     }
 
     /// Runs level `level` on `n` square windows of side `side` (heights in metres, row-major,
-    /// concatenated); returns the raw [n, 1, 2·side, 2·side] output (not yet read back).
-    pub fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Tensor<4> {
-        let x = Tensor::<4>::from_data(burn::tensor::TensorData::new(inputs, [n, 1, side, side]), &self.device);
-        self.models[level].forward(x, level_scale_m(level))
-    }
-
-    /// [`enhance`](Self::enhance) read back (blocking; native only).
+    /// concatenated) and returns the [n, 2·side, 2·side] heights at half the spacing. On the
+    /// CPU this computes now; on a burn device it waits for the readback (native only).
     #[cfg(not(target_arch = "wasm32"))]
     pub fn enhance_blocking(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<Vec<f32>, String> {
-        self.enhance(level, inputs, n, side).into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))
+        match &self.engine {
+            Engine::Cpu { .. } => self.enhance_cpu(level, &inputs, n, side),
+            Engine::Burn { models, device } => burn_enhance(&models[level], device, level, inputs, n, side).into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}")),
+        }
     }
 
-    /// [`enhance`](Self::enhance) read back asynchronously (as browsers require).
+    /// [`enhance_blocking`](Self::enhance_blocking) with an asynchronous readback (as
+    /// browsers require for GPU buffers); the CPU computes before the first await.
     pub async fn enhance_async(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<Vec<f32>, String> {
-        let data = self.enhance(level, inputs, n, side).into_data_async().await.map_err(|e| format!("GPU readback failed: {e:?}"))?;
-        data.try_to_vec::<f32>().map_err(|e| format!("{e:?}"))
+        match &self.engine {
+            Engine::Cpu { .. } => self.enhance_cpu(level, &inputs, n, side),
+            Engine::Burn { models, device } => {
+                let t = burn_enhance(&models[level], device, level, inputs, n, side);
+                let data = t.into_data_async().await.map_err(|e| format!("GPU readback failed: {e:?}"))?;
+                data.try_to_vec::<f32>().map_err(|e| format!("{e:?}"))
+            }
+        }
+    }
+
+    fn enhance_cpu(&self, level: usize, inputs: &[f32], n: usize, side: usize) -> Result<Vec<f32>, String> {
+        let Engine::Cpu { models, threads, scratch } = &self.engine else { unreachable!("CPU engine") };
+        if inputs.len() != n * side * side || side == 0 {
+            return Err(format!("{} heights given for {n} windows of {side}²", inputs.len()));
+        }
+        let (model, scale) = (&models[level], level_scale_m(level));
+        let mut pool = scratch.lock().unwrap_or_else(|p| p.into_inner());
+        let groups = (*threads).min(n).max(1);
+        let len = pool.len().max(groups);
+        pool.resize_with(len, Scratch::default);
+        if groups == 1 {
+            // One window at a time, each layer's rows split between the threads.
+            return Ok(inputs.chunks_exact(side * side).flat_map(|x| model.forward(x, side, scale, &mut pool[0], *threads)).collect());
+        }
+        // A batch: whole windows per thread, each with its own buffers.
+        let per = n.div_ceil(groups);
+        let mut parts: Vec<Vec<f32>> = vec![Vec::new(); groups];
+        #[cfg(not(target_arch = "wasm32"))]
+        std::thread::scope(|s| {
+            for ((part, scratch), xs) in parts.iter_mut().zip(pool.iter_mut()).zip(inputs.chunks(per * side * side)) {
+                s.spawn(move || *part = xs.chunks_exact(side * side).flat_map(|x| model.forward(x, side, scale, scratch, 1)).collect());
+            }
+        });
+        #[cfg(target_arch = "wasm32")]
+        for ((part, scratch), xs) in parts.iter_mut().zip(pool.iter_mut()).zip(inputs.chunks(per * side * side)) {
+            *part = xs.chunks_exact(side * side).flat_map(|x| model.forward(x, side, scale, scratch, 1)).collect();
+        }
+        Ok(parts.concat())
+    }
+}
+
+fn burn_enhance(model: &Tem, device: &Device, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Tensor<4> {
+    let x = Tensor::<4>::from_data(burn::tensor::TensorData::new(inputs, [n, 1, side, side]), device);
+    model.forward(x, level_scale_m(level))
+}
+
+/// Reused activation buffers of the CPU forward pass.
+#[derive(Default)]
+pub struct Scratch {
+    feat: Map,
+    head: Map,
+    a: Map,
+    b: Map,
+    shuffled: Map,
+    tail: Map,
+}
+
+/// One TEM level on the project's own CPU kernels ([`crate::models::cpu`]): the same network
+/// as [`Tem::forward`], computed without a tensor framework.
+#[derive(Clone, Debug)]
+pub struct TemCpu {
+    head: Conv3,
+    body: Vec<Conv3>,
+    merge: Conv3,
+    tail: Conv3,
+}
+
+/// Names of the convolutions in a weight file, in network order.
+fn conv_names() -> Vec<String> {
+    let mut names = vec!["head".to_string()];
+    names.extend((0..4).map(|i| format!("body.{i}")));
+    names.push("merge".into());
+    names.push("tail".into());
+    names
+}
+
+impl TemCpu {
+    /// An untrained model: the tail is zero, so the output is exactly bicubic.
+    pub fn untrained() -> Self {
+        let mut seed = 1u64;
+        let mut layer = |cout: usize, cin: usize, amplitude: f32| {
+            // The same scale as burn's default (Kaiming uniform); values are irrelevant for
+            // the zero tail except that the body stays finite.
+            let w: Vec<f32> = (0..cout * cin * 9).map(|_| amplitude * unit(&mut seed)).collect();
+            Conv3::from_oihw(cout, cin, &w, None).expect("sizes")
+        };
+        let bound = |cin: usize| (1.0 / (9.0 * cin as f32)).sqrt();
+        Self {
+            head: layer(WIDTH, 4, bound(4)),
+            body: (0..4).map(|_| layer(WIDTH, WIDTH, bound(WIDTH))).collect(),
+            merge: layer(WIDTH, WIDTH, bound(WIDTH)),
+            tail: layer(1, WIDTH / 4, 0.0),
+        }
+    }
+
+    /// Every weight drawn uniformly from ±`amplitude` (deterministic in `seed`): tests use it
+    /// because a zero tail would make every output plain bicubic and prove nothing.
+    pub fn randomized(seed: u64, amplitude: f32) -> Self {
+        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let mut layer = |cout: usize, cin: usize| {
+            let w: Vec<f32> = (0..cout * cin * 9).map(|_| amplitude * unit(&mut s)).collect();
+            let b: Vec<f32> = (0..cout).map(|_| amplitude * unit(&mut s)).collect();
+            Conv3::from_oihw(cout, cin, &w, Some(&b)).expect("sizes")
+        };
+        Self { head: layer(WIDTH, 4), body: (0..4).map(|_| layer(WIDTH, WIDTH)).collect(), merge: layer(WIDTH, WIDTH), tail: layer(1, WIDTH / 4) }
+    }
+
+    /// Copies a burn model's weights.
+    pub fn from_model(m: &Tem) -> Result<Self, String> {
+        let one = |c: &Conv2d| -> Result<Conv3, String> {
+            let w = c.weight.val();
+            let [cout, cin, _, _] = w.dims();
+            let w: Vec<f32> = w.into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?;
+            let b: Option<Vec<f32>> = match &c.bias {
+                Some(b) => Some(b.val().into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?),
+                None => None,
+            };
+            Conv3::from_oihw(cout, cin, &w, b.as_deref()).map_err(|e| e.to_string())
+        };
+        Ok(Self { head: one(&m.head)?, body: m.body.iter().map(one).collect::<Result<_, _>>()?, merge: one(&m.merge)?, tail: one(&m.tail)? })
+    }
+
+    /// Reads a burnpack weight file (as written by training) without a tensor framework:
+    /// `{name}.weight` [cout, cin, 3, 3] and `{name}.bias` [cout], float32, for every
+    /// convolution; anything missing, misshapen or non-finite is an error.
+    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
+        let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.to_vec())).map_err(|e| format!("not a weight file ({e})"))?;
+        let tensors = reader.into_tensors().map_err(|e| format!("unreadable tensors ({e})"))?;
+        let mut by_name = std::collections::HashMap::new();
+        for t in tensors {
+            let (name, dtype, shape, _, data) = t.into_parts().map_err(|e| format!("unreadable tensor ({e})"))?;
+            by_name.insert(name, (dtype, shape, data));
+        }
+        let mut get = |name: &str| -> Result<(Vec<usize>, Vec<f32>), String> {
+            let (dtype, shape, data) = by_name.remove(name).ok_or_else(|| format!("missing tensor {name}"))?;
+            if dtype != burn_pack::DType::F32 {
+                return Err(format!("tensor {name} is {dtype:?}, float32 expected"));
+            }
+            let dims = shape.to_vec();
+            if data.len() != dims.iter().product::<usize>() * 4 {
+                return Err(format!("tensor {name} has {} bytes for shape {dims:?}", data.len()));
+            }
+            let values = data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+            Ok((dims, values))
+        };
+        let mut convs = Vec::new();
+        for (name, (cout, cin)) in conv_names().iter().zip([(WIDTH, 4), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (1, WIDTH / 4)]) {
+            let (wd, w) = get(&format!("{name}.weight"))?;
+            if wd != [cout, cin, 3, 3] {
+                return Err(format!("tensor {name}.weight has shape {wd:?}, [{cout}, {cin}, 3, 3] expected"));
+            }
+            let (_, b) = get(&format!("{name}.bias"))?;
+            convs.push(Conv3::from_oihw(cout, cin, &w, Some(&b)).map_err(|e| format!("{name}: {e}"))?);
+        }
+        let tail = convs.pop().expect("7 convs");
+        let merge = convs.pop().expect("7 convs");
+        let head = convs.remove(0);
+        Ok(Self { head, body: convs, merge, tail })
+    }
+
+    /// Every convolution's weights ([cout, cin, 3, 3], row-major) and bias as JSON
+    /// (`{"head": {"shape", "w", "b"}, "body.0": …, "merge": …, "tail": …}`), for reference
+    /// runtimes that rebuild the network (tools/tem_vs_onnx.py).
+    pub fn convs_json(&self) -> serde_json::Value {
+        let layers = std::iter::once(&self.head).chain(&self.body).chain([&self.merge, &self.tail]);
+        let m: serde_json::Map<String, serde_json::Value> = conv_names()
+            .into_iter()
+            .zip(layers)
+            .map(|(name, c)| {
+                let (w, b) = c.to_oihw();
+                (name, serde_json::json!({ "shape": [c.cout(), c.cin(), 3, 3], "w": w, "b": b }))
+            })
+            .collect();
+        serde_json::Value::Object(m)
+    }
+
+    /// One window: `x` is `side`² heights in metres (row-major), `scale_m` the level's height
+    /// scale; returns (2·side)² heights in metres. `threads` splits each layer's rows.
+    pub fn forward(&self, x: &[f32], side: usize, scale_m: f32, s: &mut Scratch, threads: usize) -> Vec<f32> {
+        features_into(x, side, scale_m, &mut s.feat);
+        cpu::conv(&self.head, &s.feat, &mut s.head, Post::None, threads);
+        cpu::conv(&self.body[0], &s.head, &mut s.a, Post::Relu, threads);
+        for c in &self.body[1..] {
+            cpu::conv(c, &s.a, &mut s.b, Post::Relu, threads);
+            std::mem::swap(&mut s.a, &mut s.b);
+        }
+        cpu::conv(&self.merge, &s.a, &mut s.b, Post::Add(&s.head), threads);
+        cpu::pixel_shuffle2(&s.b, &mut s.shuffled);
+        cpu::conv(&self.tail, &s.shuffled, &mut s.tail, Post::None, threads);
+        let base = crate::dem::Heightfield::new(side, side, 1.0, x.to_vec()).upsample_bicubic2();
+        let o = 2 * side;
+        let mut out = base.data;
+        for y in 0..o {
+            for (xx, v) in out[y * o..(y + 1) * o].iter_mut().enumerate() {
+                *v += s.tail.pixel(y, xx)[0] * scale_m;
+            }
+        }
+        out
+    }
+}
+
+/// A uniform value in [−1, 1) from a 64-bit LCG state.
+fn unit(s: &mut u64) -> f32 {
+    *s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    ((*s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+}
+
+/// [`features`] on the CPU: the four feature channels of `x` (`side`² heights in metres,
+/// divided by `scale_m`) into `dst`.
+fn features_into(x: &[f32], side: usize, scale_m: f32, dst: &mut Map) {
+    let n = side;
+    let at = |r: usize, c: usize| x[r * n + c] / scale_m;
+    // Row means (l + r + x) / 3 with replicated edges, then the vertical mean of those.
+    let mut row = vec![0f32; n * n];
+    for r in 0..n {
+        for c in 0..n {
+            let (l, rr) = (at(r, c.saturating_sub(1)), at(r, (c + 1).min(n - 1)));
+            row[r * n + c] = (l + rr + at(r, c)) / 3.0;
+        }
+    }
+    dst.reset(n, n, 4);
+    for r in 0..n {
+        let (up, down) = (r.saturating_sub(1), (r + 1).min(n - 1));
+        for c in 0..n {
+            let (l, rr) = (at(r, c.saturating_sub(1)), at(r, (c + 1).min(n - 1)));
+            let gx = (rr - l) * (0.5 * FEATURE_GAIN);
+            let gz = (at(down, c) - at(up, c)) * (0.5 * FEATURE_GAIN);
+            let mean = (row[up * n + c] + row[down * n + c] + row[r * n + c]) / 3.0;
+            let detail = (at(r, c) - mean) * FEATURE_GAIN;
+            dst.pixel_mut(r, c).copy_from_slice(&[detail, gx, gz, gx.abs() + gz.abs()]);
+        }
     }
 }
 
@@ -309,32 +581,65 @@ mod tests {
     use super::*;
     use burn::tensor::TensorData;
 
-    /// Broken weight files (garbage, truncated, empty) are errors that name the file, never
-    /// panics; the intact set loads.
+    /// Broken weight files (garbage, truncated, empty, bytes flipped) are errors that name
+    /// the file, never panics, on the CPU and on burn; the intact set loads on both.
     #[test]
     fn broken_weight_files_are_errors_naming_the_file() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
         let good: Vec<Vec<u8>> = (0..LEVELS).map(|k| std::fs::read(dir.join(weight_file(k))).unwrap()).collect();
-        let device = Device::flex();
-        assert!(TemSet::from_bytes(good.clone(), &device).is_ok());
-        let half = good[2][..good[2].len() / 2].to_vec();
-        let mut flipped = good[2].clone();
-        for b in flipped.iter_mut().step_by(97) {
-            *b ^= 0x5a;
-        }
-        for (what, bytes) in [("garbage", b"not a burnpack file at all".to_vec()), ("truncated", half), ("empty", Vec::new()), ("flipped", flipped)] {
-            let mut files = good.clone();
-            files[2] = bytes;
-            let r = std::panic::catch_unwind(|| TemSet::from_bytes(files, &device).map(|_| ()));
-            let r = r.unwrap_or_else(|_| panic!("{what} weights panicked"));
-            if what != "flipped" {
-                let e = r.unwrap_err();
-                assert!(e.contains(&weight_file(2)), "{what}: {e}");
-            } else if let Err(e) = r {
-                assert!(e.contains(&weight_file(2)), "{what}: {e}");
+        for exec in [Exec::Cpu { threads: 1 }, Exec::Burn(Device::flex())] {
+            assert!(TemSet::from_bytes(good.clone(), &exec).is_ok());
+            let half = good[2][..good[2].len() / 2].to_vec();
+            let mut flipped = good[2].clone();
+            for b in flipped.iter_mut().step_by(97) {
+                *b ^= 0x5a;
             }
+            for (what, bytes) in [("garbage", b"not a burnpack file at all".to_vec()), ("truncated", half), ("empty", Vec::new()), ("flipped", flipped)] {
+                let mut files = good.clone();
+                files[2] = bytes;
+                let r = std::panic::catch_unwind(|| TemSet::from_bytes(files, &exec).map(|_| ()));
+                let r = r.unwrap_or_else(|_| panic!("{what} weights panicked on {exec:?}"));
+                if what != "flipped" {
+                    let e = r.unwrap_err();
+                    assert!(e.contains(&weight_file(2)), "{what}: {e}");
+                } else if let Err(e) = r {
+                    assert!(e.contains(&weight_file(2)), "{what}: {e}");
+                }
+            }
+            assert!(TemSet::from_bytes(good[..4].to_vec(), &exec).err().unwrap().contains("4 TEM weight files"));
         }
-        assert!(TemSet::from_bytes(good[..4].to_vec(), &device).err().unwrap().contains("4 TEM weight files"));
+    }
+
+    /// The CPU kernels compute the burn network: random weights (every layer non-zero, so
+    /// the residual is large) and the shipped weights read straight from their files, on a
+    /// batch of two windows: every output within 1 mm of burn's.
+    #[test]
+    fn cpu_forward_equals_burn_forward() {
+        let device = Device::flex();
+        let side = 37;
+        let data: Vec<f32> = (0..2 * side * side).map(|k| 900.0 + ((k % side) as f32 * 0.31).sin() * 40.0 + ((k / side) as f32 * 0.17).cos() * 25.0).collect();
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let burn_models = load_models(&dir, &device).unwrap();
+        let mut cases: Vec<(&str, Tem, TemCpu)> = Vec::new();
+        let r = randomized(Tem::new(&device), &device, 0.05);
+        let rc = TemCpu::from_model(&r).unwrap();
+        cases.push(("random", r, rc));
+        for k in [0, 4] {
+            let cpu = TemCpu::from_burnpack(&std::fs::read(dir.join(weight_file(k))).unwrap()).unwrap();
+            cases.push((if k == 0 { "shipped level 0" } else { "shipped level 4" }, burn_models[k].clone(), cpu));
+        }
+        for (what, burn_m, cpu_m) in cases {
+            let x = Tensor::<4>::from_data(TensorData::new(data.clone(), [2, 1, side, side]), &device);
+            let want: Vec<f32> = burn_m.forward(x, 40.0).into_data().try_to_vec::<f32>().unwrap();
+            let mut s = Scratch::default();
+            let got: Vec<f32> = data.chunks(side * side).flat_map(|w| cpu_m.forward(w, side, 40.0, &mut s, 2)).collect();
+            assert_eq!(got.len(), want.len());
+            let worst = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+            let bic = crate::dem::Heightfield::new(side, side, 1.0, data[..side * side].to_vec()).upsample_bicubic2();
+            let residual = want.iter().zip(&bic.data).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+            assert!(worst < 1e-3, "{what}: CPU and burn differ by {worst} m (residual up to {residual} m)");
+            assert!(residual > 0.05, "{what}: the residual ({residual} m) must be non-trivial or the test proves little");
+        }
     }
 
     #[test]

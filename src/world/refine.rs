@@ -399,10 +399,9 @@ pub fn run_blocking(store: &mut PatchStore, tem: &crate::models::tem::TemSet, jo
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::models::tem::TemSet;
+    use crate::models::tem::{Exec, TemCpu, TemSet};
     use crate::world::TILE_SIZE_M;
     use crate::world::noise::ProceduralSource;
-    use burn::tensor::Device;
 
     fn world() -> WorldStream {
         let mut w = WorldStream::new(5, Box::new(ProceduralSource::default()), 1.0);
@@ -412,9 +411,8 @@ mod tests {
 
     /// Models with random non-zero weights: if seams matched only because the output was
     /// plain bicubic, this would not show it.
-    fn scrambled(device: &Device) -> TemSet {
-        let models = TemSet::untrained(device).into_models().into_iter().map(|m| crate::models::tem::randomized(m, device, 0.05)).collect();
-        TemSet::from_models(models, device).unwrap()
+    fn scrambled() -> TemSet {
+        TemSet::from_cpu((0..5).map(|k| TemCpu::randomized(k, 0.05)).collect(), 1).unwrap()
     }
 
     fn run_all(store: &mut PatchStore, w: &WorldStream, tem: &TemSet) {
@@ -447,8 +445,7 @@ mod tests {
     #[test]
     fn neighbouring_patches_and_nodes_agree() {
         let w = world();
-        let device = Device::flex();
-        let tem = scrambled(&device);
+        let tem = scrambled();
         // Depth-4 nodes (level 1, 8 m) on both sides of a patch border (4 nodes per patch).
         let a = NodeId { tile: TileCoord::new(0, 0), depth: 4, x: 3, y: 5 };
         let b = NodeId { x: 4, ..a };
@@ -493,7 +490,7 @@ mod tests {
         let diff = nb.heights.iter().zip(&nb2.heights).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
         assert!(diff < 1e-3, "order changed heights by {diff} m");
         // And the scrambled models did refine: not plain bicubic of the 32 m surface.
-        let plain = TemSet::untrained(&device);
+        let plain = TemSet::untrained(&Exec::cpu());
         let mut s3 = PatchStore::new(0, 0);
         for _ in 0..3 {
             s3.request(kb, 0.0);
@@ -510,8 +507,7 @@ mod tests {
     #[test]
     fn untrained_refined_nodes_are_the_bicubic_surface() {
         let w = world();
-        let device = Device::flex();
-        let tem = TemSet::untrained(&device);
+        let tem = TemSet::untrained(&Exec::cpu());
         let id = NodeId { tile: TileCoord::new(0, 0), depth: 3, x: 5, y: 2 };
         let mut s = PatchStore::new(0, 0);
         s.request(PatchKey::for_node(id).unwrap(), 0.0);
@@ -545,8 +541,7 @@ mod tests {
     fn skirts_cover_the_gap_to_coarser_neighbours() {
         use crate::world::quadtree::NodeData;
         let w = world();
-        let device = Device::flex();
-        let tem = scrambled(&device);
+        let tem = scrambled();
         let fine = NodeId { tile: TileCoord::new(0, 0), depth: 4, x: 3, y: 2 };
         let mid = NodeId { tile: TileCoord::new(0, 0), depth: 3, x: 2, y: 1 };
         let mut s = PatchStore::new(0, 0);
