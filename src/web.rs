@@ -91,7 +91,7 @@ fn page_options() -> (PageOptions, Option<String>) {
 }
 
 /// Starts burn: self-check on the shared GPU device, then loads the TEM weights onto it, or
-/// onto the CPU backend when the GPU path is unavailable or fails (and says so).
+/// onto the CPU kernels when the GPU path is unavailable or fails (and says so).
 async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, choice: TemChoice, ml: Rc<RefCell<Ml>>) {
     let t0 = now_ms();
     let gpu = match gpu {
@@ -347,7 +347,7 @@ impl WebApp {
         if ml.busy || !self.refine_on {
             return;
         }
-        // The CPU backend blocks the page while it runs (≈ 0.3 s a quad in wasm): one quad at a
+        // The CPU path blocks the page while it runs (tens of ms a quad in wasm): one quad at a
         // time, at most one a second, and only while the camera is slow (< 60 m/s), so flights
         // stay smooth and detail fills in where the user looks.
         let now = now_ms();

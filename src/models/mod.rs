@@ -1,6 +1,7 @@
-//! Neural networks: the runtime (burn on a wgpu device shared with the renderer — WebGPU in
-//! the page, Vulkan natively — with a start-up self-check that runs a real convolution kernel
-//! and compares it with a CPU reference) and the models themselves ([`tem`]).
+//! Neural networks: the GPU runtime (burn on a wgpu device shared with the renderer — WebGPU
+//! in the page, Vulkan natively — with a start-up self-check that runs a real convolution
+//! kernel and compares it with a CPU reference), the project's own CPU kernels ([`cpu`]), the
+//! policy that picks between them ([`runtime`]) and the models themselves ([`tem`]).
 
 pub mod cpu;
 pub mod runtime;

@@ -1,5 +1,5 @@
-//! Where the models run in the page: the choice between the shared WebGPU device and burn's
-//! CPU backend, and why. Pure policy, so it is tested natively; the browser shell only reports
+//! Where the models run in the page: the choice between the shared WebGPU device and the CPU
+//! kernels ([`crate::models::cpu`]), and why. Pure policy, so it is tested natively; the browser shell only reports
 //! what it found (adapter kind, self-check result) and acts on the answer.
 
 use crate::share::TemChoice;
@@ -7,7 +7,7 @@ use crate::share::TemChoice;
 /// Why the models run on the CPU.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum CpuReason {
-    /// The WebGPU adapter is a software rasteriser (SwiftShader, llvmpipe): the CPU backend is
+    /// The WebGPU adapter is a software rasteriser (SwiftShader, llvmpipe): the CPU kernels are
     /// faster than a CPU-emulated GPU.
     SoftwareAdapter,
     /// The user asked for it (`?tem=cpu`).
@@ -21,7 +21,7 @@ pub enum CpuReason {
 pub enum Backend {
     /// burn's wgpu backend on the renderer's WebGPU device.
     Gpu,
-    /// burn's CPU backend, and why.
+    /// The CPU kernels ([`crate::models::cpu`]), and why.
     Cpu(CpuReason),
 }
 
