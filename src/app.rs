@@ -72,6 +72,10 @@ pub struct AppStats {
     pub frame_ms_worst: f64,
     /// Eye position (world metres).
     pub eye_m: [f64; 3],
+    /// Milliseconds the last frame spent making tiles (world update).
+    pub world_ms: f64,
+    /// Milliseconds the last frame spent selecting and building quadtree nodes.
+    pub nodes_ms: f64,
     /// Order-independent hash (hex) of the contents and coordinates of the tiles drawn: equal
     /// on two pages exactly when they show bit-identical tiles.
     pub view_checksum: String,
@@ -209,7 +213,9 @@ impl TerrainApp {
 
         let eye = self.camera.position_m;
         let budget = (self.stats.frame_ms_median * 0.25).clamp(TILE_BUDGET_MS, TILE_BUDGET_MAX_MS);
+        let t0 = web_time::Instant::now();
         self.world.update(eye.x, eye.z, budget);
+        let t1 = web_time::Instant::now();
         let world = &self.world;
         self.nodes.retain_tiles(|t| world.contains(t));
         self.refine.retain_tiles(|t| world.contains(t));
@@ -221,6 +227,8 @@ impl TerrainApp {
         let mut budget = NODE_BUILD_BUDGET;
         let refine = if refining { Some(&mut self.refine) } else { None };
         let nodes = self.nodes.select(&tiles, &self.world, refine, &view, &mut budget);
+        self.stats.world_ms = (t1 - t0).as_secs_f64() * 1e3;
+        self.stats.nodes_ms = t1.elapsed().as_secs_f64() * 1e3;
 
         let ws = self.world.stats();
         self.stats.frames += 1;

@@ -5,7 +5,9 @@
 //! Data flows one way: seed → tile ([`world`]) → quadtree node ([`world::quadtree`]) → GPU
 //! buffer ([`render`]) → frame. [`app`] drives it per frame, [`ui`] draws the overlay,
 //! [`share`] reads and writes links, [`dem`] reads and writes heightfields, [`models`] hosts
-//! the neural networks and their runtime, `enhance` refines whole DEMs (native).
+//! the neural networks and their runtime, `enhance` refines whole DEMs (native), [`geomorph`]
+//! measures how terrain-like a heightfield is, [`jobs`] tracks work handed to a device or
+//! worker.
 
 #![warn(missing_docs)]
 
@@ -13,6 +15,8 @@ pub mod app;
 pub mod dem;
 #[cfg(not(target_arch = "wasm32"))]
 pub mod enhance;
+pub mod geomorph;
+pub mod jobs;
 pub mod models;
 pub mod render;
 pub mod share;

@@ -31,6 +31,8 @@ struct Cli {
 enum Source {
     /// Seeded fBm noise (the page's procedural world).
     Procedural,
+    /// The learned world: the TCM at 128 m and its ×4 step to 32 m (weights from --weights).
+    Tcm,
 }
 
 #[derive(Subcommand, Debug)]
@@ -49,6 +51,10 @@ enum Command {
         /// Tile source.
         #[arg(long, value_enum, default_value_t = Source::Procedural)]
         source: Source,
+        /// Folder of the learned world's weights (--source tcm; default: ./weights, else the
+        /// crate's).
+        #[arg(long)]
+        weights: Option<PathBuf>,
     },
     /// Refine a DEM (float32 TIFF in metres or 16-bit PNG) with the learned ×2 ladder.
     Enhance {
@@ -109,6 +115,47 @@ enum Command {
     /// Train the five TEM models on the CPU (feature `train`).
     #[cfg(feature = "train")]
     TrainTem(TrainArgs),
+    /// Train the learned world on the CPU, resumable: the TCM (128 m tiles from their
+    /// neighbours) and its ×4 step to 32 m, one step of each in turn (feature `train`).
+    #[cfg(feature = "train")]
+    TrainTcm {
+        /// Folder of DEMs (float32 TIFF) with manifest.json.
+        #[arg(long)]
+        dem_dir: PathBuf,
+        /// Optimiser steps to run now (a resumed run adds them to the steps it had).
+        #[arg(long, default_value_t = 2000)]
+        steps: usize,
+        /// Continue the run saved in the checkpoint folder.
+        #[arg(long)]
+        resume: bool,
+        /// Checkpoint folder (generator, discriminator, optimisers, progress).
+        #[arg(long, default_value = "train-runs/tcm")]
+        checkpoint: PathBuf,
+        /// Save a checkpoint every N steps.
+        #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..))]
+        checkpoint_every: u64,
+        /// Windows per step (a new run only; a resumed one keeps its own).
+        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=256))]
+        batch: u64,
+        /// Weight of the adversarial term (0: L1 only; a new run only).
+        #[arg(long, default_value_t = 1.0)]
+        adversarial: f32,
+    },
+    /// Compare the learned and the procedural world with the held-out east third of every DEM
+    /// at 32 m or finer: geomorphometric statistics over 128 and 256-sample windows, their
+    /// distance to the real ones, and the seam figure (feature `train`).
+    #[cfg(feature = "train")]
+    EvalTcm {
+        /// Folder of DEMs (float32 TIFF) with manifest.json.
+        #[arg(long)]
+        dem_dir: PathBuf,
+        /// Folder of the learned world's weights.
+        #[arg(long, default_value = "weights")]
+        weights: PathBuf,
+        /// Worlds (seeds 1..=N) of 6×6 tiles each to measure.
+        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=64))]
+        seeds: u64,
+    },
     /// Evaluate the TEM on the held-out east third of every DEM (feature `train`).
     #[cfg(feature = "train")]
     EvalTem {
@@ -171,10 +218,14 @@ fn tile_rect(t: &[i64]) -> Result<(i32, i32, u32, u32), String> {
     Ok((x0 as i32, y0 as i32, w as u32, h as u32))
 }
 
-fn world(seed: u64, tiles: &[i64], out: &std::path::Path, source: Source) -> Result<(), String> {
+fn world(seed: u64, tiles: &[i64], out: &std::path::Path, source: Source, weights: Option<PathBuf>) -> Result<(), String> {
     let (x0, y0, w, h) = tile_rect(tiles)?;
     let src: Box<dyn TileSource> = match source {
         Source::Procedural => Box::new(ProceduralSource::new(NoiseParams::default())),
+        Source::Tcm => {
+            let models = terrain::world::learned::LearnedModels::load_dir(&weights_dir(weights))?;
+            Box::new(terrain::world::learned::LearnedSource::new(std::sync::Arc::new(models), terrain::models::cpu::default_threads()))
+        }
     };
     let hf = export::region(seed, src, x0, y0, w, h);
     let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
@@ -292,6 +343,95 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
 }
 
 #[cfg(feature = "train")]
+fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, adversarial: f32) -> Result<(), String> {
+    use terrain::train::{grow, pairs, tcm};
+    if !adversarial.is_finite() || adversarial < 0.0 {
+        return Err(format!("--adversarial must be a finite number ≥ 0, not {adversarial}"));
+    }
+    let dems = pairs::load_dems(dem_dir)?;
+    let grids = tcm::grids(&dems);
+    let fine = grow::grids(&dems);
+    let names = |v: Vec<&str>| v.join(", ");
+    if grids.is_empty() || fine.is_empty() {
+        return Err(format!("{} needs DEMs with room for a 3×3-tile window at 128 m ({} found) and for a 224² window at 32 m or finer ({} found) in both splits", dem_dir.display(), grids.len(), fine.len()));
+    }
+    eprintln!("TCM data, {} DEMs at 128 m: {}", grids.len(), names(grids.iter().map(|g| g.id.as_str()).collect()));
+    let (level, level_sd, step) = tcm::tile_mean_stats(&grids);
+    eprintln!("real 4 km tile means: level {level:.0} ± {level_sd:.0} m, rms step between neighbours {step:.0} m");
+    eprintln!("×4 data, {} DEMs at 32 m: {}", fine.len(), names(fine.iter().map(|g| g.id.as_str()).collect()));
+    let device = burn::tensor::Device::flex().autodiff();
+    let cfg = tcm::TcmConfig { batch, adversarial, ..Default::default() };
+    let from = resume.then_some(checkpoint);
+    let mut run = tcm::start_run(cfg, &device, from)?;
+    let mut up = grow::GrowRun::start(batch, adversarial, &device, from)?;
+    eprintln!("TCM: {} parameters, ×4: {} parameters; {:?}; from step {}", run.g.parameters(), up.parameters(), run.cfg, run.progress.step);
+    let end = run.progress.step + steps;
+    while run.progress.step < end {
+        run.step(&grids)?;
+        up.step(&fine, run.cfg.seed)?;
+        let (p, q) = (&run.progress, &up.progress);
+        if p.step % 10 == 0 || p.step == end {
+            eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", p.step, p.l1, p.adv, p.disc, p.seconds / p.step as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
+        }
+        if p.step % every == 0 || p.step == end {
+            run.save(checkpoint)?;
+            up.save(checkpoint)?;
+        }
+    }
+    let summary = |p: &tcm::TcmProgress| serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc });
+    println!("{}", serde_json::json!({ "tcm": summary(&run.progress), "grow": summary(&up.progress), "checkpoint": checkpoint }));
+    Ok(())
+}
+
+#[cfg(feature = "train")]
+fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) -> Result<(), String> {
+    use std::sync::Arc;
+    use terrain::geomorph::{self, STAT_NAMES};
+    use terrain::train::{pairs, world_eval};
+    use terrain::world::TileCoord;
+    use terrain::world::learned::{LearnedModels, LearnedSource};
+    let dems = pairs::load_dems(dem_dir)?;
+    let models = Arc::new(LearnedModels::load_dir(weights)?);
+    let learned = LearnedSource::new(models.clone(), terrain::models::cpu::default_threads());
+    let procedural = ProceduralSource::new(NoiseParams::default());
+    const SIDE_TILES: usize = 6;
+    let mut regions: Vec<(&str, Vec<terrain::dem::Heightfield>, f64)> = Vec::new();
+    for (name, src) in [("tcm", &learned as &dyn TileSource), ("procedural", &procedural as &dyn TileSource)] {
+        let t0 = std::time::Instant::now();
+        let r: Vec<_> = (1..=seeds).map(|s| world_eval::region(src, s, TileCoord::new(-3, -3), SIDE_TILES, SIDE_TILES)).collect();
+        let ms = t0.elapsed().as_secs_f64() * 1e3 / (seeds as usize * SIDE_TILES * SIDE_TILES) as f64;
+        regions.push((name, r, ms));
+    }
+    let mut sides = Vec::new();
+    for side in world_eval::WINDOW_SIDES {
+        let real = world_eval::stats_of(&world_eval::real_windows(&dems, side), side);
+        if real.is_empty() {
+            return Err(format!("no NaN-free {side}² validation window at 32 m or finer in {}", dem_dir.display()));
+        }
+        let mut worlds = serde_json::Map::new();
+        let mut means = Vec::new();
+        for (name, rs, _) in &regions {
+            let wins: Vec<Vec<f32>> = rs.iter().flat_map(|r| world_eval::windows_of(r, side)).collect();
+            let st = world_eval::stats_of(&wins, side);
+            let d = geomorph::distance(&st, &real);
+            means.push(d[STAT_NAMES.len()]);
+            let per: serde_json::Map<String, serde_json::Value> = STAT_NAMES.iter().zip(&d).map(|(n, v)| (n.to_string(), serde_json::json!(v))).collect();
+            worlds.insert(name.to_string(), serde_json::json!({ "windows": st.len(), "distance": d[STAT_NAMES.len()], "per_statistic": per }));
+        }
+        sides.push(serde_json::json!({ "window": side, "real_windows": real.len(), "worlds": worlds, "ratio_tcm_over_procedural": means[0] / means[1] }));
+    }
+    let seams: serde_json::Map<String, serde_json::Value> = regions
+        .iter()
+        .map(|(name, rs, ms)| {
+            let (m, p): (Vec<f64>, Vec<f64>) = rs.iter().map(world_eval::seam_ratio).unzip();
+            (name.to_string(), serde_json::json!({ "seam_mean": m.iter().sum::<f64>() / m.len() as f64, "seam_p95": p.iter().cloned().fold(f64::MIN, f64::max), "ms_per_tile": ms }))
+        })
+        .collect();
+    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "seams_and_speed": seams })).expect("json"));
+    Ok(())
+}
+
+#[cfg(feature = "train")]
 fn eval_tem(dir: PathBuf, weights: PathBuf, windows: usize) -> Result<(), String> {
     use terrain::train;
     let device = burn::tensor::Device::flex();
@@ -344,7 +484,7 @@ fn eval_tem(dir: PathBuf, weights: PathBuf, windows: usize) -> Result<(), String
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::World { seed, tiles, out, source } => world(seed, &tiles, &out, source),
+        Command::World { seed, tiles, out, source, weights } => world(seed, &tiles, &out, source, weights),
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),
         Command::TemExport { weights, out } => tem_export(weights, &out),
@@ -353,6 +493,10 @@ fn main() -> ExitCode {
         Command::TrainTem(a) => train_tem(a),
         #[cfg(feature = "train")]
         Command::EvalTem { dem_dir, weights, windows } => eval_tem(dem_dir, weights, windows),
+        #[cfg(feature = "train")]
+        Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
+        #[cfg(feature = "train")]
+        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial } => train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, adversarial),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

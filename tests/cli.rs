@@ -90,17 +90,19 @@ fn help_and_version_describe_the_tool() {
     let o = run(&["--help"]);
     assert!(o.status.success());
     let out = String::from_utf8_lossy(&o.stdout);
-    for sub in ["world", "enhance", "tem-probe", "tem-export", "tem-bench", "train-tem", "eval-tem"] {
+    for sub in ["world", "enhance", "tem-probe", "tem-export", "tem-bench", "train-tem", "eval-tem", "train-tcm", "eval-tcm"] {
         assert!(out.contains(sub), "--help lacks {sub}: {out}");
     }
     for (sub, flags) in [
-        ("world", &["--seed", "--tiles", "--out", "--source"][..]),
+        ("world", &["--seed", "--tiles", "--out", "--source", "--weights"][..]),
         ("enhance", &["--input", "--input-res", "--output-res", "--out", "--weights", "--batch"][..]),
         ("tem-probe", &["--weights"][..]),
         ("tem-export", &["--weights", "--out"][..]),
         ("tem-bench", &["--level", "--batch", "--repeats", "--weights"][..]),
         ("train-tem", &["--dem-dir", "--steps", "--finetune", "--checkpoint-every", "--batch", "--chain", "--lr", "--seed", "--out"][..]),
         ("eval-tem", &["--dem-dir", "--weights", "--windows"][..]),
+        ("train-tcm", &["--dem-dir", "--steps", "--resume", "--checkpoint", "--checkpoint-every", "--batch", "--adversarial"][..]),
+        ("eval-tcm", &["--dem-dir", "--weights", "--seeds"][..]),
     ] {
         let o = run(&[sub, "--help"]);
         assert!(o.status.success(), "{sub} --help");

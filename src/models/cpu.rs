@@ -92,6 +92,19 @@ impl Conv3 {
         (w, self.b.clone())
     }
 
+    /// A layer with every weight and bias uniform in ±`amplitude`, drawn from `seed` with
+    /// integer arithmetic (tests: untrained networks that still compute something).
+    pub fn random(cout: usize, cin: usize, seed: u64, amplitude: f32) -> Self {
+        let mut k = seed;
+        let mut next = || {
+            k = k.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((k >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0) * amplitude
+        };
+        let w: Vec<f32> = (0..cout * cin * 9).map(|_| next()).collect();
+        let b: Vec<f32> = (0..cout).map(|_| next()).collect();
+        Self::from_oihw(cout, cin, &w, Some(&b)).expect("sizes match")
+    }
+
     /// Input channels.
     pub fn cin(&self) -> usize {
         self.cin
@@ -514,6 +527,90 @@ pub fn pixel_shuffle2(src: &Map, dst: &mut Map) {
             }
         }
     }
+}
+
+/// 2×2 mean pooling: `dst` becomes `src` at half the size (odd last rows/columns dropped).
+pub fn pool2(src: &Map, dst: &mut Map) {
+    let (h, w, c) = (src.h / 2, src.w / 2, src.c);
+    dst.reset(h, w, c);
+    for y in 0..h {
+        for x in 0..w {
+            let o = dst.at(y, x);
+            let (a, b, d, e) = (src.at(2 * y, 2 * x), src.at(2 * y, 2 * x + 1), src.at(2 * y + 1, 2 * x), src.at(2 * y + 1, 2 * x + 1));
+            for k in 0..c {
+                // The same order as a mean over a [2, 2] block: the pair of each row, then rows.
+                let top = (src.data[a + k] + src.data[b + k]) * 0.5;
+                let bottom = (src.data[d + k] + src.data[e + k]) * 0.5;
+                dst.data[o + k] = (top + bottom) * 0.5;
+            }
+        }
+    }
+}
+
+/// The `side`² centre of `coarse` upsampled ×2 (nearest) followed by the `side`² centre of
+/// `skip`, as one map of `coarse.c + skip.c` channels (a UNet decoder's input).
+pub fn up2_concat(coarse: &Map, skip: &Map, side: usize, dst: &mut Map) {
+    let (cu, cs) = (coarse.c, skip.c);
+    dst.reset(side, side, cu + cs);
+    let (ou, os) = ((2 * coarse.h - side) / 2, (skip.h - side) / 2);
+    for y in 0..side {
+        for x in 0..side {
+            let o = dst.at(y, x);
+            let u = coarse.at((y + ou) / 2, (x + ou) / 2);
+            dst.data[o..o + cu].copy_from_slice(&coarse.data[u..u + cu]);
+            let k = skip.at(y + os, x + os);
+            dst.data[o + cu..o + cu + cs].copy_from_slice(&skip.data[k..k + cs]);
+        }
+    }
+}
+
+/// Copies a burn 3×3 convolution's weights and bias.
+pub fn conv_from_burn(c: &burn::nn::conv::Conv2d) -> Result<Conv3, String> {
+    let w = c.weight.val();
+    let [cout, cin, _, _] = w.dims();
+    let w: Vec<f32> = w.into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?;
+    let b: Option<Vec<f32>> = match &c.bias {
+        Some(b) => Some(b.val().into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?),
+        None => None,
+    };
+    Conv3::from_oihw(cout, cin, &w, b.as_deref()).map_err(|e| e.to_string())
+}
+
+/// Reads the 3×3 convolutions `layers` (name, output channels, input channels) from a
+/// burnpack weight file (as burn writes it: `{name}.weight` [cout, cin, 3, 3] and
+/// `{name}.bias` [cout], float32) without a tensor framework. Anything missing, misshapen or
+/// non-finite is an error naming the tensor.
+pub fn convs_from_burnpack(bytes: &[u8], layers: &[(String, usize, usize)]) -> Result<Vec<Conv3>, String> {
+    let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.to_vec())).map_err(|e| format!("not a weight file ({e})"))?;
+    let tensors = reader.into_tensors().map_err(|e| format!("unreadable tensors ({e})"))?;
+    let mut by_name = std::collections::HashMap::new();
+    for t in tensors {
+        let (name, dtype, shape, _, data) = t.into_parts().map_err(|e| format!("unreadable tensor ({e})"))?;
+        by_name.insert(name, (dtype, shape, data));
+    }
+    let mut get = |name: &str| -> Result<(Vec<usize>, Vec<f32>), String> {
+        let (dtype, shape, data) = by_name.remove(name).ok_or_else(|| format!("missing tensor {name}"))?;
+        if dtype != burn_pack::DType::F32 {
+            return Err(format!("tensor {name} is {dtype:?}, float32 expected"));
+        }
+        let dims = shape.to_vec();
+        if data.len() != dims.iter().product::<usize>() * 4 {
+            return Err(format!("tensor {name} has {} bytes for shape {dims:?}", data.len()));
+        }
+        let values = data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        Ok((dims, values))
+    };
+    let mut convs = Vec::new();
+    for (name, cout, cin) in layers {
+        let (cout, cin) = (*cout, *cin);
+        let (wd, w) = get(&format!("{name}.weight"))?;
+        if wd != [cout, cin, 3, 3] {
+            return Err(format!("tensor {name}.weight has shape {wd:?}, [{cout}, {cin}, 3, 3] expected"));
+        }
+        let (_, b) = get(&format!("{name}.bias"))?;
+        convs.push(Conv3::from_oihw(cout, cin, &w, Some(&b)).map_err(|e| format!("{name}: {e}"))?);
+    }
+    Ok(convs)
 }
 
 /// Threads the CPU path uses by default: every core natively, one in the page.

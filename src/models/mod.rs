@@ -1,10 +1,13 @@
 //! Neural networks: the GPU runtime (burn on a wgpu device shared with the renderer — WebGPU
 //! in the page, Vulkan natively — with a start-up self-check that runs a real convolution
 //! kernel and compares it with a CPU reference), the project's own CPU kernels ([`cpu`]), the
-//! policy that picks between them ([`runtime`]) and the models themselves ([`tem`]).
+//! policy that picks between them ([`runtime`]) and the models themselves ([`tem`]: learned
+//! detail; [`tcm`] and [`grow`]: the learned world).
 
 pub mod cpu;
+pub mod grow;
 pub mod runtime;
+pub mod tcm;
 pub mod tem;
 
 use burn::tensor::module::conv2d;

@@ -236,12 +236,16 @@ impl TemSet {
 
     /// Runs level `level` on `n` square windows of side `side` (heights in metres, row-major,
     /// concatenated) and returns the [n, 2·side, 2·side] heights at half the spacing. On the
-    /// CPU this computes now; on a burn device it waits for the readback (native only).
-    #[cfg(not(target_arch = "wasm32"))]
+    /// CPU this computes now; on a burn device it waits for the readback (natively; in the
+    /// page, where a GPU readback cannot block, that is an error: use
+    /// [`enhance_async`](Self::enhance_async)).
     pub fn enhance_blocking(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<Vec<f32>, String> {
         match &self.engine {
             Engine::Cpu { .. } => self.enhance_cpu(level, &inputs, n, side),
+            #[cfg(not(target_arch = "wasm32"))]
             Engine::Burn { models, device } => burn_enhance(&models[level], device, level, inputs, n, side).into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}")),
+            #[cfg(target_arch = "wasm32")]
+            Engine::Burn { .. } => Err("a GPU readback cannot block in the page".into()),
         }
     }
 
@@ -357,16 +361,7 @@ impl TemCpu {
 
     /// Copies a burn model's weights.
     pub fn from_model(m: &Tem) -> Result<Self, String> {
-        let one = |c: &Conv2d| -> Result<Conv3, String> {
-            let w = c.weight.val();
-            let [cout, cin, _, _] = w.dims();
-            let w: Vec<f32> = w.into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?;
-            let b: Option<Vec<f32>> = match &c.bias {
-                Some(b) => Some(b.val().into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?),
-                None => None,
-            };
-            Conv3::from_oihw(cout, cin, &w, b.as_deref()).map_err(|e| e.to_string())
-        };
+        let one = cpu::conv_from_burn;
         Ok(Self { head: one(&m.head)?, body: m.body.iter().map(one).collect::<Result<_, _>>()?, merge: one(&m.merge)?, tail: one(&m.tail)? })
     }
 
@@ -374,34 +369,9 @@ impl TemCpu {
     /// `{name}.weight` [cout, cin, 3, 3] and `{name}.bias` [cout], float32, for every
     /// convolution; anything missing, misshapen or non-finite is an error.
     pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
-        let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.to_vec())).map_err(|e| format!("not a weight file ({e})"))?;
-        let tensors = reader.into_tensors().map_err(|e| format!("unreadable tensors ({e})"))?;
-        let mut by_name = std::collections::HashMap::new();
-        for t in tensors {
-            let (name, dtype, shape, _, data) = t.into_parts().map_err(|e| format!("unreadable tensor ({e})"))?;
-            by_name.insert(name, (dtype, shape, data));
-        }
-        let mut get = |name: &str| -> Result<(Vec<usize>, Vec<f32>), String> {
-            let (dtype, shape, data) = by_name.remove(name).ok_or_else(|| format!("missing tensor {name}"))?;
-            if dtype != burn_pack::DType::F32 {
-                return Err(format!("tensor {name} is {dtype:?}, float32 expected"));
-            }
-            let dims = shape.to_vec();
-            if data.len() != dims.iter().product::<usize>() * 4 {
-                return Err(format!("tensor {name} has {} bytes for shape {dims:?}", data.len()));
-            }
-            let values = data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-            Ok((dims, values))
-        };
-        let mut convs = Vec::new();
-        for (name, (cout, cin)) in conv_names().iter().zip([(WIDTH, 4), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (1, WIDTH / 4)]) {
-            let (wd, w) = get(&format!("{name}.weight"))?;
-            if wd != [cout, cin, 3, 3] {
-                return Err(format!("tensor {name}.weight has shape {wd:?}, [{cout}, {cin}, 3, 3] expected"));
-            }
-            let (_, b) = get(&format!("{name}.bias"))?;
-            convs.push(Conv3::from_oihw(cout, cin, &w, Some(&b)).map_err(|e| format!("{name}: {e}"))?);
-        }
+        let shapes = [(WIDTH, 4), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (1, WIDTH / 4)];
+        let layers: Vec<(String, usize, usize)> = conv_names().into_iter().zip(shapes).map(|(n, (o, i))| (n, o, i)).collect();
+        let mut convs = cpu::convs_from_burnpack(bytes, &layers)?;
         let tail = convs.pop().expect("7 convs");
         let merge = convs.pop().expect("7 convs");
         let head = convs.remove(0);
@@ -453,6 +423,21 @@ impl TemCpu {
 fn unit(s: &mut u64) -> f32 {
     *s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
     ((*s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+}
+
+/// [`features`] on the CPU as a channel-first array (4 × `side`²).
+pub fn features_cpu(x: &[f32], side: usize, scale_m: f32) -> Vec<f32> {
+    let mut m = Map::default();
+    features_into(x, side, scale_m, &mut m);
+    let mut out = vec![0f32; 4 * side * side];
+    for y in 0..side {
+        for xx in 0..side {
+            for (k, v) in m.pixel(y, xx).iter().enumerate() {
+                out[(k * side + y) * side + xx] = *v;
+            }
+        }
+    }
+    out
 }
 
 /// [`features`] on the CPU: the four feature channels of `x` (`side`² heights in metres,

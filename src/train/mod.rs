@@ -5,7 +5,11 @@
 //! quadrant of the previous one's output, and minimises the sum of their L1 losses (heights in
 //! units of 40 m) with one backward pass through the whole chain.
 
+pub mod gan;
+pub mod grow;
 pub mod pairs;
+pub mod tcm;
+pub mod world_eval;
 
 use std::path::Path;
 

@@ -5,6 +5,7 @@
 
 pub mod coord;
 pub mod export;
+pub mod learned;
 pub mod noise;
 pub mod quadtree;
 pub mod refine;

@@ -2,6 +2,8 @@
 //! share, reads the share link, and runs the app inside eframe. Everything it calls is
 //! testable natively; this file only glues browser events to it.
 
+mod worker;
+
 use std::cell::RefCell;
 use std::rc::Rc;
 
@@ -23,7 +25,41 @@ const NO_WEBGPU: &str = "This page needs WebGPU, which this browser does not off
 
 thread_local! {
     static STATS_JSON: RefCell<String> = RefCell::new("{}".into());
-    static TEM: RefCell<Option<(Rc<TemSet>, String)>> = const { RefCell::new(None) };
+    static TEM: RefCell<Option<(Rc<TemEngine>, String)>> = const { RefCell::new(None) };
+    /// Frames are not drawn while set (see [`terrain_set_paused`]), and the context to wake.
+    static PAUSED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    static CONTEXT: RefCell<Option<egui::Context>> = const { RefCell::new(None) };
+}
+
+/// Stops (`true`) or resumes drawing frames. The end-to-end test times the CPU inference
+/// without the software rasteriser drawing on the same cores; a user never needs it.
+#[wasm_bindgen]
+pub fn terrain_set_paused(paused: bool) {
+    PAUSED.set(paused);
+    if !paused {
+        CONTEXT.with(|c| c.borrow().as_ref().map(|ctx| ctx.request_repaint()));
+    }
+}
+
+/// Where the page's TEM runs.
+enum TemEngine {
+    /// burn on the shared WebGPU device.
+    Gpu(TemSet),
+    /// The CPU kernels in a Web Worker (the main thread only posts and receives).
+    Worker(worker::CpuWorker),
+    /// The CPU kernels on the main thread, when the browser could not start the worker: it
+    /// blocks frames, so quads are rationed.
+    MainThread(TemSet),
+}
+
+impl TemEngine {
+    /// Runs level `level` on `n` windows of side `side` (see [`TemSet::enhance_async`]).
+    async fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<Vec<f32>, String> {
+        match self {
+            TemEngine::Gpu(tem) | TemEngine::MainThread(tem) => tem.enhance_async(level, inputs, n, side).await,
+            TemEngine::Worker(w) => w.enhance(level, inputs, n, side).await.map(|(out, _ms)| out).map_err(|e| e.to_string()),
+        }
+    }
 }
 
 /// State of the learned refinement shared between the frame loop and the async tasks that
@@ -33,7 +69,7 @@ struct Ml {
     /// The self-check / backend line of the overlay.
     status: String,
     /// The loaded models and where they run ("WebGPU" or "CPU").
-    tem: Option<(Rc<TemSet>, String)>,
+    tem: Option<(Rc<TemEngine>, String)>,
     /// Weight files loaded so far (of `LEVELS`), while loading.
     loading: Option<usize>,
     /// Why the TEM is off, if it failed.
@@ -53,7 +89,7 @@ pub async fn terrain_tem_probe() -> Result<String, JsValue> {
     };
     let mut levels = Vec::new();
     for k in 0..LEVELS {
-        let raw = tem.enhance_async(k, probe_input(k), 1, PROBE_SIDE).await.map_err(|e| JsValue::from_str(&e))?;
+        let raw = tem.enhance(k, probe_input(k), 1, PROBE_SIDE).await.map_err(|e| JsValue::from_str(&e))?;
         levels.push(raw);
     }
     Ok(probe_json(&backend, &levels))
@@ -109,11 +145,7 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, cho
     if let Backend::Cpu(CpuReason::NoGpuCompute(e)) = &chosen {
         ml.borrow_mut().status = format!("{e}; the TEM runs on the CPU");
     }
-    let backend = chosen.label();
-    let exec = match gpu {
-        Ok(d) if chosen.is_gpu() => Exec::Burn(d),
-        _ => Exec::cpu(),
-    };
+    let mut backend = chosen.label();
     ml.borrow_mut().loading = Some(0);
     let mut files = Vec::new();
     // All five requests go out at once; their bodies are read in level order.
@@ -133,17 +165,31 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, cho
         set_loading_note(&format!("Loading the learned detail models {}/{LEVELS}…", k + 1));
     }
     ml.borrow_mut().loading = None;
-    let tem = match TemSet::from_bytes(files, &exec) {
+    let broken = |e: String| format!("TEM weights are broken ({e}); showing the 32 m world");
+    let tem = match gpu {
+        Ok(d) if chosen.is_gpu() => TemSet::from_bytes(files, &Exec::Burn(d)).map(TemEngine::Gpu).map_err(broken),
+        _ => match worker::CpuWorker::start(files.clone()).await {
+            Ok(w) => Ok(TemEngine::Worker(w)),
+            // Broken weights fail alike on any thread: no second try on the main thread.
+            Err(worker::WorkerError::Failed(e)) => Err(broken(e)),
+            Err(worker::WorkerError::Unavailable(e)) => {
+                web_sys::console::warn_1(&format!("CPU worker unavailable ({e}); the TEM runs on the main thread").into());
+                backend = format!("{backend} on the main thread");
+                TemSet::from_bytes(files, &Exec::cpu()).map(TemEngine::MainThread).map_err(broken)
+            }
+        },
+    };
+    let tem = match tem {
         Ok(tem) => Rc::new(tem),
         Err(e) => {
-            ml.borrow_mut().error = Some(format!("TEM weights are broken ({e}); showing the 32 m world"));
+            ml.borrow_mut().error = Some(e);
             return;
         }
     };
     set_loading_note("Preparing the learned detail models…");
     let t0 = now_ms();
     for k in 0..if chosen.is_gpu() { LEVELS } else { 0 } {
-        if let Err(e) = tem.enhance_async(k, probe_input(k), 1, PROBE_SIDE).await {
+        if let Err(e) = tem.enhance(k, probe_input(k), 1, PROBE_SIDE).await {
             ml.borrow_mut().error = Some(format!("TEM failed on {backend} ({e}); showing the 32 m world"));
             return;
         }
@@ -189,6 +235,10 @@ pub fn terrain_stats() -> String {
 #[wasm_bindgen(start)]
 pub fn start() {
     console_error_panic_hook::set_once();
+    // The same module also runs in the CPU inference worker, which has no page to start.
+    if web_sys::window().is_none() {
+        return;
+    }
     wasm_bindgen_futures::spawn_local(async {
         if let Err(e) = run().await {
             show_page_message(&e);
@@ -294,6 +344,7 @@ async fn run() -> Result<(), String> {
                     last_cpu_quad_ms: 0.0,
                     message,
                     last_frame_ms: None,
+                    frame_work: Default::default(),
                     last_hash: hash,
                     last_url_write_ms: 0.0,
                     copied_at_ms: None,
@@ -320,6 +371,9 @@ struct WebApp {
     last_cpu_quad_ms: f64,
     message: Option<String>,
     last_frame_ms: Option<f64>,
+    /// The main thread's work per frame over the last 120 frames: total, tiles, nodes and
+    /// drawing milliseconds.
+    frame_work: std::collections::VecDeque<[f64; 4]>,
     last_hash: String,
     last_url_write_ms: f64,
     copied_at_ms: Option<f64>,
@@ -340,6 +394,15 @@ impl WebApp {
             }
         }
         let Some((tem, backend)) = ml.tem.clone() else { return };
+        if let TemEngine::Worker(w) = &*tem
+            && let Some(why) = w.gone()
+        {
+            ml.tem = None;
+            ml.error = Some(format!("The CPU worker stopped ({why}); showing the 32 m world"));
+            TEM.with(|t| *t.borrow_mut() = None);
+            self.app.set_refinement(None);
+            return;
+        }
         let want = self.refine_on.then(|| backend.clone());
         if self.app.stats().refine_backend != want.clone().unwrap_or_default() {
             self.app.set_refinement(want);
@@ -347,25 +410,26 @@ impl WebApp {
         if ml.busy || !self.refine_on {
             return;
         }
-        // The CPU path blocks the page while it runs (tens of ms a quad in wasm): one quad at a
-        // time, at most one a second, and only while the camera is slow (< 60 m/s), so flights
-        // stay smooth and detail fills in where the user looks.
+        // On the main thread the CPU path blocks the page while it runs (tens of ms a quad in
+        // wasm): one quad at a time, at most one a second, and only while the camera is slow
+        // (< 60 m/s), so flights stay smooth and detail fills in where the user looks. The GPU
+        // and the worker take whole batches.
         let now = now_ms();
         let eye = self.app.camera.position_m;
         let speed = self.last_eye.map_or(0.0, |(p, t)| (eye - p).length() / ((now - t) / 1000.0).max(1e-3));
         self.last_eye = Some((eye, now));
-        let cpu = backend != "WebGPU";
-        if cpu && (now - self.last_cpu_quad_ms < 1000.0 || speed > 60.0) {
+        let blocking = matches!(*tem, TemEngine::MainThread(_));
+        if blocking && (now - self.last_cpu_quad_ms < 1000.0 || speed > 60.0) {
             return;
         }
-        let max = if cpu { 1 } else { REFINE_BATCH };
+        let max = if blocking { 1 } else { REFINE_BATCH };
         let jobs = self.app.refine_jobs(max);
         if jobs.is_empty() {
             return;
         }
         ml.busy = true;
         drop(ml);
-        if cpu {
+        if blocking {
             self.last_cpu_quad_ms = now;
         }
         let shared = self.ml.clone();
@@ -373,7 +437,7 @@ impl WebApp {
             let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
             let (level, epoch) = (keys[0].level as usize, jobs[0].epoch);
             let t0 = now_ms();
-            let out = tem.enhance_async(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE).await;
+            let out = tem.enhance(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE).await;
             let ms = now_ms() - t0;
             let mut m = shared.borrow_mut();
             m.results.push((epoch, keys, out, ms));
@@ -449,6 +513,10 @@ impl WebApp {
 impl eframe::App for WebApp {
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         let ctx = ui.ctx().clone();
+        if PAUSED.get() {
+            CONTEXT.with(|c| *c.borrow_mut() = Some(ctx));
+            return;
+        }
         let now = now_ms();
         let dt_ms = self.last_frame_ms.map(|t| now - t).unwrap_or(16.0);
         self.last_frame_ms = Some(now);
@@ -473,10 +541,17 @@ impl eframe::App for WebApp {
                     None => self.texture = Some(r.register_native_texture(&rs.device, view, wgpu::FilterMode::Linear)),
                 }
             }
+            let render_start = now_ms();
             let stats = self.renderer.render(&rs.device, &rs.queue, &nodes, &params, MESH_KEEP_FRAMES);
+            let render_ms = now_ms() - render_start;
             self.env.uploads = stats.uploads;
             self.env.triangles = stats.triangles;
             self.env.cpu_ms = now_ms() - cpu_start;
+            let s = self.app.stats();
+            self.frame_work.push_back([self.env.cpu_ms, s.world_ms, s.nodes_ms, render_ms]);
+            if self.frame_work.len() > 120 {
+                self.frame_work.pop_front();
+            }
             if let Some(id) = self.texture {
                 ui.painter().image(id, rect, egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)), egui::Color32::WHITE);
             }
@@ -531,6 +606,9 @@ impl eframe::App for WebApp {
             "uploads": self.env.uploads,
             "triangles": self.env.triangles,
             "cpu_ms": self.env.cpu_ms,
+            // The frame with the most main-thread work of the last 120: [total, tiles, nodes,
+            // drawing] ms.
+            "cpu_ms_worst": self.frame_work.iter().copied().max_by(|a, b| a[0].total_cmp(&b[0])),
             "message": self.message,
             "link": link,
             "mode": format!("{:?}", mode),

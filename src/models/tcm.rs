@@ -1,0 +1,442 @@
+//! The terrain completion module (TCM): a compact conditional UNet that makes one tile of the
+//! world at 128 m (32² samples, [`TILE_PX`]) from whichever of its 8 neighbours the schedule
+//! gives it, a coarse seeded "macro" field (the absolute level and the large-scale relief) and
+//! seeded noise. Learned ×2 steps then bring it to the world's 32 m.
+//!
+//! Input ([`IN_CHANNELS`] × [`CONTEXT_PX`]², the 3×3 tiles at 128 m, all heights relative to the
+//! macro level of the centre and divided by [`HEIGHT_SCALE_M`]):
+//! 0. known heights (zero where a tile is not an input, and in the centre),
+//! 1. predict mask (1 on the centre), 2. available mask, 3. unavailable mask (as the paper),
+//! 4. the macro field (bilinear between the nine tile centres),
+//! 5. fine noise (one value per pixel) and 6. coarse noise (one value per 12² block), both
+//!    drawn from the tile's seed with integer arithmetic only, so every platform draws the same.
+//!
+//! Network: an encoder of two 3×3 convolutions + ReLU per scale (96², 48², 24², 12², 6²; 2×2
+//! mean pooling between them) and a decoder that upsamples (nearest), concatenates the skip and
+//! applies two convolutions, computed only on the centre crop the output needs
+//! ([`DECODER_CROP`]); a 3×3 convolution makes the centre tile. No normalisation layers, so
+//! training and inference compute the same function.
+
+use burn::module::Module;
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor};
+
+use crate::models::cpu::{self, Conv3, Map, Post};
+use crate::world::schedule::mix64;
+
+/// Spacing of the TCM's tiles (metres per sample).
+pub const COARSE_SPACING_M: f64 = 128.0;
+/// Side of a tile at [`COARSE_SPACING_M`] (samples): the world's 4096 m tile.
+pub const TILE_PX: usize = 32;
+/// Side of the 3×3-tile context window (samples).
+pub const CONTEXT_PX: usize = 3 * TILE_PX;
+/// Heights enter and leave the network relative to the centre's macro level, in units of this
+/// many metres (the reference's global standard deviation).
+pub const HEIGHT_SCALE_M: f32 = 500.0;
+/// Input channels (see the module documentation).
+pub const IN_CHANNELS: usize = 7;
+/// Side (samples) of the coarse noise blocks.
+pub const COARSE_NOISE_PX: usize = 12;
+/// Channels of the encoder scales 96², 48², 24², 12² and the 6² bottleneck.
+pub const WIDTHS: [usize; 5] = [24, 48, 72, 96, 112];
+/// Side of the centre crop the decoder computes at 96², 48², 24² and 12²: the output tile plus
+/// the rows its remaining convolutions read (3 at 96², 2 more per coarser scale, rounded up).
+pub const DECODER_CROP: [usize; 4] = [38, 24, 16, 12];
+
+/// Which of the 3×3 tiles are inputs, for the schedule's phase `p` (0..4), in row-major order
+/// (dj = −1, 0, 1; di = −1, 0, 1); the centre is never an input.
+pub fn phase_mask(p: usize) -> [bool; 9] {
+    let mut m = [false; 9];
+    match p {
+        0 => {}
+        1 => (m[3], m[5]) = (true, true),
+        2 => (m[1], m[7]) = (true, true),
+        _ => {
+            m = [true; 9];
+            m[4] = false;
+        }
+    }
+    m
+}
+
+/// A standard-normal-like value from 64 random bits, with integer arithmetic and exact float
+/// conversions only (the sum of four 16-bit uniforms, centred and scaled to unit variance), so
+/// it is bit-identical on every platform.
+pub fn gauss(bits: u64) -> f32 {
+    let s: u64 = (0..4).map(|k| (bits >> (16 * k)) & 0xffff).sum();
+    // Four uniforms on [0, 1): mean 2, variance 4/12.
+    (s as f32 / 65_536.0 - 2.0) * 1.732_050_8
+}
+
+/// The macro field over the context window ([`CONTEXT_PX`]², metres): bilinear between the
+/// nine tile-centre values `centres` (row-major like [`phase_mask`]), constant beyond the
+/// outer centres.
+pub fn macro_field(centres: &[f32; 9]) -> Vec<f32> {
+    let half = TILE_PX as f32 / 2.0;
+    let axis = |p: usize| -> (usize, f32) {
+        // Position in units of tiles from the first centre, clamped to [0, 2].
+        let t = ((p as f32 + 0.5 - half) / TILE_PX as f32).clamp(0.0, 2.0);
+        let k = (t as usize).min(1);
+        (k, t - k as f32)
+    };
+    let mut out = vec![0f32; CONTEXT_PX * CONTEXT_PX];
+    for y in 0..CONTEXT_PX {
+        let (ky, fy) = axis(y);
+        for x in 0..CONTEXT_PX {
+            let (kx, fx) = axis(x);
+            let c = |j: usize, i: usize| centres[j * 3 + i];
+            let top = c(ky, kx) * (1.0 - fx) + c(ky, kx + 1) * fx;
+            let bottom = c(ky + 1, kx) * (1.0 - fx) + c(ky + 1, kx + 1) * fx;
+            out[y * CONTEXT_PX + x] = top * (1.0 - fy) + bottom * fy;
+        }
+    }
+    out
+}
+
+/// The network's input for one tile, channel-first ([`IN_CHANNELS`] × [`CONTEXT_PX`]²):
+/// `tiles` are the 3×3 tiles' heights (metres, [`TILE_PX`]² row-major each) where they are
+/// inputs, `macro_centres` the macro field at the nine tile centres (metres) and `noise_seed`
+/// the centre tile's seed. Heights are taken relative to `macro_centres[4]`.
+pub fn assemble_input(tiles: &[Option<&[f32]>; 9], macro_centres: &[f32; 9], noise_seed: u64) -> Vec<f32> {
+    let n = CONTEXT_PX * CONTEXT_PX;
+    let level = macro_centres[4];
+    let mut x = vec![0f32; IN_CHANNELS * n];
+    for (t, tile) in tiles.iter().enumerate() {
+        let (ti, tj) = (t % 3, t / 3);
+        for v in 0..TILE_PX {
+            for u in 0..TILE_PX {
+                let p = (tj * TILE_PX + v) * CONTEXT_PX + ti * TILE_PX + u;
+                match tile {
+                    _ if t == 4 => x[n + p] = 1.0,
+                    Some(h) => {
+                        x[p] = (h[v * TILE_PX + u] - level) / HEIGHT_SCALE_M;
+                        x[2 * n + p] = 1.0;
+                    }
+                    None => x[3 * n + p] = 1.0,
+                }
+            }
+        }
+    }
+    for (p, m) in macro_field(macro_centres).into_iter().enumerate() {
+        x[4 * n + p] = (m - level) / HEIGHT_SCALE_M;
+    }
+    let blocks = CONTEXT_PX / COARSE_NOISE_PX;
+    for p in 0..n {
+        x[5 * n + p] = gauss(mix64(noise_seed ^ (p as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+        let (bx, by) = (p % CONTEXT_PX / COARSE_NOISE_PX, p / CONTEXT_PX / COARSE_NOISE_PX);
+        x[6 * n + p] = gauss(mix64(!noise_seed ^ ((by * blocks + bx) as u64 + 1).wrapping_mul(0xD1B5_4A32_D192_ED03)));
+    }
+    x
+}
+
+/// One encoder or decoder stage: two 3×3 convolutions, each followed by ReLU.
+#[derive(Module, Debug)]
+pub struct Stage {
+    a: Conv2d,
+    b: Conv2d,
+}
+
+fn conv3(cin: usize, cout: usize, device: &Device) -> Conv2d {
+    Conv2dConfig::new([cin, cout], [3, 3]).with_padding(PaddingConfig2d::Same).init(device)
+}
+
+impl Stage {
+    fn new(cin: usize, cout: usize, device: &Device) -> Self {
+        Self { a: conv3(cin, cout, device), b: conv3(cout, cout, device) }
+    }
+
+    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        relu(self.b.forward(relu(self.a.forward(x))))
+    }
+
+    /// The two convolutions (for the CPU kernels and parameter counts).
+    pub fn convs(&self) -> [&Conv2d; 2] {
+        [&self.a, &self.b]
+    }
+}
+
+/// 2×2 mean pooling of [B, C, H, W] (H, W even).
+pub fn pool2(x: Tensor<4>) -> Tensor<4> {
+    let [b, c, h, w] = x.dims();
+    x.reshape([b, c, h / 2, 2, w / 2, 2]).mean_dim(5).mean_dim(3).reshape([b, c, h / 2, w / 2])
+}
+
+/// Nearest-neighbour ×2 upsampling of [B, C, H, W].
+pub fn up2(x: Tensor<4>) -> Tensor<4> {
+    let [b, c, h, w] = x.dims();
+    x.reshape([b, c, h, 1, w, 1]).repeat_dim(3, 2).repeat_dim(5, 2).reshape([b, c, 2 * h, 2 * w])
+}
+
+/// The centre `side`² of [B, C, H, W].
+pub fn centre(x: Tensor<4>, side: usize) -> Tensor<4> {
+    let [_, _, h, w] = x.dims();
+    x.narrow(2, (h - side) / 2, side).narrow(3, (w - side) / 2, side)
+}
+
+/// The TCM generator.
+#[derive(Module, Debug)]
+pub struct Tcm {
+    enc: Vec<Stage>,
+    dec: Vec<Stage>,
+    out: Conv2d,
+}
+
+impl Tcm {
+    /// A freshly initialised generator on `device`.
+    pub fn new(device: &Device) -> Self {
+        let w = WIDTHS;
+        let enc = (0..5).map(|k| Stage::new(if k == 0 { IN_CHANNELS } else { w[k - 1] }, w[k], device)).collect();
+        // Decoder stage k (scales 12², 24², 48², 96² for k = 3, 2, 1, 0) reads the upsampled
+        // coarser stage and the skip of its scale.
+        let dec = (0..4).map(|k| Stage::new(w[k + 1] + w[k], w[k], device)).collect();
+        Self { enc, dec, out: conv3(w[0], 1, device) }
+    }
+
+    /// Number of learned parameters.
+    pub fn parameters(&self) -> usize {
+        self.num_params()
+    }
+
+    /// Makes the centre tiles: `x` is [B, [`IN_CHANNELS`], 96, 96] from [`assemble_input`];
+    /// returns [B, 1, 32, 32] heights relative to the centre's macro level, in units of
+    /// [`HEIGHT_SCALE_M`].
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let mut skips = Vec::with_capacity(4);
+        let mut h = x;
+        for (k, stage) in self.enc.iter().enumerate() {
+            if k > 0 {
+                h = pool2(h);
+            }
+            h = stage.forward(h);
+            if k < 4 {
+                skips.push(h.clone());
+            }
+        }
+        for k in (0..4).rev() {
+            let crop = DECODER_CROP[k];
+            let up = centre(up2(h), crop);
+            let skip = centre(skips[k].clone(), crop);
+            h = self.dec[k].forward(Tensor::cat(vec![up, skip], 1));
+        }
+        centre(self.out.forward(h), TILE_PX)
+    }
+}
+
+/// Names and shapes (name, output channels, input channels) of the generator's convolutions
+/// in network order, as burn names them in a weight file.
+pub fn conv_layers() -> Vec<(String, usize, usize)> {
+    let w = WIDTHS;
+    let mut v = Vec::new();
+    for k in 0..5 {
+        let cin = if k == 0 { IN_CHANNELS } else { w[k - 1] };
+        v.push((format!("enc.{k}.a"), w[k], cin));
+        v.push((format!("enc.{k}.b"), w[k], w[k]));
+    }
+    for k in 0..4 {
+        v.push((format!("dec.{k}.a"), w[k], w[k + 1] + w[k]));
+        v.push((format!("dec.{k}.b"), w[k], w[k]));
+    }
+    v.push(("out".into(), 1, w[0]));
+    v
+}
+
+/// Reused activation buffers of [`TcmCpu::forward`].
+#[derive(Default)]
+pub struct TcmScratch {
+    input: Map,
+    skips: [Map; 4],
+    pooled: Map,
+    t: Map,
+    h: Map,
+    cat: Map,
+    out: Map,
+}
+
+/// The TCM generator on the project's own CPU kernels ([`crate::models::cpu`]): the same
+/// network as [`Tcm::forward`] without a tensor framework.
+#[derive(Clone, Debug)]
+pub struct TcmCpu {
+    /// Convolutions in the order of [`conv_layers`].
+    convs: Vec<Conv3>,
+}
+
+impl TcmCpu {
+    /// Every layer random (uniform ±`amplitude`, from `seed`), for tests.
+    pub fn randomized(seed: u64, amplitude: f32) -> Self {
+        Self { convs: conv_layers().iter().enumerate().map(|(k, (_, o, i))| Conv3::random(*o, *i, seed ^ (k as u64) << 32, amplitude)).collect() }
+    }
+
+    /// Reads a generator weight file (burnpack, as training writes it).
+    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
+        Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
+    }
+
+    /// Copies a burn generator's weights.
+    pub fn from_model(m: &Tcm) -> Result<Self, String> {
+        let convs = m.enc.iter().chain(&m.dec).flat_map(|st| st.convs()).chain([&m.out]);
+        Ok(Self { convs: convs.map(cpu::conv_from_burn).collect::<Result<_, _>>()? })
+    }
+
+    /// One tile: `x` from [`assemble_input`] (channel-first); returns the centre tile
+    /// ([`TILE_PX`]², row-major) relative to the macro level in units of [`HEIGHT_SCALE_M`].
+    pub fn forward(&self, x: &[f32], s: &mut TcmScratch, threads: usize) -> Vec<f32> {
+        let n = CONTEXT_PX;
+        assert_eq!(x.len(), IN_CHANNELS * n * n, "input size");
+        s.input.reset(n, n, IN_CHANNELS);
+        for y in 0..n {
+            for xx in 0..n {
+                let px = s.input.pixel_mut(y, xx);
+                for (c, v) in px.iter_mut().enumerate() {
+                    *v = x[(c * n + y) * n + xx];
+                }
+            }
+        }
+        let c = &self.convs;
+        // Encoder: stage k reads the input (k = 0) or the pooled previous stage.
+        for k in 0..5 {
+            let src = if k == 0 {
+                &s.input
+            } else {
+                cpu::pool2(&s.skips[k - 1], &mut s.pooled);
+                &s.pooled
+            };
+            cpu::conv(&c[2 * k], src, &mut s.t, Post::Relu, threads);
+            let dst = if k < 4 { &mut s.skips[k] } else { &mut s.h };
+            cpu::conv(&c[2 * k + 1], &s.t, dst, Post::Relu, threads);
+        }
+        // Decoder: upsample, take the centre crop beside the skip's, two convolutions.
+        for k in (0..4).rev() {
+            cpu::up2_concat(&s.h, &s.skips[k], DECODER_CROP[k], &mut s.cat);
+            cpu::conv(&c[10 + 2 * k], &s.cat, &mut s.t, Post::Relu, threads);
+            cpu::conv(&c[11 + 2 * k], &s.t, &mut s.h, Post::Relu, threads);
+        }
+        cpu::conv(&c[18], &s.h, &mut s.out, Post::None, threads);
+        let off = (DECODER_CROP[0] - TILE_PX) / 2;
+        let mut tile = Vec::with_capacity(TILE_PX * TILE_PX);
+        for y in 0..TILE_PX {
+            for xx in 0..TILE_PX {
+                tile.push(s.out.pixel(y + off, xx + off)[0]);
+            }
+        }
+        tile
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The noise has mean ≈ 0 and variance ≈ 1 over 100,000 draws, and is the same on every
+    /// call for the same bits.
+    #[test]
+    fn gauss_has_unit_variance_and_zero_mean() {
+        let v: Vec<f32> = (0..100_000u64).map(|k| gauss(mix64(k))).collect();
+        let mean = v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
+        let var = v.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>() / v.len() as f64;
+        assert!(mean.abs() < 0.01, "mean {mean}");
+        assert!((var - 1.0).abs() < 0.02, "variance {var}");
+        assert_eq!(gauss(mix64(7)).to_bits(), gauss(mix64(7)).to_bits());
+    }
+
+    /// The macro field equals the nine centre values at the tile centres, is linear between
+    /// them and constant beyond the outer centres.
+    #[test]
+    fn macro_field_interpolates_the_tile_centres() {
+        let c: [f32; 9] = [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0];
+        let m = macro_field(&c);
+        let at = |x: usize, y: usize| m[y * CONTEXT_PX + x];
+        // The centre tile's centre lies between pixels 47 and 48 (and 15, 16 of every tile
+        // along the other axis): the mean of the four pixels around it is its value.
+        let mid = |x: usize, y: usize| (at(x, y) + at(x + 1, y) + at(x, y + 1) + at(x + 1, y + 1)) / 4.0;
+        assert!((mid(47, 47) - c[4]).abs() < 1e-4, "centre: {}", mid(47, 47));
+        // Outer centres: everything outward of them is clamped to their value.
+        assert_eq!(at(15, 15), c[0]);
+        assert_eq!(at(95, 0), c[2]);
+        assert_eq!(at(0, 95), c[6]);
+        assert_eq!(at(0, 0), at(10, 10), "constant beyond the outer centres");
+        assert!((at(95, 95) - 80.0).abs() < 1e-4);
+        let step = at(40, 48) - at(39, 48);
+        assert!((step - 10.0 / 32.0).abs() < 1e-4, "linear in x: {step}");
+    }
+
+    /// The input marks exactly the given neighbours as available, the centre as predicted and
+    /// the rest as unavailable, puts heights relative to the centre's macro level, and its noise
+    /// depends on the seed only.
+    #[test]
+    fn input_channels_follow_the_phase_masks() {
+        let n = CONTEXT_PX * CONTEXT_PX;
+        let tile = vec![600.0f32; TILE_PX * TILE_PX];
+        let centres = [100.0; 9];
+        for p in 0..4 {
+            let mask = phase_mask(p);
+            let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
+            let x = assemble_input(&tiles, &centres, 42);
+            let sums: Vec<f32> = (0..4).map(|c| x[c * n..(c + 1) * n].iter().sum()).collect();
+            let avail = mask.iter().filter(|&&m| m).count() as f32;
+            let per = (TILE_PX * TILE_PX) as f32;
+            assert_eq!(sums[1], per, "phase {p}: predict mask");
+            assert_eq!(sums[2], avail * per, "phase {p}: available");
+            assert_eq!(sums[3], (8.0 - avail) * per, "phase {p}: unavailable");
+            assert!((sums[0] - avail * per * 1.0).abs() < 1e-2, "phase {p}: heights (600 − 100) / 500 = 1");
+            assert!(x[4 * n..5 * n].iter().all(|&v| v == 0.0), "flat macro field at the centre's level");
+            let y = assemble_input(&tiles, &centres, 43);
+            assert_eq!(x[..5 * n], y[..5 * n]);
+            assert_ne!(x[5 * n..], y[5 * n..], "the noise follows the seed");
+        }
+        assert_eq!([phase_mask(1)[3], phase_mask(1)[5], phase_mask(1)[1]], [true, true, false]);
+    }
+
+    /// The generator maps [2, 7, 96, 96] to [2, 1, 32, 32] with at most 1 M parameters.
+    #[cfg(feature = "train")]
+    #[test]
+    fn generator_shapes_and_size() {
+        let device = Device::flex();
+        let g = Tcm::new(&device);
+        let x = Tensor::<4>::zeros([2, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX], &device);
+        assert_eq!(g.forward(x).dims(), [2, 1, TILE_PX, TILE_PX]);
+        let p = g.parameters();
+        assert!(p <= 1_000_000, "{p} parameters");
+        println!("TCM parameters: {p}");
+    }
+
+    /// The CPU kernels compute the burn generator: random weights (uniform ±0.1, biases too)
+    /// on two inputs of every phase pattern; every output within 1e-4 (units of 500 m: 5 cm).
+    #[cfg(feature = "train")]
+    #[test]
+    fn cpu_forward_equals_burn_forward() {
+        use burn::module::{Module, ModuleMapper, Param};
+        struct Random(Device, u64);
+        impl ModuleMapper for Random {
+            fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+                let device = self.0.clone();
+                self.1 = mix64(self.1);
+                let seed = self.1;
+                param.map(|t| {
+                    let n = t.shape().num_elements();
+                    let v: Vec<f32> = (0..n as u64).map(|k| ((mix64(seed ^ k) >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.2).collect();
+                    Tensor::<D>::from_data(burn::tensor::TensorData::new(v, t.shape()), &device)
+                })
+            }
+        }
+        let device = Device::flex();
+        let g = Tcm::new(&device).map(&mut Random(device.clone(), 5));
+        let cpu_g = TcmCpu::from_model(&g).unwrap();
+        let tile: Vec<f32> = (0..TILE_PX * TILE_PX).map(|p| 300.0 + 40.0 * ((p % 32) as f32 * 0.3).sin() + (p / 32) as f32).collect();
+        let mut scratch = TcmScratch::default();
+        for p in 0..4 {
+            let mask = phase_mask(p);
+            let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
+            let x = assemble_input(&tiles, &[250.0, 260.0, 270.0, 280.0, 290.0, 300.0, 310.0, 320.0, 330.0], 9 + p as u64);
+            let burn_out: Vec<f32> = g.forward(Tensor::<4>::from_data(burn::tensor::TensorData::new(x.clone(), [1, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX]), &device)).into_data().try_to_vec::<f32>().unwrap();
+            for threads in [1, 2] {
+                let ours = cpu_g.forward(&x, &mut scratch, threads);
+                let worst = ours.iter().zip(&burn_out).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+                let scale = burn_out.iter().map(|v| v.abs()).fold(0f32, f32::max);
+                assert!(scale > 1e-3, "phase {p}: the random network's output is not trivially zero ({scale})");
+                assert!(worst < 1e-4, "phase {p}, {threads} threads: CPU and burn differ by {worst}");
+            }
+        }
+    }
+}

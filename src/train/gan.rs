@@ -1,0 +1,74 @@
+//! What the project's GAN trainings share: the PatchGAN discriminator, least-squares
+//! adversarial losses, Adam as pix2pix sets it, and checkpoint files.
+
+use std::path::Path;
+
+use burn::module::Module;
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::store::{BurnpackStore, ModuleSnapshot};
+use burn::tensor::activation::leaky_relu;
+use burn::tensor::{Device, Tensor};
+
+/// A PatchGAN discriminator: a 2-channel window (heights and a condition) → logits at 1/8 of
+/// its size, three stride-2 3×3 convolutions with leaky ReLU and a 3×3 head. Training only.
+#[derive(Module, Debug)]
+pub struct Disc {
+    convs: Vec<Conv2d>,
+    head: Conv2d,
+}
+
+impl Disc {
+    /// A freshly initialised discriminator on `device`.
+    pub fn new(device: &Device) -> Self {
+        let widths = [2, 32, 64, 128];
+        let convs = widths.windows(2).map(|w| Conv2dConfig::new([w[0], w[1]], [3, 3]).with_stride([2, 2]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device)).collect();
+        Self { convs, head: Conv2dConfig::new([128, 1], [3, 3]).with_padding(PaddingConfig2d::Same).init(device) }
+    }
+
+    /// Logits [B, 1, H/8, W/8] for windows `x` [B, 2, H, W].
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let mut h = x;
+        for c in &self.convs {
+            h = leaky_relu(c.forward(h), 0.2);
+        }
+        self.head.forward(h)
+    }
+}
+
+/// Adam with β = (0.5, 0.999), as pix2pix trains both networks.
+pub fn adam() -> ModuleOptimizer {
+    AdamConfig::new().with_beta_1(0.5).with_beta_2(0.999).init()
+}
+
+/// One discriminator step (least squares: real → 1, fake → 0) at learning rate `lr`; returns
+/// its loss. `fake` must be detached from the generator.
+pub fn disc_step(d: &mut Disc, opt: &mut ModuleOptimizer, lr: f64, real: Tensor<4>, fake: Tensor<4>) -> f64 {
+    let loss = ((d.forward(real) - 1.0).powf_scalar(2.0).mean() + d.forward(fake).powf_scalar(2.0).mean()) * 0.5;
+    let value = loss.clone().into_scalar::<f32>() as f64;
+    let gp = GradientsParams::from_grads(loss.backward(), d);
+    *d = opt.step(lr, d.clone(), gp);
+    value
+}
+
+/// The generator's least-squares adversarial term for its outputs `fake` (fake → 1).
+pub fn gen_adversarial(d: &Disc, fake: Tensor<4>) -> Tensor<1> {
+    (d.forward(fake) - 1.0).powf_scalar(2.0).mean()
+}
+
+/// Loads a module's weights from a burnpack file; missing tensors are an error.
+pub fn load_into<M: ModuleSnapshot>(m: &mut M, path: &Path) -> Result<(), String> {
+    let mut store = BurnpackStore::from_file(path);
+    let r = m.load_from(&mut store).map_err(|e| format!("{}: {e:?}", path.display()))?;
+    if !r.missing.is_empty() {
+        return Err(format!("{}: missing tensors {:?}", path.display(), r.missing));
+    }
+    Ok(())
+}
+
+/// Saves a module's weights to a burnpack file (overwriting it).
+pub fn save<M: ModuleSnapshot>(m: &M, path: &Path) -> Result<(), String> {
+    let mut store = BurnpackStore::from_file(path).overwrite(true);
+    m.save_into(&mut store).map_err(|e| format!("saving {}: {e:?}", path.display()))
+}

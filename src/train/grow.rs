@@ -1,0 +1,201 @@
+//! Training the ×4 step of the learned world ([`crate::models::grow`]) on the CPU: 32 m windows
+//! from the DEMs fine enough for them (area averaging only), their 128 m area means as input,
+//! the 8 rotations/flips, and λ·L1 plus a PatchGAN that sees the 32 m tile beside its bicubic
+//! base. Resumable like the TCM's run.
+
+use std::path::Path;
+
+use burn::module::Module;
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Tensor, TensorData};
+
+use super::gan::{self, Disc, load_into, save};
+use super::pairs::{Dem, Rng, Split, dihedral, split_columns};
+use super::tcm::{L1_WEIGHT, TcmProgress};
+use crate::dem::Heightfield;
+use crate::models::grow::{FACTOR, Grow, HEIGHT_SCALE_M, MARGIN, OUT_TILE, WINDOW, assemble, base};
+
+/// Spacing (metres) of the training targets: the world's.
+pub const FINE_SPACING_M: f64 = 32.0;
+/// Side (32 m samples) of the region one sample reads.
+pub const EXTENT: usize = WINDOW * FACTOR;
+/// Offset (32 m samples) of the output tile inside that region.
+pub const CORE_OFFSET: usize = MARGIN * FACTOR;
+
+/// A DEM at 32 m.
+pub struct Grid {
+    /// Identifier from the manifest.
+    pub id: String,
+    /// Heights (metres) at 32 m.
+    pub hf: Heightfield,
+}
+
+/// Whether a sample fits in `split` of `hf`.
+pub fn fits(hf: &Heightfield, split: Split) -> bool {
+    let (c0, c1) = split_columns(hf.width, split);
+    c1 >= c0 + EXTENT && hf.height >= EXTENT
+}
+
+/// Every DEM at 32 m or finer with room for a sample in both splits, area-averaged to 32 m.
+pub fn grids(dems: &[Dem]) -> Vec<Grid> {
+    dems.iter()
+        .filter(|d| d.hf.spacing_m <= FINE_SPACING_M + 1e-9)
+        .filter_map(|d| d.hf.resample_area(FINE_SPACING_M).ok().map(|hf| Grid { id: d.id.clone(), hf }))
+        .filter(|g| [Split::Train, Split::Validation].iter().all(|&s| fits(&g.hf, s)))
+        .collect()
+}
+
+/// One example: the network's inputs, the bicubic base of the tile and the true tile.
+pub struct Sample {
+    /// 128 m heights of the window (metres, [`WINDOW`]²).
+    pub coarse: Vec<f32>,
+    /// Inputs from [`assemble`]: 6 channels at 128 m, 1 at 64 m, 1 at 32 m.
+    pub x: (Vec<f32>, Vec<f32>, Vec<f32>),
+    /// The bicubic base of the output tile (metres, [`OUT_TILE`]²).
+    pub base: Vec<f32>,
+    /// The true 32 m tile (metres, [`OUT_TILE`]²).
+    pub truth: Vec<f32>,
+}
+
+fn core(v: &[f32]) -> Vec<f32> {
+    let n = EXTENT;
+    (0..OUT_TILE * OUT_TILE).map(|p| v[(CORE_OFFSET + p / OUT_TILE) * n + CORE_OFFSET + p % OUT_TILE]).collect()
+}
+
+/// Cuts an example from a random NaN-free window of `hf` (32 m) in `split` (20 tries).
+pub fn sample(hf: &Heightfield, split: Split, rng: &mut Rng) -> Option<Sample> {
+    if !fits(hf, split) {
+        return None;
+    }
+    let (c0, c1) = split_columns(hf.width, split);
+    for _ in 0..20 {
+        let x0 = c0 + rng.below(c1 - c0 - EXTENT + 1);
+        let y0 = rng.below(hf.height - EXTENT + 1);
+        let win = hf.window(x0, y0, EXTENT, EXTENT);
+        if win.data.iter().any(|v| !v.is_finite()) {
+            continue;
+        }
+        let fine = Heightfield::new(EXTENT, EXTENT, FINE_SPACING_M, dihedral(&win.data, EXTENT, rng.below(8)));
+        let coarse = fine.downsample2().downsample2().data;
+        let (gx0, gy0) = (rng.below(1 << 20) as i64 - (1 << 19), rng.below(1 << 20) as i64 - (1 << 19));
+        let x = assemble(&coarse, rng.next_u64(), gx0, gy0);
+        let b = core(&base(&coarse));
+        return Some(Sample { coarse, x, base: b, truth: core(&fine.data) });
+    }
+    None
+}
+
+/// A run of the ×4 network in progress.
+pub struct GrowRun {
+    /// The network.
+    pub g: Grow,
+    d: Disc,
+    og: ModuleOptimizer,
+    od: ModuleOptimizer,
+    /// Windows per step.
+    pub batch: usize,
+    /// Generator learning rate (the discriminator's is half).
+    pub lr: f64,
+    /// Weight of the adversarial term.
+    pub adversarial: f32,
+    /// Progress (the same record as the TCM's).
+    pub progress: TcmProgress,
+    device: Device,
+}
+
+/// The network's checkpoint and weight file name.
+pub const GROW_FILE: &str = "grow_32m.bpk";
+const DISC_FILE: &str = "grow_disc.bpk";
+const STATE_FILE: &str = "grow_state.json";
+const GEN_OPT_FILE: &str = "grow_adam.bin";
+const DISC_OPT_FILE: &str = "grow_disc_adam.bin";
+
+fn tensor(data: Vec<f32>, shape: [usize; 4], device: &Device) -> Tensor<4> {
+    Tensor::<4>::from_data(TensorData::new(data, shape), device)
+}
+
+impl GrowRun {
+    /// Starts a run on `device` (an autodiff device) or resumes the one saved in `dir`.
+    pub fn start(batch: usize, adversarial: f32, device: &Device, resume_from: Option<&Path>) -> Result<Self, String> {
+        let mut run = Self { g: Grow::new(device), d: Disc::new(device), og: gan::adam(), od: gan::adam(), batch, lr: 2e-4, adversarial, progress: TcmProgress::default(), device: device.clone() };
+        if let Some(dir) = resume_from {
+            load_into(&mut run.g, &dir.join(GROW_FILE))?;
+            load_into(&mut run.d, &dir.join(DISC_FILE))?;
+            let text = std::fs::read_to_string(dir.join(STATE_FILE)).map_err(|e| format!("{}: {e}", dir.join(STATE_FILE).display()))?;
+            let state: serde_json::Value = serde_json::from_str(&text).map_err(|e| format!("{STATE_FILE}: {e}"))?;
+            run.progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("{STATE_FILE}: {e}"))?;
+            run.batch = state["batch"].as_u64().map_or(batch, |b| b as usize);
+            run.adversarial = state["adversarial"].as_f64().map_or(adversarial, |a| a as f32);
+            run.og = gan::adam().load(dir.join(GEN_OPT_FILE)).map_err(|e| format!("{GEN_OPT_FILE}: {e:?}"))?;
+            run.od = gan::adam().load(dir.join(DISC_OPT_FILE)).map_err(|e| format!("{DISC_OPT_FILE}: {e:?}"))?;
+        }
+        Ok(run)
+    }
+
+    /// One optimiser step of both networks on a batch from `grids` (train split).
+    pub fn step(&mut self, grids: &[Grid], seed: u64) -> Result<(), String> {
+        let t0 = web_time::Instant::now();
+        let mut rng = Rng(seed.wrapping_mul(0x2_0000_0003) ^ self.progress.step as u64 ^ 0x5151);
+        let (mut xs, mut n64s, mut n32s, mut targets, mut bases) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let mut got = 0;
+        for _ in 0..self.batch * 20 {
+            if got == self.batch {
+                break;
+            }
+            let g = &grids[rng.below(grids.len())];
+            if let Some(s) = sample(&g.hf, Split::Train, &mut rng) {
+                let mean = s.base.iter().sum::<f32>() / s.base.len() as f32;
+                xs.extend(s.x.0);
+                n64s.extend(s.x.1);
+                n32s.extend(s.x.2);
+                targets.extend(s.truth.iter().zip(&s.base).map(|(t, b)| (t - b) / HEIGHT_SCALE_M));
+                bases.extend(s.base.iter().map(|b| (b - mean) / HEIGHT_SCALE_M));
+                got += 1;
+            }
+        }
+        if got == 0 {
+            return Err("no NaN-free 32 m training window in any DEM".into());
+        }
+        let dev = &self.device;
+        let w = WINDOW;
+        let residual = self.g.forward(tensor(xs, [got, 6, w, w], dev), tensor(n64s, [got, 1, 2 * w, 2 * w], dev), tensor(n32s, [got, 1, 4 * w, 4 * w], dev));
+        let fake = residual.narrow(2, CORE_OFFSET, OUT_TILE).narrow(3, CORE_OFFSET, OUT_TILE);
+        let target = tensor(targets, [got, 1, OUT_TILE, OUT_TILE], dev);
+        let cond = tensor(bases, [got, 1, OUT_TILE, OUT_TILE], dev);
+        let mut disc_v = 0.0;
+        let mut adv_v = 0.0;
+        if self.adversarial > 0.0 {
+            let real_in = Tensor::cat(vec![target.clone() + cond.clone(), cond.clone()], 1);
+            let fake_in = Tensor::cat(vec![fake.clone().detach() + cond.clone(), cond.clone()], 1);
+            disc_v = gan::disc_step(&mut self.d, &mut self.od, self.lr * 0.5, real_in, fake_in);
+        }
+        let l1 = (fake.clone() - target).abs().mean();
+        let l1_v = l1.clone().into_scalar::<f32>() as f64;
+        let mut loss = l1 * L1_WEIGHT;
+        if self.adversarial > 0.0 {
+            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![fake + cond.clone(), cond], 1));
+            adv_v = adv.clone().into_scalar::<f32>() as f64;
+            loss = loss + adv * self.adversarial;
+        }
+        let gp = GradientsParams::from_grads(loss.backward(), &self.g);
+        self.g = self.og.step(self.lr, self.g.clone(), gp);
+        self.progress.record(l1_v, adv_v, disc_v, t0.elapsed().as_secs_f64());
+        Ok(())
+    }
+
+    /// Saves the checkpoint in `dir`.
+    pub fn save(&self, dir: &Path) -> Result<(), String> {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        save(&self.g, &dir.join(GROW_FILE))?;
+        save(&self.d, &dir.join(DISC_FILE))?;
+        self.og.save(dir.join(GEN_OPT_FILE)).map_err(|e| format!("{GEN_OPT_FILE}: {e:?}"))?;
+        self.od.save(dir.join(DISC_OPT_FILE)).map_err(|e| format!("{DISC_OPT_FILE}: {e:?}"))?;
+        let state = serde_json::json!({ "batch": self.batch, "adversarial": self.adversarial, "lr": self.lr, "progress": self.progress });
+        std::fs::write(dir.join(STATE_FILE), serde_json::to_string_pretty(&state).expect("json")).map_err(|e| format!("{STATE_FILE}: {e}"))
+    }
+
+    /// The network's parameter count.
+    pub fn parameters(&self) -> usize {
+        self.g.num_params()
+    }
+}

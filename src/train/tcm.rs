@@ -1,0 +1,359 @@
+//! Training the TCM (the 128 m tile generator, [`crate::models::tcm`]) on the CPU: 3×3-tile
+//! windows cut from real DEMs resampled to 128 m by area averaging (never upsampled), the
+//! schedule's four neighbour patterns, the 8 rotations/flips, and a loss of λ·L1 plus a small
+//! PatchGAN (least squares) that sees the tile inside its real neighbours. Checkpoints (both
+//! networks and the run's state) let a run resume in a later session.
+
+use std::path::{Path, PathBuf};
+
+use burn::module::Module;
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Tensor, TensorData};
+
+use super::gan::{self, Disc};
+use super::pairs::{Dem, Rng, Split, dihedral, split_columns};
+use crate::dem::Heightfield;
+use crate::models::tcm::{CONTEXT_PX, COARSE_SPACING_M, HEIGHT_SCALE_M, IN_CHANNELS, TILE_PX, Tcm, assemble_input, centre, phase_mask};
+
+/// Weight of the L1 term against the adversarial term.
+pub const L1_WEIGHT: f32 = 10.0;
+/// The macro field's tile-centre values in training are the true tile means plus noise of
+/// this standard deviation (metres) plus this fraction of the nine means' spread: at inference
+/// the field is procedural, so the network must treat it as a hint, not as the answer.
+pub const MACRO_JITTER_M: f32 = 15.0;
+/// See [`MACRO_JITTER_M`].
+pub const MACRO_JITTER_FRACTION: f32 = 0.15;
+
+/// A DEM resampled to the TCM's 128 m.
+pub struct Grid {
+    /// Identifier from the manifest.
+    pub id: String,
+    /// Heights (metres) at [`COARSE_SPACING_M`].
+    pub hf: Heightfield,
+}
+
+/// Every DEM with room for a context window in both splits, area-averaged to 128 m.
+pub fn grids(dems: &[Dem]) -> Vec<Grid> {
+    dems.iter()
+        .filter(|d| d.hf.spacing_m <= COARSE_SPACING_M + 1e-9)
+        .filter_map(|d| d.hf.resample_area(COARSE_SPACING_M).ok().map(|hf| Grid { id: d.id.clone(), hf }))
+        .filter(|g| [Split::Train, Split::Validation].iter().all(|&s| fits(&g.hf, s)))
+        .collect()
+}
+
+/// Statistics of real tile means at 128 m (4096 m tiles on a grid from each DEM's corner),
+/// to compare with the procedural macro field: (mean level, standard deviation of the level,
+/// root mean square difference between side-by-side tiles), metres.
+pub fn tile_mean_stats(grids: &[Grid]) -> (f64, f64, f64) {
+    let (mut means, mut diffs) = (Vec::new(), Vec::new());
+    for g in grids {
+        let (nx, ny) = (g.hf.width / TILE_PX, g.hf.height / TILE_PX);
+        let mean = |i: usize, j: usize| -> f64 {
+            let mut s = 0.0;
+            for v in 0..TILE_PX {
+                for u in 0..TILE_PX {
+                    s += g.hf.data[(j * TILE_PX + v) * g.hf.width + i * TILE_PX + u] as f64;
+                }
+            }
+            s / (TILE_PX * TILE_PX) as f64
+        };
+        let m: Vec<Vec<f64>> = (0..ny).map(|j| (0..nx).map(|i| mean(i, j)).collect()).collect();
+        for j in 0..ny {
+            for i in 0..nx {
+                if !m[j][i].is_finite() {
+                    continue;
+                }
+                means.push(m[j][i]);
+                for (a, b) in [(i + 1, j), (i, j + 1)] {
+                    if a < nx && b < ny && m[b][a].is_finite() {
+                        diffs.push(m[b][a] - m[j][i]);
+                    }
+                }
+            }
+        }
+    }
+    let avg = means.iter().sum::<f64>() / means.len().max(1) as f64;
+    let sd = (means.iter().map(|v| (v - avg).powi(2)).sum::<f64>() / means.len().max(1) as f64).sqrt();
+    let rms = (diffs.iter().map(|d| d * d).sum::<f64>() / diffs.len().max(1) as f64).sqrt();
+    (avg, sd, rms)
+}
+
+/// Whether a context window fits in `split` of `hf`.
+pub fn fits(hf: &Heightfield, split: Split) -> bool {
+    let (c0, c1) = split_columns(hf.width, split);
+    c1 >= c0 + CONTEXT_PX && hf.height >= CONTEXT_PX
+}
+
+/// One training example.
+pub struct Sample {
+    /// The network's input ([`IN_CHANNELS`] × 96²).
+    pub input: Vec<f32>,
+    /// The real window's heights relative to the centre's macro level, in units of
+    /// [`HEIGHT_SCALE_M`] (96²): the discriminator's context and, in the centre, the truth.
+    pub real: Vec<f32>,
+    /// The schedule phase whose neighbour pattern the input has (0..4).
+    pub phase: usize,
+}
+
+/// Cuts a sample for phase `phase` from a random NaN-free window of `hf` in `split` (20
+/// tries): a random rotation/flip, the macro field from the jittered tile means, noise from
+/// `rng`.
+pub fn sample(hf: &Heightfield, split: Split, phase: usize, rng: &mut Rng) -> Option<Sample> {
+    if !fits(hf, split) {
+        return None;
+    }
+    let (c0, c1) = split_columns(hf.width, split);
+    for _ in 0..20 {
+        let x0 = c0 + rng.below(c1 - c0 - CONTEXT_PX + 1);
+        let y0 = rng.below(hf.height - CONTEXT_PX + 1);
+        let win = hf.window(x0, y0, CONTEXT_PX, CONTEXT_PX);
+        if win.data.iter().any(|v| !v.is_finite()) {
+            continue;
+        }
+        let h = dihedral(&win.data, CONTEXT_PX, rng.below(8));
+        let tiles: Vec<Vec<f32>> = (0..9)
+            .map(|t| {
+                let (ti, tj) = (t % 3, t / 3);
+                (0..TILE_PX * TILE_PX).map(|p| h[(tj * TILE_PX + p / TILE_PX) * CONTEXT_PX + ti * TILE_PX + p % TILE_PX]).collect()
+            })
+            .collect();
+        let means: Vec<f32> = tiles.iter().map(|t| t.iter().sum::<f32>() / t.len() as f32).collect();
+        let avg = means.iter().sum::<f32>() / 9.0;
+        let spread = (means.iter().map(|m| (m - avg).powi(2)).sum::<f32>() / 9.0).sqrt();
+        let jitter = MACRO_JITTER_M + MACRO_JITTER_FRACTION * spread;
+        let centres: [f32; 9] = std::array::from_fn(|t| means[t] + jitter * crate::models::tcm::gauss(rng.next_u64()));
+        let mask = phase_mask(phase);
+        let given: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tiles[t].as_slice()));
+        let input = assemble_input(&given, &centres, rng.next_u64());
+        let real = h.iter().map(|v| (v - centres[4]) / HEIGHT_SCALE_M).collect();
+        return Some(Sample { input, real, phase });
+    }
+    None
+}
+
+/// Settings of a TCM training run.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TcmConfig {
+    /// Windows per step.
+    pub batch: usize,
+    /// Adam learning rate of the generator (the discriminator's is half).
+    pub lr: f64,
+    /// Weight of the adversarial term (0: L1 only).
+    pub adversarial: f32,
+    /// Seed of the sampler.
+    pub seed: u64,
+}
+
+impl Default for TcmConfig {
+    fn default() -> Self {
+        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1 }
+    }
+}
+
+/// Running losses and progress of a run (saved with every checkpoint).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct TcmProgress {
+    /// Steps done.
+    pub step: usize,
+    /// Seconds of training so far (all sessions).
+    pub seconds: f64,
+    /// Exponential running mean of the L1 term (units of [`HEIGHT_SCALE_M`]).
+    pub l1: f64,
+    /// Running mean of the generator's adversarial term.
+    pub adv: f64,
+    /// Running mean of the discriminator's loss.
+    pub disc: f64,
+    /// (step, l1, adv, disc, seconds) every 50 steps: the training curve.
+    pub curve: Vec<(usize, f64, f64, f64, f64)>,
+}
+
+impl TcmProgress {
+    /// Records one step's losses and seconds.
+    pub fn record(&mut self, l1: f64, adv: f64, disc: f64, seconds: f64) {
+        let first = self.step == 0;
+        let mix = |old: f64, new: f64| if first { new } else { 0.98 * old + 0.02 * new };
+        (self.l1, self.adv, self.disc) = (mix(self.l1, l1), mix(self.adv, adv), mix(self.disc, disc));
+        self.step += 1;
+        self.seconds += seconds;
+        if self.step % 50 == 0 {
+            self.curve.push((self.step, self.l1, self.adv, self.disc, self.seconds));
+        }
+    }
+}
+
+/// A run in progress: both networks, their optimisers and the progress.
+pub struct TcmRun {
+    /// The generator.
+    pub g: Tcm,
+    /// The discriminator.
+    pub d: Disc,
+    og: ModuleOptimizer,
+    od: ModuleOptimizer,
+    /// Settings.
+    pub cfg: TcmConfig,
+    /// Progress so far.
+    pub progress: TcmProgress,
+    device: Device,
+}
+
+fn tensor(data: Vec<f32>, shape: [usize; 4], device: &Device) -> Tensor<4> {
+    Tensor::<4>::from_data(TensorData::new(data, shape), device)
+}
+
+/// The window `real` [B, 1, 96, 96] with its centre tile replaced by `tile` [B, 1, 32, 32].
+fn with_centre(real: Tensor<4>, tile: Tensor<4>) -> Tensor<4> {
+    let t = TILE_PX;
+    real.slice_assign([0..tile.dims()[0], 0..1, t..2 * t, t..2 * t], tile)
+}
+
+/// Starts a run on `device` (an autodiff device), or resumes the checkpoint in `dir` when it
+/// holds one.
+pub fn start_run(cfg: TcmConfig, device: &Device, resume_from: Option<&Path>) -> Result<TcmRun, String> {
+    let mut g = Tcm::new(device);
+    let mut d = Disc::new(device);
+    let mut progress = TcmProgress::default();
+    let mut cfg = cfg;
+    if let Some(dir) = resume_from {
+        load_into(&mut g, &dir.join(GEN_FILE))?;
+        load_into(&mut d, &dir.join(DISC_FILE))?;
+        let text = std::fs::read_to_string(dir.join(STATE_FILE)).map_err(|e| format!("{}: {e}", dir.join(STATE_FILE).display()))?;
+        let state: serde_json::Value = serde_json::from_str(&text).map_err(|e| format!("{STATE_FILE}: {e}"))?;
+        progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("{STATE_FILE}: {e}"))?;
+        cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("{STATE_FILE}: {e}"))?;
+    }
+    let (mut og, mut od) = (gan::adam(), gan::adam());
+    if let Some(dir) = resume_from {
+        // The optimisers' moments: a run resumed without them only restarts Adam's averages.
+        og = og.load(dir.join(GEN_OPT_FILE)).map_err(|e| format!("{GEN_OPT_FILE}: {e:?}"))?;
+        od = od.load(dir.join(DISC_OPT_FILE)).map_err(|e| format!("{DISC_OPT_FILE}: {e:?}"))?;
+    }
+    Ok(TcmRun { g, d, og, od, cfg, progress, device: device.clone() })
+}
+
+/// The generator's checkpoint and weight file name.
+pub const GEN_FILE: &str = "tcm_128m.bpk";
+const DISC_FILE: &str = "tcm_disc.bpk";
+const STATE_FILE: &str = "tcm_state.json";
+const GEN_OPT_FILE: &str = "tcm_adam.bin";
+const DISC_OPT_FILE: &str = "tcm_disc_adam.bin";
+
+use gan::{load_into, save};
+
+impl TcmRun {
+    /// One optimiser step of both networks on a batch cut from `grids` (train split, phases
+    /// drawn uniformly).
+    pub fn step(&mut self, grids: &[Grid]) -> Result<(), String> {
+        let t0 = web_time::Instant::now();
+        let mut rng = Rng(self.cfg.seed.wrapping_mul(0x1_0000_0001) ^ self.progress.step as u64);
+        let b = self.cfg.batch;
+        let (mut inputs, mut reals) = (Vec::new(), Vec::new());
+        let mut tries = 0;
+        while reals.len() < b * CONTEXT_PX * CONTEXT_PX && tries < b * 20 {
+            tries += 1;
+            let g = &grids[rng.below(grids.len())];
+            let phase = rng.below(4);
+            if let Some(s) = sample(&g.hf, Split::Train, phase, &mut rng) {
+                inputs.extend(s.input);
+                reals.extend(s.real);
+            }
+        }
+        let n = reals.len() / (CONTEXT_PX * CONTEXT_PX);
+        if n == 0 {
+            return Err("no NaN-free training window in any DEM".into());
+        }
+        let dev = &self.device;
+        let x = tensor(inputs, [n, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX], dev);
+        let real = tensor(reals, [n, 1, CONTEXT_PX, CONTEXT_PX], dev);
+        let macro_ch = x.clone().narrow(1, 4, 1);
+        let truth = centre(real.clone(), TILE_PX);
+        let fake = self.g.forward(x);
+        let adv_w = self.cfg.adversarial;
+        let (mut adv_v, mut disc_v) = (0.0, 0.0);
+        if adv_w > 0.0 {
+            let real_in = Tensor::cat(vec![real.clone(), macro_ch.clone()], 1);
+            let fake_in = Tensor::cat(vec![with_centre(real.clone(), fake.clone().detach()), macro_ch.clone()], 1);
+            disc_v = gan::disc_step(&mut self.d, &mut self.od, self.cfg.lr * 0.5, real_in, fake_in);
+        }
+        let l1 = (fake.clone() - truth).abs().mean();
+        let l1_v = l1.clone().into_scalar::<f32>() as f64;
+        let mut loss = l1 * L1_WEIGHT;
+        if adv_w > 0.0 {
+            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![with_centre(real, fake), macro_ch], 1));
+            adv_v = adv.clone().into_scalar::<f32>() as f64;
+            loss = loss + adv * adv_w;
+        }
+        let grads = loss.backward();
+        let gp = GradientsParams::from_grads(grads, &self.g);
+        self.g = self.og.step(self.cfg.lr, self.g.clone(), gp);
+        self.progress.record(l1_v, adv_v, disc_v, t0.elapsed().as_secs_f64());
+        Ok(())
+    }
+
+    /// Saves the checkpoint (generator, discriminator, settings and progress) in `dir`.
+    pub fn save(&self, dir: &Path) -> Result<(), String> {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        save(&self.g, &dir.join(GEN_FILE))?;
+        save(&self.d, &dir.join(DISC_FILE))?;
+        self.og.save(dir.join(GEN_OPT_FILE)).map_err(|e| format!("{GEN_OPT_FILE}: {e:?}"))?;
+        self.od.save(dir.join(DISC_OPT_FILE)).map_err(|e| format!("{DISC_OPT_FILE}: {e:?}"))?;
+        let state = serde_json::json!({ "config": self.cfg, "progress": self.progress });
+        std::fs::write(dir.join(STATE_FILE), serde_json::to_string_pretty(&state).expect("json")).map_err(|e| format!("{STATE_FILE}: {e}"))
+    }
+
+    /// The generator without autodiff (for evaluation and export).
+    pub fn generator(&self) -> Tcm {
+        self.g.valid()
+    }
+}
+
+/// Where `train-tcm` keeps its checkpoint by default (outside the repository's weights).
+pub fn default_checkpoint_dir() -> PathBuf {
+    PathBuf::from("train-runs/tcm")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::models::grow::GrowCpu;
+    use crate::models::tcm::TcmCpu;
+    use crate::train::grow::{self, GrowRun};
+
+    fn synthetic(w: usize, h: usize, spacing: f64) -> Dem {
+        let f = |x: f32, y: f32| (x * 0.031).sin() * 140.0 + (y * 0.047 + x * 0.011).cos() * 95.0 + ((x * 0.17).sin() * (y * 0.13).cos()) * 16.0 + 900.0;
+        Dem { id: format!("synthetic_{spacing}m"), hf: Heightfield::new(w, h, spacing, (0..w * h).map(|k| f((k % w) as f32, (k / w) as f32)).collect()) }
+    }
+
+    /// Two steps of both networks on synthetic DEMs, a checkpoint, a resumed third step:
+    /// finite losses, the step count carried over, and the saved weight files read by the CPU
+    /// kernels.
+    #[test]
+    fn smoke_training_resumes_from_its_checkpoint() {
+        let dems = vec![synthetic(500, 200, 100.0), synthetic(720, 230, 32.0)];
+        let (coarse, fine) = (grids(&dems), grow::grids(&dems));
+        assert_eq!((coarse.len(), fine.len()), (1, 1), "the 100 m DEM serves the TCM (the 32 m one is too small at 128 m), the 32 m one the ×4 step");
+        let device = Device::flex().autodiff();
+        let cfg = TcmConfig { batch: 2, ..Default::default() };
+        let dir = std::env::temp_dir().join(format!("terrain-tcm-smoke-{}", std::process::id()));
+        let mut run = start_run(cfg.clone(), &device, None).unwrap();
+        let mut up = GrowRun::start(2, 1.0, &device, None).unwrap();
+        for _ in 0..2 {
+            run.step(&coarse).unwrap();
+            up.step(&fine, 1).unwrap();
+        }
+        run.save(&dir).unwrap();
+        up.save(&dir).unwrap();
+        let mut run = start_run(cfg, &device, Some(&dir)).unwrap();
+        let mut up = GrowRun::start(2, 1.0, &device, Some(&dir)).unwrap();
+        assert_eq!((run.progress.step, up.progress.step), (2, 2));
+        run.step(&coarse).unwrap();
+        up.step(&fine, 1).unwrap();
+        for p in [&run.progress, &up.progress] {
+            assert_eq!(p.step, 3);
+            assert!(p.l1.is_finite() && p.adv.is_finite() && p.disc.is_finite(), "{p:?}");
+            assert!(p.l1 > 0.0 && p.disc > 0.0);
+        }
+        assert!(TcmCpu::from_burnpack(&std::fs::read(dir.join(GEN_FILE)).unwrap()).is_ok());
+        assert!(GrowCpu::from_burnpack(&std::fs::read(dir.join(grow::GROW_FILE)).unwrap()).is_ok());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

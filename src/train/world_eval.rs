@@ -1,0 +1,129 @@
+//! Evaluating a world against real terrain: geomorphometric statistics ([`crate::geomorph`])
+//! of windows cut from the validation split of real DEMs at 32 m and from generated regions,
+//! the distance between their distributions, and the seam figure.
+
+use crate::dem::Heightfield;
+use crate::geomorph::{self, Stats};
+use crate::world::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
+use crate::world::tile::{Neighbourhood, TileSource};
+
+use super::pairs::{Dem, Split, split_columns};
+
+/// Window sides (samples at 32 m) the statistics are measured on.
+pub const WINDOW_SIDES: [usize; 2] = [128, 256];
+
+/// Real windows of side `side` at 32 m from the validation split (east third) of every DEM
+/// with spacing ≤ 32 m, area-averaged to 32 m, on a grid of stride `side / 2`.
+pub fn real_windows(dems: &[Dem], side: usize) -> Vec<Vec<f32>> {
+    let mut out = Vec::new();
+    for d in dems.iter().filter(|d| d.hf.spacing_m <= BASE_SPACING_M + 1e-9) {
+        let Ok(hf) = d.hf.resample_area(BASE_SPACING_M) else { continue };
+        let (c0, c1) = split_columns(hf.width, Split::Validation);
+        let stride = side / 2;
+        let mut y = 0;
+        while y + side <= hf.height {
+            let mut x = c0;
+            while x + side <= c1 {
+                let w = hf.window(x, y, side, side);
+                if w.data.iter().all(|v| v.is_finite()) {
+                    out.push(w.data);
+                }
+                x += stride;
+            }
+            y += stride;
+        }
+    }
+    out
+}
+
+/// A `w`×`h`-tile region of `source`'s world `seed` with top-left tile `origin` (metres,
+/// row-major, `w`·128 samples wide).
+pub fn region(source: &dyn TileSource, seed: u64, origin: TileCoord, w: usize, h: usize) -> Heightfield {
+    let n = TILE_SAMPLES;
+    let mut data = vec![0f32; w * n * h * n];
+    for tj in 0..h {
+        for ti in 0..w {
+            let t = source.generate(seed, origin.offset(ti as i32, tj as i32), &Neighbourhood::default());
+            for v in 0..n {
+                data[(tj * n + v) * w * n + ti * n..][..n].copy_from_slice(&t.heights[v * n..(v + 1) * n]);
+            }
+        }
+    }
+    Heightfield::new(w * n, h * n, BASE_SPACING_M, data)
+}
+
+/// Windows of side `side` on a grid of stride `side / 2` over `hf` (offset by a quarter
+/// window so that tile edges fall inside windows, not only on their borders).
+pub fn windows_of(hf: &Heightfield, side: usize) -> Vec<Vec<f32>> {
+    let mut out = Vec::new();
+    let mut y = side / 4;
+    while y + side <= hf.height {
+        let mut x = side / 4;
+        while x + side <= hf.width {
+            out.push(hf.window(x, y, side, side).data);
+            x += side / 2;
+        }
+        y += side / 2;
+    }
+    out
+}
+
+/// The statistics of every window (windows that cannot be measured are skipped).
+pub fn stats_of(windows: &[Vec<f32>], side: usize) -> Vec<Stats> {
+    windows.iter().filter_map(|w| geomorph::measure(w, side, BASE_SPACING_M).ok()).collect()
+}
+
+/// The seam figure of a region made of whole tiles: for every interior tile edge, the mean
+/// |height step| across the edge divided by the mean |step| between the neighbouring rows
+/// (or columns) inside the two tiles (the 4 on either side); returns (mean, p95) over edges.
+pub fn seam_ratio(hf: &Heightfield) -> (f64, f64) {
+    let n = TILE_SAMPLES;
+    let at = |x: usize, y: usize| hf.data[y * hf.width + x] as f64;
+    let mut ratios = Vec::new();
+    // Vertical edges (between tile columns) per tile row, then horizontal ones.
+    for vertical in [true, false] {
+        let (along, across) = if vertical { (hf.height, hf.width) } else { (hf.width, hf.height) };
+        for e in (n..across).step_by(n) {
+            for seg in (0..along).step_by(n) {
+                let (mut edge, mut inner, mut count_inner) = (0.0, 0.0, 0);
+                for a in seg..(seg + n).min(along) {
+                    let get = |c: usize| if vertical { at(c, a) } else { at(a, c) };
+                    edge += (get(e) - get(e - 1)).abs();
+                    for k in 1..=4 {
+                        inner += (get(e + k) - get(e + k - 1)).abs() + (get(e - k) - get(e - k - 1)).abs();
+                        count_inner += 2;
+                    }
+                }
+                let edge = edge / n as f64;
+                let inner = inner / count_inner as f64;
+                if inner > 1e-6 {
+                    ratios.push(edge / inner);
+                }
+            }
+        }
+    }
+    if ratios.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let mean = ratios.iter().sum::<f64>() / ratios.len() as f64;
+    ratios.sort_by(f64::total_cmp);
+    (mean, ratios[((ratios.len() - 1) as f64 * 0.95).round() as usize])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A region whose tiles are offset by 10 m each has a seam ratio far above 1 along the
+    /// shifted edges; a smooth continuous field has a ratio of 1.
+    #[test]
+    fn seam_ratio_is_one_for_continuous_fields_and_large_for_steps() {
+        let n = TILE_SAMPLES;
+        let smooth = Heightfield::new(2 * n, 2 * n, 32.0, (0..4 * n * n).map(|p| ((p % (2 * n)) as f32 * 0.1).sin() * 5.0 + (p / (2 * n)) as f32 * 0.7).collect());
+        let (mean, _) = seam_ratio(&smooth);
+        assert!((mean - 1.0).abs() < 0.1, "{mean}");
+        let stepped = Heightfield::new(2 * n, 2 * n, 32.0, smooth.data.iter().enumerate().map(|(p, v)| v + if p % (2 * n) >= n { 10.0 } else { 0.0 }).collect());
+        let (_, p95) = seam_ratio(&stepped);
+        assert!(p95 > 5.0, "{p95}");
+    }
+}

@@ -1,0 +1,245 @@
+//! CPU inference in a Web Worker. The page's own wasm module is instantiated a second time in a
+//! module worker, which runs the TEM on the CPU kernels ([`crate::models::cpu`]), so the main
+//! thread never waits on inference. The main thread ([`CpuWorker`]) posts requests with an id
+//! and awaits the matching reply; the worker ([`terrain_worker_message`]) answers them in order.
+
+use std::cell::{Cell, RefCell};
+use std::collections::HashMap;
+use std::rc::Rc;
+
+use js_sys::{Array, Float32Array, Object, Reflect, Uint8Array};
+use wasm_bindgen::JsCast;
+use wasm_bindgen::prelude::*;
+use wasm_bindgen_futures::JsFuture;
+
+use crate::models::tem::{Exec, TemSet};
+
+/// The worker's script: the first message names the page's wasm-bindgen glue and carries the
+/// compiled module; the worker instantiates it and hands every later message to
+/// [`terrain_worker_message`], in arrival order.
+const SCRIPT: &str = r#"
+let ready = null;
+self.onmessage = (e) => {
+  if (ready === null) {
+    ready = import(e.data.glue).then(async (m) => { await m.default({ module_or_path: e.data.module }); return m; });
+    ready.catch((err) => self.postMessage({ id: 0, error: 'the CPU worker could not start: ' + err }));
+    return;
+  }
+  ready.then((m) => m.terrain_worker_message(e.data));
+};
+"#;
+
+#[wasm_bindgen]
+extern "C" {
+    /// The URL of the page's wasm-bindgen glue (the glue module's `import.meta.url`).
+    #[wasm_bindgen(thread_local_v2, js_namespace = ["import", "meta"], js_name = url)]
+    static GLUE_URL: js_sys::JsString;
+}
+
+/// Why a request to the worker failed.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerError {
+    /// The worker could not start, or died (the browser's message).
+    #[error("{0}")]
+    Unavailable(String),
+    /// The worker answered with an error (a broken weight file, a bad request).
+    #[error("{0}")]
+    Failed(String),
+}
+
+/// The requests waiting for a reply (their resolve and reject functions, by id), and why the
+/// worker is gone once it is.
+#[derive(Default)]
+struct Waiting {
+    waiting: HashMap<u32, (js_sys::Function, js_sys::Function)>,
+    dead: Option<String>,
+}
+
+type Pending = Rc<RefCell<Waiting>>;
+
+/// Rejects every waiting request with `why` (the worker died or never started).
+fn fail_all(pending: &Pending, why: &str) {
+    pending.borrow_mut().dead = Some(why.to_string());
+    let waiting: Vec<_> = pending.borrow_mut().waiting.drain().collect();
+    for (_, (_, reject)) in waiting {
+        let _ = reject.call1(&JsValue::NULL, &JsValue::from_str(why));
+    }
+}
+
+fn set(obj: &Object, key: &str, value: &JsValue) {
+    let _ = Reflect::set(obj, &key.into(), value);
+}
+
+fn get(obj: &JsValue, key: &str) -> JsValue {
+    Reflect::get(obj, &key.into()).unwrap_or(JsValue::UNDEFINED)
+}
+
+fn js_error(e: JsValue) -> String {
+    e.as_string().unwrap_or_else(|| format!("{e:?}"))
+}
+
+/// The main thread's handle on the CPU inference worker (terminated when dropped).
+pub struct CpuWorker {
+    worker: web_sys::Worker,
+    pending: Pending,
+    next_id: Cell<u32>,
+    _on_message: Closure<dyn FnMut(web_sys::MessageEvent)>,
+    _on_error: Closure<dyn FnMut(web_sys::ErrorEvent)>,
+}
+
+impl CpuWorker {
+    /// Starts the worker and loads the TEM weights (`files`, level order) into it. Fails with
+    /// a message when the browser cannot start a module worker or a weight file is broken.
+    pub async fn start(files: Vec<Vec<u8>>) -> Result<Self, WorkerError> {
+        let gone = |e: JsValue| WorkerError::Unavailable(js_error(e));
+        let parts = Array::of1(&SCRIPT.into());
+        let props = web_sys::BlobPropertyBag::new();
+        props.set_type("text/javascript");
+        let blob = web_sys::Blob::new_with_str_sequence_and_options(&parts, &props).map_err(gone)?;
+        let url = web_sys::Url::create_object_url_with_blob(&blob).map_err(gone)?;
+        let opts = web_sys::WorkerOptions::new();
+        opts.set_type(web_sys::WorkerType::Module);
+        let worker = web_sys::Worker::new_with_options(&url, &opts).map_err(|e| WorkerError::Unavailable(format!("the browser cannot start a module worker: {}", js_error(e))))?;
+        let _ = web_sys::Url::revoke_object_url(&url);
+        let pending: Pending = Rc::default();
+        let p = pending.clone();
+        let on_message = Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| {
+            let data = e.data();
+            let id = get(&data, "id").as_f64().unwrap_or(0.0) as u32;
+            let error = get(&data, "error").as_string();
+            if id == 0 {
+                fail_all(&p, &error.unwrap_or_else(|| "the CPU worker sent a reply without an id".into()));
+                return;
+            }
+            let Some((resolve, reject)) = p.borrow_mut().waiting.remove(&id) else { return };
+            let _ = match error {
+                // The reply object itself: a worker's answer, unlike a string from `fail_all`.
+                Some(_) => reject.call1(&JsValue::NULL, &data),
+                None => resolve.call1(&JsValue::NULL, &data),
+            };
+        });
+        worker.set_onmessage(Some(on_message.as_ref().unchecked_ref()));
+        let p = pending.clone();
+        let on_error = Closure::<dyn FnMut(web_sys::ErrorEvent)>::new(move |e: web_sys::ErrorEvent| {
+            fail_all(&p, &format!("the CPU worker failed: {}", e.message()));
+        });
+        worker.set_onerror(Some(on_error.as_ref().unchecked_ref()));
+        let first = Object::new();
+        set(&first, "glue", &GLUE_URL.with(|u| u.clone()).into());
+        set(&first, "module", &wasm_bindgen::module());
+        worker.post_message(&first).map_err(gone)?;
+        let this = Self { worker, pending, next_id: Cell::new(1), _on_message: on_message, _on_error: on_error };
+        let msg = Object::new();
+        set(&msg, "kind", &"load".into());
+        let list = Array::new();
+        let transfer = Array::new();
+        for f in &files {
+            let bytes = Uint8Array::from(f.as_slice());
+            transfer.push(&bytes.buffer());
+            list.push(&bytes);
+        }
+        set(&msg, "files", &list);
+        this.request(msg, transfer).await?;
+        Ok(this)
+    }
+
+    /// Posts `msg` (its buffers in `transfer` move to the worker) and waits for the reply.
+    async fn request(&self, msg: Object, transfer: Array) -> Result<JsValue, WorkerError> {
+        if let Some(why) = &self.pending.borrow().dead {
+            return Err(WorkerError::Unavailable(why.clone()));
+        }
+        let id = self.next_id.get();
+        self.next_id.set(id.wrapping_add(1).max(1));
+        set(&msg, "id", &id.into());
+        let pending = self.pending.clone();
+        let promise = js_sys::Promise::new(&mut |resolve, reject| {
+            pending.borrow_mut().waiting.insert(id, (resolve, reject));
+        });
+        if let Err(e) = self.worker.post_message_with_transfer(&msg, &transfer) {
+            self.pending.borrow_mut().waiting.remove(&id);
+            return Err(WorkerError::Unavailable(js_error(e)));
+        }
+        JsFuture::from(promise).await.map_err(|e| match get(&e, "error").as_string() {
+            Some(msg) => WorkerError::Failed(msg),
+            None => WorkerError::Unavailable(js_error(e)),
+        })
+    }
+
+    /// Why the worker is gone (it failed to start or died), if it is.
+    pub fn gone(&self) -> Option<String> {
+        self.pending.borrow().dead.clone()
+    }
+
+    /// Runs TEM level `level` on `n` windows of side `side` in the worker (as
+    /// [`TemSet::enhance_blocking`]) and returns the heights and the worker's milliseconds.
+    pub async fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<(Vec<f32>, f64), WorkerError> {
+        let msg = Object::new();
+        set(&msg, "kind", &"enhance".into());
+        set(&msg, "level", &(level as u32).into());
+        set(&msg, "n", &(n as u32).into());
+        set(&msg, "side", &(side as u32).into());
+        let input = Float32Array::from(inputs.as_slice());
+        set(&msg, "input", &input);
+        let reply = self.request(msg, Array::of1(&input.buffer())).await?;
+        let out: Float32Array = get(&reply, "out").dyn_into().map_err(|_| WorkerError::Failed("the CPU worker's reply has no heights".into()))?;
+        Ok((out.to_vec(), get(&reply, "ms").as_f64().unwrap_or(0.0)))
+    }
+}
+
+impl Drop for CpuWorker {
+    fn drop(&mut self) {
+        self.worker.terminate();
+        fail_all(&self.pending, "the CPU worker was stopped");
+    }
+}
+
+thread_local! {
+    /// The worker's models (set by its "load" request).
+    static WORKER_TEM: RefCell<Option<TemSet>> = const { RefCell::new(None) };
+}
+
+/// What a request asks of the worker; `Ok(Some(heights, ms))` for inference.
+fn handle(msg: &JsValue) -> Result<Option<(Vec<f32>, f64)>, String> {
+    match get(msg, "kind").as_string().as_deref() {
+        Some("load") => {
+            let files: Vec<Vec<u8>> = Array::from(&get(msg, "files")).iter().map(|f| Uint8Array::new(&f).to_vec()).collect();
+            let tem = TemSet::from_bytes(files, &Exec::cpu())?;
+            WORKER_TEM.with(|t| *t.borrow_mut() = Some(tem));
+            Ok(None)
+        }
+        Some("enhance") => {
+            let num = |k: &str| get(msg, k).as_f64().map(|v| v as usize).ok_or(format!("the request has no {k}"));
+            let (level, n, side) = (num("level")?, num("n")?, num("side")?);
+            let input: Float32Array = get(msg, "input").dyn_into().map_err(|_| "the request has no heights".to_string())?;
+            let t0 = web_time::Instant::now();
+            let out = WORKER_TEM.with(|t| match t.borrow().as_ref() {
+                Some(tem) if level < crate::models::tem::LEVELS => tem.enhance_blocking(level, input.to_vec(), n, side),
+                Some(_) => Err(format!("no TEM level {level}")),
+                None => Err("the CPU worker has no models loaded".into()),
+            })?;
+            Ok(Some((out, t0.elapsed().as_secs_f64() * 1000.0)))
+        }
+        other => Err(format!("the CPU worker does not know the request {other:?}")),
+    }
+}
+
+/// The worker's entry point for one request (called by the worker script, never by the page):
+/// loads models or runs inference, and posts the reply `{id, out, ms}` or `{id, error}`.
+#[wasm_bindgen]
+pub fn terrain_worker_message(msg: JsValue) {
+    let reply = Object::new();
+    set(&reply, "id", &get(&msg, "id"));
+    let transfer = Array::new();
+    match handle(&msg) {
+        Ok(Some((out, ms))) => {
+            let heights = Float32Array::from(out.as_slice());
+            transfer.push(&heights.buffer());
+            set(&reply, "out", &heights);
+            set(&reply, "ms", &ms.into());
+        }
+        Ok(None) => {}
+        Err(e) => set(&reply, "error", &e.into()),
+    }
+    let scope: web_sys::DedicatedWorkerGlobalScope = js_sys::global().unchecked_into();
+    let _ = scope.post_message_with_transfer(&reply, &transfer);
+}
