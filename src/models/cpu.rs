@@ -3,13 +3,14 @@
 //!
 //! Why not burn's CPU backend: for the TEM it was ~9× slower than ONNX Runtime (im2col into a
 //! fresh buffer per layer, one operation at a time). Here each layer is one pass of a
-//! register-blocked kernel: [`BLOCK`] output pixels × 32 output channels are accumulated in
+//! register-blocked kernel: a few output pixels × output channels are accumulated in
 //! registers over the 9 taps × input channels, with bias, ReLU or a skip connection applied
-//! as the block is stored; activation buffers are reused between calls. The kernel is plain
-//! Rust that the compiler vectorises: AVX2 natively (chosen at run time), SIMD128 in the page
-//! (the wasm build enables it). Every path does the same multiplies and adds in the same
-//! order (no fused multiply-add), so results are bit-identical on every machine and in the
-//! page.
+//! as the block is stored; activation buffers are reused between calls. Kernels: AVX2 + FMA
+//! intrinsics natively (chosen at run time; [`BLOCK`] pixels × 32 channels), SIMD128
+//! intrinsics in the page (4 pixels × 8 channels, any multiple of 8 channels), and portable
+//! Rust elsewhere. Every kernel accumulates in the same order; the fused multiply-adds of the
+//! AVX2 kernel round differently from the separate multiplies and adds of the others, so
+//! native and page results differ in the last bits (0.24 mm on the TEM probe).
 
 /// Output pixels one kernel call accumulates at once (per row).
 pub const BLOCK: usize = 3;
@@ -241,6 +242,11 @@ fn has_avx2_fma() -> bool {
 fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post, portable: bool) {
     #[cfg(not(target_arch = "x86_64"))]
     let _ = portable; // only x86 has a choice of kernels
+    #[cfg(all(target_arch = "wasm32", target_feature = "simd128"))]
+    if layer.cout % simd128::CH == 0 {
+        simd128::rows(layer, src, out, y0, n, w, post);
+        return;
+    }
     if layer.cout == LANES {
         #[cfg(target_arch = "x86_64")]
         if !portable && has_avx2_fma() {
@@ -389,58 +395,150 @@ mod x86 {
     }
 }
 
-/// The blocked kernel for 32 output channels: [`BLOCK`] pixels × 32 channels of
-/// accumulators (12 AVX registers), weights read as 32-wide rows.
+/// The page's kernel with SIMD128 intrinsics for any multiple of 8 output channels: blocks of
+/// [`simd128::PX`] pixels × 8 channels, 8 vector accumulators, which stay in a browser's 16
+/// vector registers (the compiler left the portable kernel scalar for wasm, ~15× slower than
+/// native). Multiplies and adds in the same order as the portable kernel.
+#[cfg(all(target_arch = "wasm32", target_feature = "simd128"))]
+mod simd128 {
+    use super::{Conv3, Map, Post};
+    use core::arch::wasm32::*;
+
+    /// Pixels per block.
+    pub(super) const PX: usize = 4;
+    /// Output channels per pass (two vectors).
+    pub(super) const CH: usize = 8;
+
+    /// Output rows `y0..y0 + n` of `layer` on `src` into `out` (see `conv_rows`).
+    pub(super) fn rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+        let (cin, cout) = (layer.cin, layer.cout);
+        let sw = src.w + 2;
+        let row_len = sw * cout;
+        // A block reads PX pixels from (y + ky, x + kx) for x < w: at most
+        // (y0 + n + 1)·sw + w + 1 + PX pixels, inside the map thanks to its slack.
+        assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + PX) * cin);
+        assert!(cout % CH == 0 && layer.w.len() == 9 * cin * cout && layer.b.len() == cout && out.len() == n * row_len);
+        let (sp, wp) = (src.data.as_ptr(), layer.w.as_ptr());
+        let zero = f32x4_splat(0.0);
+        for r in 0..n {
+            let y = y0 + r;
+            let mut x0 = 0;
+            while x0 < w {
+                for c0 in (0..cout).step_by(CH) {
+                    // SAFETY: c0 + 8 ≤ cout = layer.b.len().
+                    let bias = unsafe { [v128_load(layer.b.as_ptr().add(c0) as *const v128), v128_load(layer.b.as_ptr().add(c0 + 4) as *const v128)] };
+                    let mut acc = [bias; PX];
+                    for tap in 0..9 {
+                        let (ky, kx) = (tap / 3, tap % 3);
+                        let base = ((y + ky) * sw + x0 + kx) * cin;
+                        let wbase = tap * cin * cout + c0;
+                        for ci in 0..cin {
+                            // SAFETY: weights: wbase + ci·cout + 8 ≤ 9·cin·cout; inputs: below
+                            // the bound asserted above.
+                            unsafe {
+                                let w0 = v128_load(wp.add(wbase + ci * cout) as *const v128);
+                                let w1 = v128_load(wp.add(wbase + ci * cout + 4) as *const v128);
+                                for (p, a) in acc.iter_mut().enumerate() {
+                                    let v = f32x4_splat(*sp.add(base + p * cin + ci));
+                                    a[0] = f32x4_add(a[0], f32x4_mul(v, w0));
+                                    a[1] = f32x4_add(a[1], f32x4_mul(v, w1));
+                                }
+                            }
+                        }
+                    }
+                    for (p, a) in acc.iter().enumerate().take(PX.min(w - x0)) {
+                        let o = r * row_len + (x0 + p + 1) * cout + c0;
+                        let [mut v0, mut v1] = *a;
+                        match post {
+                            Post::None => {}
+                            Post::Relu => (v0, v1) = (f32x4_max(v0, zero), f32x4_max(v1, zero)),
+                            Post::Add(s) => {
+                                let si = s.at(y, x0 + p) + c0;
+                                let sk = &s.data[si..si + CH];
+                                // SAFETY: sk holds 8 values.
+                                unsafe {
+                                    v0 = f32x4_add(v0, v128_load(sk.as_ptr() as *const v128));
+                                    v1 = f32x4_add(v1, v128_load(sk.as_ptr().add(4) as *const v128));
+                                }
+                            }
+                        }
+                        let dst = &mut out[o..o + CH];
+                        // SAFETY: dst holds 8 values.
+                        unsafe {
+                            v128_store(dst.as_mut_ptr() as *mut v128, v0);
+                            v128_store(dst.as_mut_ptr().add(4) as *mut v128, v1);
+                        }
+                    }
+                }
+                x0 += PX;
+            }
+        }
+    }
+}
+
+/// Pixels per block of the portable 32-channel kernel.
+const PORTABLE_PX: usize = 2;
+/// Output channels per pass of the portable 32-channel kernel (two passes make 32).
+const PORTABLE_CH: usize = 16;
+
+/// The portable kernel for 32 output channels (SIMD128 in the page): blocks of
+/// [`PORTABLE_PX`] pixels × [`PORTABLE_CH`] channels, 8 vectors of accumulators, which fit a
+/// browser's 16 vector registers with room for the broadcast inputs and one weight vector
+/// (3 × 32 accumulators spilled and ran ~15× slower than native); two passes per block.
 #[inline(always)]
 fn rows32(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
     let cin = layer.cin;
     let sw = src.w + 2;
     let row_len = sw * LANES;
-    let bias: &[f32; LANES] = layer.b[..LANES].try_into().expect("32 biases");
-    // The kernel reads BLOCK pixels from (y + ky, x + kx) for x < w, so at most
-    // (y0 + n + 1)·sw + w + 1 + BLOCK pixels: inside the map thanks to its slack.
-    assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + BLOCK) * cin);
+    // The kernel reads PORTABLE_PX pixels from (y + ky, x + kx) for x < w, so at most
+    // (y0 + n + 1)·sw + w + 1 + PORTABLE_PX pixels: inside the map thanks to its slack.
+    assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + PORTABLE_PX) * cin);
     let (wrows, rest) = layer.w.as_chunks::<LANES>();
-    assert!(rest.is_empty() && wrows.len() == 9 * cin && out.len() == n * row_len);
+    assert!(rest.is_empty() && wrows.len() == 9 * cin && out.len() == n * row_len && layer.b.len() == LANES);
     for r in 0..n {
         let y = y0 + r;
         let mut x0 = 0;
         while x0 < w {
-            let mut acc = [*bias; BLOCK];
-            for tap in 0..9 {
-                let (ky, kx) = (tap / 3, tap % 3);
-                let base = ((y + ky) * sw + x0 + kx) * cin;
-                for (ci, wv) in wrows[tap * cin..(tap + 1) * cin].iter().enumerate() {
-                    // SAFETY: base + p·cin + ci is below the bound asserted above.
-                    let v: [f32; BLOCK] = std::array::from_fn(|p| unsafe { *src.data.get_unchecked(base + p * cin + ci) });
-                    for p in 0..BLOCK {
-                        for co in 0..LANES {
-                            acc[p][co] += v[p] * wv[co];
+            for half in 0..LANES / PORTABLE_CH {
+                let c0 = half * PORTABLE_CH;
+                let bias: [f32; PORTABLE_CH] = layer.b[c0..c0 + PORTABLE_CH].try_into().expect("16 biases");
+                let mut acc = [bias; PORTABLE_PX];
+                for tap in 0..9 {
+                    let (ky, kx) = (tap / 3, tap % 3);
+                    let base = ((y + ky) * sw + x0 + kx) * cin;
+                    for (ci, wv) in wrows[tap * cin..(tap + 1) * cin].iter().enumerate() {
+                        // SAFETY: base + p·cin + ci is below the bound asserted above.
+                        let v: [f32; PORTABLE_PX] = std::array::from_fn(|p| unsafe { *src.data.get_unchecked(base + p * cin + ci) });
+                        let wv: &[f32; PORTABLE_CH] = wv[c0..c0 + PORTABLE_CH].try_into().expect("16 weights");
+                        for p in 0..PORTABLE_PX {
+                            for co in 0..PORTABLE_CH {
+                                acc[p][co] += v[p] * wv[co];
+                            }
+                        }
+                    }
+                }
+                let m = PORTABLE_PX.min(w - x0);
+                for (p, a) in acc.iter().enumerate().take(m) {
+                    let o = r * row_len + (x0 + p + 1) * LANES + c0;
+                    let dst = &mut out[o..o + PORTABLE_CH];
+                    match post {
+                        Post::None => dst.copy_from_slice(a),
+                        Post::Relu => {
+                            for co in 0..PORTABLE_CH {
+                                dst[co] = a[co].max(0.0);
+                            }
+                        }
+                        Post::Add(s) => {
+                            let si = s.at(y, x0 + p) + c0;
+                            let sk = &s.data[si..si + PORTABLE_CH];
+                            for co in 0..PORTABLE_CH {
+                                dst[co] = a[co] + sk[co];
+                            }
                         }
                     }
                 }
             }
-            let m = BLOCK.min(w - x0);
-            for (p, a) in acc.iter().enumerate().take(m) {
-                let o = r * row_len + (x0 + p + 1) * LANES;
-                let dst: &mut [f32; LANES] = (&mut out[o..o + LANES]).try_into().unwrap();
-                match post {
-                    Post::None => *dst = *a,
-                    Post::Relu => {
-                        for co in 0..LANES {
-                            dst[co] = a[co].max(0.0);
-                        }
-                    }
-                    Post::Add(s) => {
-                        let si = s.at(y, x0 + p);
-                        let sk = &s.data[si..si + LANES];
-                        for co in 0..LANES {
-                            dst[co] = a[co] + sk[co];
-                        }
-                    }
-                }
-            }
-            x0 += BLOCK;
+            x0 += PORTABLE_PX;
         }
     }
 }
