@@ -14,13 +14,18 @@
 //!
 //! The distance between two sets is the mean over the statistics of the 1-D Wasserstein
 //! distance between their empirical distributions, each divided by the reference set's
-//! standard deviation of that statistic.
+//! spread of that statistic: its interquartile range / 1.349 (the standard deviation of a
+//! normal distribution, robust to the few flat or extreme real windows), else its standard
+//! deviation when the quartiles coincide.
 
 /// Names of the statistics, in the order of [`Stats::values`].
 pub const STAT_NAMES: [&str; 7] = ["slope_mean_deg", "slope_p90_over_p50", "laplacian_skewness", "laplacian_kurtosis", "spectral_slope_4_16px", "depression_area_fraction", "local_relief_m"];
 
 /// Depth (metres) below which a filled pit does not count as a closed depression.
 pub const DEPRESSION_DEPTH_M: f32 = 0.5;
+
+/// Floor (degrees) of the median slope in the ratio p90 / p50.
+pub const MIN_MEDIAN_SLOPE_DEG: f64 = 0.5;
 
 /// Side (samples) of the blocks over which local relief is measured.
 pub const RELIEF_BLOCK: usize = 16;
@@ -85,7 +90,8 @@ pub fn measure(h: &[f32], side: usize, spacing_m: f64) -> Result<Stats, StatsErr
     let slope_mean_deg = mean(&slopes);
     slopes.sort_by(f64::total_cmp);
     let q = |p: f64| slopes[((slopes.len() - 1) as f64 * p).round() as usize];
-    let slope_p90_over_p50 = q(0.9) / q(0.5).max(1e-6);
+    // The median slope is floored so that flat windows (lakes, ice) do not divide by ~0.
+    let slope_p90_over_p50 = q(0.9) / q(0.5).max(MIN_MEDIAN_SLOPE_DEG);
     let (laplacian_skewness, laplacian_kurtosis) = skew_kurt(&lap);
     let mut relief = 0.0;
     let blocks = n / RELIEF_BLOCK;
@@ -264,6 +270,20 @@ fn depression_fraction(h: &[f32], n: usize, depth_m: f32) -> f64 {
     filled.iter().zip(h).filter(|(f, o)| **f - **o > depth_m).count() as f64 / (n * n) as f64
 }
 
+/// The interquartile range / 1.349 of `v`, else its standard deviation if that is 0 (else 1).
+pub fn spread(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
+    let iqr = (q(0.75) - q(0.25)) / 1.349;
+    if iqr > 1e-12 {
+        return iqr;
+    }
+    let m = mean(v);
+    let sd = (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
+    if sd > 1e-12 { sd } else { 1.0 }
+}
+
 /// 1-D Wasserstein-1 distance between the empirical distributions `a` and `b` (through their
 /// quantile functions at 256 levels).
 pub fn wasserstein1(a: &[f64], b: &[f64]) -> f64 {
@@ -278,16 +298,14 @@ pub fn wasserstein1(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// Per statistic (order of [`STAT_NAMES`]), the Wasserstein-1 distance between `set` and
-/// `reference`, divided by the reference's standard deviation; and their mean as the last
-/// element. Both sets must be non-empty.
+/// `reference`, divided by the reference's [`spread`]; and their mean as the last element.
+/// Both sets must be non-empty.
 pub fn distance(set: &[Stats], reference: &[Stats]) -> Vec<f64> {
     let mut per: Vec<f64> = (0..STAT_NAMES.len())
         .map(|k| {
             let a: Vec<f64> = set.iter().map(|s| s.values()[k]).collect();
             let r: Vec<f64> = reference.iter().map(|s| s.values()[k]).collect();
-            let m = mean(&r);
-            let sd = (r.iter().map(|x| (x - m).powi(2)).sum::<f64>() / r.len() as f64).sqrt().max(1e-9);
-            wasserstein1(&a, &r) / sd
+            wasserstein1(&a, &r) / spread(&r)
         })
         .collect();
     per.push(mean(&per));
@@ -360,14 +378,15 @@ mod tests {
         }
     }
 
-    /// Identical sets are at distance 0; shifting one statistic of every window by one
-    /// reference standard deviation gives 1 for it.
+    /// Identical sets are at distance 0; shifting one statistic of every window by the
+    /// reference's spread gives 1 for it.
     #[test]
     fn distance_is_zero_for_equal_sets_and_counts_standard_deviations() {
         let base = Stats { slope_mean_deg: 10.0, slope_p90_over_p50: 2.0, laplacian_skewness: 0.0, laplacian_kurtosis: 1.0, spectral_slope: -3.0, depression_fraction: 0.01, local_relief_m: 50.0 };
         let set: Vec<Stats> = (0..100).map(|k| Stats { slope_mean_deg: k as f64, ..base }).collect();
         assert!(distance(&set, &set).iter().all(|&d| d == 0.0));
-        let sd = (set.iter().map(|s| (s.slope_mean_deg - 49.5).powi(2)).sum::<f64>() / 100.0).sqrt();
+        let sd = spread(&set.iter().map(|s| s.slope_mean_deg).collect::<Vec<_>>());
+        assert!((sd - 49.0 / 1.349).abs() < 1e-9, "interquartile range of 0..100 by the rounded quantiles: 74 − 25 = 49");
         let shifted: Vec<Stats> = set.iter().map(|s| Stats { slope_mean_deg: s.slope_mean_deg + sd, ..*s }).collect();
         let d = distance(&shifted, &set);
         assert!((d[0] - 1.0).abs() < 1e-9, "{d:?}");
