@@ -254,22 +254,8 @@ mod tests {
     #[cfg(feature = "train")]
     #[test]
     fn cpu_forward_equals_burn_forward() {
-        use burn::module::{ModuleMapper, Param};
-        struct Random(Device, u64);
-        impl ModuleMapper for Random {
-            fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-                let device = self.0.clone();
-                self.1 = mix64(self.1);
-                let seed = self.1;
-                param.map(|t| {
-                    let n = t.shape().num_elements();
-                    let v: Vec<f32> = (0..n as u64).map(|k| ((mix64(seed ^ k) >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.2).collect();
-                    Tensor::<D>::from_data(burn::tensor::TensorData::new(v, t.shape()), &device)
-                })
-            }
-        }
         let device = Device::flex();
-        let g = Grow::new(&device).map(&mut Random(device.clone(), 3));
+        let g = crate::models::random_weights(Grow::new(&device), &device, 3);
         let cpu_g = GrowCpu::from_model(&g).unwrap();
         let h: Vec<f32> = (0..WINDOW * WINDOW).map(|p| 500.0 + 80.0 * ((p % WINDOW) as f32 * 0.4).sin() * ((p / WINDOW) as f32 * 0.25).cos()).collect();
         let (x, n64, n32) = assemble(&h, 11, -40, 17);

@@ -140,3 +140,25 @@ mod tests {
         assert!(worst < 1e-3, "wgpu and CPU differ by {worst} m");
     }
 }
+
+/// `m` with every parameter drawn uniformly from ±0.1 by a hash of `seed` (tests that compare
+/// the CPU kernels with burn: trained-from-zero layers would prove nothing).
+#[cfg(all(test, feature = "train"))]
+pub(crate) fn random_weights<M: burn::module::Module>(m: M, device: &Device, seed: u64) -> M {
+    use burn::module::{ModuleMapper, Param};
+    use crate::world::schedule::mix64;
+    struct Random(Device, u64);
+    impl ModuleMapper for Random {
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            let device = self.0.clone();
+            self.1 = mix64(self.1);
+            let seed = self.1;
+            param.map(|t| {
+                let n = t.shape().num_elements();
+                let v: Vec<f32> = (0..n as u64).map(|k| ((mix64(seed ^ k) >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.2).collect();
+                Tensor::<D>::from_data(TensorData::new(v, t.shape()), &device)
+            })
+        }
+    }
+    m.map(&mut Random(device.clone(), seed))
+}

@@ -406,22 +406,8 @@ mod tests {
     #[cfg(feature = "train")]
     #[test]
     fn cpu_forward_equals_burn_forward() {
-        use burn::module::{Module, ModuleMapper, Param};
-        struct Random(Device, u64);
-        impl ModuleMapper for Random {
-            fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-                let device = self.0.clone();
-                self.1 = mix64(self.1);
-                let seed = self.1;
-                param.map(|t| {
-                    let n = t.shape().num_elements();
-                    let v: Vec<f32> = (0..n as u64).map(|k| ((mix64(seed ^ k) >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.2).collect();
-                    Tensor::<D>::from_data(burn::tensor::TensorData::new(v, t.shape()), &device)
-                })
-            }
-        }
         let device = Device::flex();
-        let g = Tcm::new(&device).map(&mut Random(device.clone(), 5));
+        let g = crate::models::random_weights(Tcm::new(&device), &device, 5);
         let cpu_g = TcmCpu::from_model(&g).unwrap();
         let tile: Vec<f32> = (0..TILE_PX * TILE_PX).map(|p| 300.0 + 40.0 * ((p % 32) as f32 * 0.3).sin() + (p / 32) as f32).collect();
         let mut scratch = TcmScratch::default();

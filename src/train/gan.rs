@@ -57,6 +57,33 @@ pub fn gen_adversarial(d: &Disc, fake: Tensor<4>) -> Tensor<1> {
     (d.forward(fake) - 1.0).powf_scalar(2.0).mean()
 }
 
+/// Saves a run's checkpoint in `dir`: the generator as `gen_file`, and `{prefix}_disc.bpk`,
+/// `{prefix}_adam.bin`, `{prefix}_disc_adam.bin` (the optimisers' moments) and
+/// `{prefix}_state.json` (`state`).
+#[allow(clippy::too_many_arguments)]
+pub fn save_run<G: ModuleSnapshot>(dir: &Path, prefix: &str, gen_file: &str, g: &G, d: &Disc, og: &ModuleOptimizer, od: &ModuleOptimizer, state: &serde_json::Value) -> Result<(), String> {
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    save(g, &dir.join(gen_file))?;
+    save(d, &dir.join(format!("{prefix}_disc.bpk")))?;
+    for (opt, file) in [(og, format!("{prefix}_adam.bin")), (od, format!("{prefix}_disc_adam.bin"))] {
+        opt.save(dir.join(&file)).map_err(|e| format!("{file}: {e:?}"))?;
+    }
+    let file = format!("{prefix}_state.json");
+    std::fs::write(dir.join(&file), serde_json::to_string_pretty(state).expect("json")).map_err(|e| format!("{file}: {e}"))
+}
+
+/// Loads what [`save_run`] saved into `g` and `d`; returns both optimisers and the state.
+pub fn load_run<G: ModuleSnapshot>(dir: &Path, prefix: &str, gen_file: &str, g: &mut G, d: &mut Disc) -> Result<(ModuleOptimizer, ModuleOptimizer, serde_json::Value), String> {
+    load_into(g, &dir.join(gen_file))?;
+    load_into(d, &dir.join(format!("{prefix}_disc.bpk")))?;
+    let load = |file: String| adam().load(dir.join(&file)).map_err(|e| format!("{file}: {e:?}"));
+    let (og, od) = (load(format!("{prefix}_adam.bin"))?, load(format!("{prefix}_disc_adam.bin"))?);
+    let file = format!("{prefix}_state.json");
+    let text = std::fs::read_to_string(dir.join(&file)).map_err(|e| format!("{}: {e}", dir.join(&file).display()))?;
+    let state = serde_json::from_str(&text).map_err(|e| format!("{file}: {e}"))?;
+    Ok((og, od, state))
+}
+
 /// Loads a module's weights from a burnpack file; missing tensors are an error.
 pub fn load_into<M: ModuleSnapshot>(m: &mut M, path: &Path) -> Result<(), String> {
     let mut store = BurnpackStore::from_file(path);

@@ -9,7 +9,7 @@ use burn::module::Module;
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 
-use super::gan::{self, Disc, load_into, save};
+use super::gan::{self, Disc};
 use super::pairs::{Dem, Rng, Split, dihedral, split_columns};
 use super::tcm::{L1_WEIGHT, TcmProgress};
 use crate::dem::Heightfield;
@@ -105,10 +105,6 @@ pub struct GrowRun {
 
 /// The network's checkpoint and weight file name.
 pub const GROW_FILE: &str = "grow_32m.bpk";
-const DISC_FILE: &str = "grow_disc.bpk";
-const STATE_FILE: &str = "grow_state.json";
-const GEN_OPT_FILE: &str = "grow_adam.bin";
-const DISC_OPT_FILE: &str = "grow_disc_adam.bin";
 
 fn tensor(data: Vec<f32>, shape: [usize; 4], device: &Device) -> Tensor<4> {
     Tensor::<4>::from_data(TensorData::new(data, shape), device)
@@ -119,15 +115,11 @@ impl GrowRun {
     pub fn start(batch: usize, adversarial: f32, device: &Device, resume_from: Option<&Path>) -> Result<Self, String> {
         let mut run = Self { g: Grow::new(device), d: Disc::new(device), og: gan::adam(), od: gan::adam(), batch, lr: 2e-4, adversarial, progress: TcmProgress::default(), device: device.clone() };
         if let Some(dir) = resume_from {
-            load_into(&mut run.g, &dir.join(GROW_FILE))?;
-            load_into(&mut run.d, &dir.join(DISC_FILE))?;
-            let text = std::fs::read_to_string(dir.join(STATE_FILE)).map_err(|e| format!("{}: {e}", dir.join(STATE_FILE).display()))?;
-            let state: serde_json::Value = serde_json::from_str(&text).map_err(|e| format!("{STATE_FILE}: {e}"))?;
-            run.progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("{STATE_FILE}: {e}"))?;
+            let state;
+            (run.og, run.od, state) = gan::load_run(dir, "grow", GROW_FILE, &mut run.g, &mut run.d)?;
+            run.progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("grow_state.json: {e}"))?;
             run.batch = state["batch"].as_u64().map_or(batch, |b| b as usize);
             run.adversarial = state["adversarial"].as_f64().map_or(adversarial, |a| a as f32);
-            run.og = gan::adam().load(dir.join(GEN_OPT_FILE)).map_err(|e| format!("{GEN_OPT_FILE}: {e:?}"))?;
-            run.od = gan::adam().load(dir.join(DISC_OPT_FILE)).map_err(|e| format!("{DISC_OPT_FILE}: {e:?}"))?;
         }
         Ok(run)
     }
@@ -185,13 +177,8 @@ impl GrowRun {
 
     /// Saves the checkpoint in `dir`.
     pub fn save(&self, dir: &Path) -> Result<(), String> {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        save(&self.g, &dir.join(GROW_FILE))?;
-        save(&self.d, &dir.join(DISC_FILE))?;
-        self.og.save(dir.join(GEN_OPT_FILE)).map_err(|e| format!("{GEN_OPT_FILE}: {e:?}"))?;
-        self.od.save(dir.join(DISC_OPT_FILE)).map_err(|e| format!("{DISC_OPT_FILE}: {e:?}"))?;
         let state = serde_json::json!({ "batch": self.batch, "adversarial": self.adversarial, "lr": self.lr, "progress": self.progress });
-        std::fs::write(dir.join(STATE_FILE), serde_json::to_string_pretty(&state).expect("json")).map_err(|e| format!("{STATE_FILE}: {e}"))
+        gan::save_run(dir, "grow", GROW_FILE, &self.g, &self.d, &self.og, &self.od, &state)
     }
 
     /// The network's parameter count.

@@ -211,33 +211,21 @@ fn with_centre(real: Tensor<4>, tile: Tensor<4>) -> Tensor<4> {
 pub fn start_run(cfg: TcmConfig, device: &Device, resume_from: Option<&Path>) -> Result<TcmRun, String> {
     let mut g = Tcm::new(device);
     let mut d = Disc::new(device);
+    let (mut og, mut od) = (gan::adam(), gan::adam());
     let mut progress = TcmProgress::default();
     let mut cfg = cfg;
     if let Some(dir) = resume_from {
-        load_into(&mut g, &dir.join(GEN_FILE))?;
-        load_into(&mut d, &dir.join(DISC_FILE))?;
-        let text = std::fs::read_to_string(dir.join(STATE_FILE)).map_err(|e| format!("{}: {e}", dir.join(STATE_FILE).display()))?;
-        let state: serde_json::Value = serde_json::from_str(&text).map_err(|e| format!("{STATE_FILE}: {e}"))?;
-        progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("{STATE_FILE}: {e}"))?;
-        cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("{STATE_FILE}: {e}"))?;
-    }
-    let (mut og, mut od) = (gan::adam(), gan::adam());
-    if let Some(dir) = resume_from {
-        // The optimisers' moments: a run resumed without them only restarts Adam's averages.
-        og = og.load(dir.join(GEN_OPT_FILE)).map_err(|e| format!("{GEN_OPT_FILE}: {e:?}"))?;
-        od = od.load(dir.join(DISC_OPT_FILE)).map_err(|e| format!("{DISC_OPT_FILE}: {e:?}"))?;
+        let state;
+        (og, od, state) = gan::load_run(dir, "tcm", GEN_FILE, &mut g, &mut d)?;
+        progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("tcm_state.json: {e}"))?;
+        cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("tcm_state.json: {e}"))?;
     }
     Ok(TcmRun { g, d, og, od, cfg, progress, device: device.clone() })
 }
 
 /// The generator's checkpoint and weight file name.
 pub const GEN_FILE: &str = "tcm_128m.bpk";
-const DISC_FILE: &str = "tcm_disc.bpk";
-const STATE_FILE: &str = "tcm_state.json";
-const GEN_OPT_FILE: &str = "tcm_adam.bin";
-const DISC_OPT_FILE: &str = "tcm_disc_adam.bin";
 
-use gan::{load_into, save};
 
 impl TcmRun {
     /// One optimiser step of both networks on a batch cut from `grids` (train split, phases
@@ -289,15 +277,11 @@ impl TcmRun {
         Ok(())
     }
 
-    /// Saves the checkpoint (generator, discriminator, settings and progress) in `dir`.
+    /// Saves the checkpoint (generator, discriminator, optimisers, settings and progress) in
+    /// `dir`.
     pub fn save(&self, dir: &Path) -> Result<(), String> {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        save(&self.g, &dir.join(GEN_FILE))?;
-        save(&self.d, &dir.join(DISC_FILE))?;
-        self.og.save(dir.join(GEN_OPT_FILE)).map_err(|e| format!("{GEN_OPT_FILE}: {e:?}"))?;
-        self.od.save(dir.join(DISC_OPT_FILE)).map_err(|e| format!("{DISC_OPT_FILE}: {e:?}"))?;
         let state = serde_json::json!({ "config": self.cfg, "progress": self.progress });
-        std::fs::write(dir.join(STATE_FILE), serde_json::to_string_pretty(&state).expect("json")).map_err(|e| format!("{STATE_FILE}: {e}"))
+        gan::save_run(dir, "tcm", GEN_FILE, &self.g, &self.d, &self.og, &self.od, &state)
     }
 
     /// The generator without autodiff (for evaluation and export).
