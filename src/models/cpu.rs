@@ -222,10 +222,17 @@ fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize
     {
         let per = h.div_ceil(threads);
         std::thread::scope(|s| {
-            for (k, chunk) in rows.chunks_mut(per * row_len).enumerate() {
+            let mut chunks = rows.chunks_mut(per * row_len).enumerate();
+            // The calling thread takes the first chunk itself: one thread fewer to start.
+            let first = chunks.next();
+            for (k, chunk) in chunks {
                 let y0 = k * per;
                 let n = chunk.len() / row_len;
                 s.spawn(move || conv_rows(layer, src, chunk, y0, n, w, post, portable));
+            }
+            if let Some((_, chunk)) = first {
+                let n = chunk.len() / row_len;
+                conv_rows(layer, src, chunk, 0, n, w, post, portable);
             }
         });
     }
