@@ -6,6 +6,8 @@ mod worker;
 
 use std::cell::RefCell;
 use std::rc::Rc;
+use std::sync::atomic::AtomicU32;
+use std::sync::atomic::Ordering::SeqCst;
 
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
@@ -29,6 +31,43 @@ thread_local! {
     /// Frames are not drawn while set (see [`terrain_set_paused`]), and the context to wake.
     static PAUSED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
     static CONTEXT: RefCell<Option<egui::Context>> = const { RefCell::new(None) };
+    /// The running eframe runner and the GPU device it draws with (replaced after a loss).
+    static RUNNER: RefCell<Option<eframe::WebRunner>> = const { RefCell::new(None) };
+    static DEVICE: RefCell<Option<wgpu::Device>> = const { RefCell::new(None) };
+    /// How many times the page replaced a lost GPU device.
+    static RESTARTS: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
+}
+
+/// The generation of the page's current GPU device (1 for the first, +1 per replacement).
+static DEVICE_GEN: AtomicU32 = AtomicU32::new(0);
+/// The generation of a device that was lost (by the browser, or by [`terrain_lose_device`]);
+/// when it is the current one, the next frame stops drawing and the page starts again on a
+/// new device, keeping the view. A late notice about an older device changes nothing.
+static LOST_DEVICE: AtomicU32 = AtomicU32::new(0);
+
+/// Destroys the page's GPU device, as a driver reset or a browser would take it away (the
+/// end-to-end test uses it to show the page recovers); `false` if there is none.
+#[wasm_bindgen]
+pub fn terrain_lose_device() -> bool {
+    DEVICE.with(|d| match d.borrow().as_ref() {
+        Some(device) => {
+            LOST_DEVICE.store(DEVICE_GEN.load(SeqCst), SeqCst);
+            device.destroy();
+            true
+        }
+        None => false,
+    })
+}
+
+/// Replaces the lost device: stops the old renderer and starts the page again on a new
+/// device (or without WebGPU compute, on the CPU) at view `state`.
+async fn restart(state: ShareState, why: String) {
+    RUNNER.with(|r| r.borrow_mut().take()).inspect(|r| r.destroy());
+    RESTARTS.set(RESTARTS.get() + 1);
+    let note = format!("The GPU device was lost ({why}); the page started a new one and kept the view.");
+    if let Err(e) = run(Some((state, note))).await {
+        show_page_message(&format!("The GPU device was lost and a new one could not be started: {e}"));
+    }
 }
 
 /// Stops (`true`) or resumes drawing frames. The end-to-end test times the CPU inference
@@ -240,7 +279,7 @@ pub fn start() {
         return;
     }
     wasm_bindgen_futures::spawn_local(async {
-        if let Err(e) = run().await {
+        if let Err(e) = run(None).await {
             show_page_message(&e);
         }
     });
@@ -267,7 +306,9 @@ fn location_hash() -> String {
     web_sys::window().and_then(|w| w.location().hash().ok()).unwrap_or_default()
 }
 
-async fn run() -> Result<(), String> {
+/// Starts the page: the view from the link, or `restart` (the view to keep and a note) after
+/// a lost device.
+async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     let window = web_sys::window().ok_or("no window")?;
     let document = window.document().ok_or("no document")?;
     let canvas: web_sys::HtmlCanvasElement = document
@@ -295,6 +336,9 @@ async fn run() -> Result<(), String> {
         })
         .await
         .map_err(|e| format!("Could not open the GPU device: {e}"))?;
+    let generation = DEVICE_GEN.fetch_add(1, SeqCst) + 1;
+    device.set_device_lost_callback(move |_, _| LOST_DEVICE.store(generation, SeqCst));
+    DEVICE.with(|d| *d.borrow_mut() = Some(device.clone()));
     let info = adapter.get_info();
     let label = [&info.name, &info.driver, &info.driver_info].into_iter().find(|s| !s.is_empty()).cloned().unwrap_or_else(|| "browser adapter".into());
     let browser_info = browser_adapter_info().await;
@@ -312,9 +356,10 @@ async fn run() -> Result<(), String> {
     start_ml(gpu, software, page_opts.tem, ml.clone()).await;
 
     let hash = location_hash();
-    let (share, message) = match ShareState::from_fragment(&hash) {
-        Ok(s) => (s, options_notice),
-        Err(e) => (ShareState::default(), Some(format!("{e}. Showing the default world instead."))),
+    let (share, message) = match (restart, ShareState::from_fragment(&hash)) {
+        (Some((state, note)), _) => (state, Some(note)),
+        (None, Ok(s)) => (s, options_notice),
+        (None, Err(e)) => (ShareState::default(), Some(format!("{e}. Showing the default world instead."))),
     };
 
     let options = eframe::WebOptions {
@@ -353,6 +398,7 @@ async fn run() -> Result<(), String> {
         )
         .await
         .map_err(|e| format!("The page could not start its renderer: {e:?}"))?;
+    RUNNER.with(|r| *r.borrow_mut() = Some(runner));
     if let Some(el) = document.get_element_by_id("loading") {
         let _ = el.set_attribute("style", "display:none");
     }
@@ -517,6 +563,15 @@ impl eframe::App for WebApp {
             CONTEXT.with(|c| *c.borrow_mut() = Some(ctx));
             return;
         }
+        let generation = DEVICE_GEN.load(SeqCst);
+        if LOST_DEVICE.load(SeqCst) == generation {
+            // Only the first frame after the loss starts the replacement.
+            if LOST_DEVICE.compare_exchange(generation, 0, SeqCst, SeqCst).is_ok() {
+                let state = self.app.share_state();
+                wasm_bindgen_futures::spawn_local(restart(state, "device lost".into()));
+            }
+            return;
+        }
         let now = now_ms();
         let dt_ms = self.last_frame_ms.map(|t| now - t).unwrap_or(16.0);
         self.last_frame_ms = Some(now);
@@ -610,6 +665,7 @@ impl eframe::App for WebApp {
             // drawing] ms.
             "cpu_ms_worst": self.frame_work.iter().copied().max_by(|a, b| a[0].total_cmp(&b[0])),
             "message": self.message,
+            "device_restarts": RESTARTS.get(),
             "link": link,
             "mode": format!("{:?}", mode),
         });

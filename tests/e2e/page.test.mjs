@@ -370,6 +370,25 @@ test('a corrupt weight file is named in the overlay and the 32 m world goes on',
   await page.close();
 });
 
+test('a lost WebGPU device is replaced without a reload: same view, same tiles, drawing again', async () => {
+  const { page, errors } = await open(VIEW);
+  const s0 = await waitFor(page, (s) => s.stats.tiles_pending === 0 && s.stats.frames > 20, 'the view to settle');
+  await page.evaluate(() => { window.__sameDocument = true; });
+  const t0 = Date.now();
+  assert.equal(await page.evaluate(() => window.wasmBindings.terrain_lose_device()), true);
+  const s1 = await waitFor(page, (s) => s.device_restarts === 1 && s.stats.tiles_pending === 0 && s.stats.frames > 20, 'drawing on a new device', 120_000);
+  report.device_lost = { recovered_in_s: (Date.now() - t0) / 1000, message: s1.message, refine_backend: s1.stats.refine_backend };
+  assert.equal(await page.evaluate(() => window.__sameDocument), true, 'the page reloaded');
+  assert.match(s1.message ?? '', /GPU device was lost/);
+  assert.deepEqual(s1.stats.eye_m, s0.stats.eye_m, 'the view moved');
+  assert.equal(s1.stats.view_checksum, s0.stats.view_checksum, 'different tiles after the restart');
+  assert.ok(s1.stats.nodes_drawn > 0);
+  const shot = await page.screenshot({ path: path.join(out, 'after_device_loss.png') });
+  assert.ok(imageSpread(shot, 380).sd > 8, 'the canvas is blank after the restart');
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
 test('without WebGPU the page says so instead of failing silently', async () => {
   const plain = await chromium.launch({
     executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium',
