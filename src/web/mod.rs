@@ -134,6 +134,13 @@ pub async fn terrain_tem_probe() -> Result<String, JsValue> {
     Ok(probe_json(&backend, &levels))
 }
 
+/// The TEM probe's input window of level `level` (JSON array of heights), so the end-to-end
+/// test can run the kernels on exactly the probe's data.
+#[wasm_bindgen]
+pub fn terrain_probe_input(level: usize) -> String {
+    serde_json::to_string(&probe_input(level.min(LEVELS - 1))).unwrap_or_default()
+}
+
 /// Bytes of the page's wasm linear memory now (it only grows; the end-to-end test samples it
 /// during a long flight to show it stops growing).
 #[wasm_bindgen]
