@@ -1,5 +1,6 @@
 //! Speed of the world pipeline on the CPU: one procedural tile, one quadtree node gathered
-//! from tiles, one node mesh (vertices + normals + skirts), and TEM inference per quad.
+//! from tiles, one node mesh (vertices + normals + skirts), TEM inference per quad, and the
+//! learned world's networks per tile.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
@@ -48,5 +49,45 @@ fn tem(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, world, tem);
+/// The learned world on the CPU kernels, per tile, with networks of the shipped architecture
+/// (random weights: the speed does not depend on their values): one 128 m tile from each phase's
+/// neighbours (TCM), the ×4 step of one tile to 32 m, and a whole new 32 m tile in a fresh world
+/// (its 128 m tile and the neighbours' that the schedule needs), on 1 thread and on every core.
+fn learned(c: &mut Criterion) {
+    use std::sync::Arc;
+    use terrain::models::cpu::default_threads;
+    use terrain::models::grow::{self, GrowCpu, GrowScratch};
+    use terrain::models::tcm::{TILE_PX, TcmCpu, TcmScratch, assemble_input, phase_mask};
+    use terrain::world::learned::{LearnedModels, LearnedSource};
+    let tcm = TcmCpu::randomized(1, 0.05);
+    let up = GrowCpu::randomized(2, 0.05);
+    let tile = vec![500.0f32; TILE_PX * TILE_PX];
+    let mut g = c.benchmark_group("learned world cpu");
+    g.sample_size(10);
+    for threads in [1, default_threads()] {
+        for phase in 0..4 {
+            let mask = phase_mask(phase);
+            let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
+            let x = assemble_input(&tiles, &[500.0; 9], 7);
+            let mut s = TcmScratch::default();
+            g.bench_function(format!("TCM 128 m tile, phase {phase}, {threads} thread(s)"), |b| b.iter(|| black_box(tcm.forward(&x, &mut s, threads))));
+        }
+        let window = vec![500.0f32; grow::WINDOW * grow::WINDOW];
+        let (x, n64, n32) = grow::assemble(&window, 7, 0, 0);
+        let mut s = GrowScratch::default();
+        g.bench_function(format!("x4 step 128 -> 32 m, {threads} thread(s)"), |b| b.iter(|| black_box(up.forward(&x, &n64, &n32, grow::WINDOW, &mut s, threads))));
+        let models = Arc::new(LearnedModels::from_parts(tcm.clone(), up.clone(), "bench"));
+        let mut seed = 0;
+        g.bench_function(format!("new 32 m tile in a fresh world, {threads} thread(s)"), |b| {
+            b.iter(|| {
+                seed += 1;
+                let src = LearnedSource::new(models.clone(), threads);
+                black_box(src.generate(seed, TileCoord::new(1, 1), &Neighbourhood::default()))
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, world, tem, learned);
 criterion_main!(benches);
