@@ -19,6 +19,19 @@ const SLACK_PX: usize = 8;
 /// Output channels of the blocked kernel (layers with other widths take the plain loop).
 const LANES: usize = 32;
 
+/// A uniform value in [−1, 1) from a 64-bit LCG state (random layers for tests and untrained
+/// models).
+pub(crate) fn unit(s: &mut u64) -> f32 {
+    *s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    ((*s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+}
+
+/// The convolutions `layers` (name, output channels, input channels) with random weights
+/// ([`Conv3::random`], a seed per layer from `seed`).
+pub fn random_convs(layers: &[(String, usize, usize)], seed: u64, amplitude: f32) -> Vec<Conv3> {
+    layers.iter().enumerate().map(|(k, (_, cout, cin))| Conv3::random(*cout, *cin, seed ^ ((k as u64) << 32), amplitude)).collect()
+}
+
 /// Errors building a layer from stored weights.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum LayerError {
@@ -97,12 +110,8 @@ impl Conv3 {
     /// integer arithmetic (tests: untrained networks that still compute something).
     pub fn random(cout: usize, cin: usize, seed: u64, amplitude: f32) -> Self {
         let mut k = seed;
-        let mut next = || {
-            k = k.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((k >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0) * amplitude
-        };
-        let w: Vec<f32> = (0..cout * cin * 9).map(|_| next()).collect();
-        let b: Vec<f32> = (0..cout).map(|_| next()).collect();
+        let w: Vec<f32> = (0..cout * cin * 9).map(|_| unit(&mut k) * amplitude).collect();
+        let b: Vec<f32> = (0..cout).map(|_| unit(&mut k) * amplitude).collect();
         Self::from_oihw(cout, cin, &w, Some(&b)).expect("sizes match")
     }
 
@@ -171,6 +180,34 @@ impl Map {
     pub fn pixel(&self, y: usize, x: usize) -> &[f32] {
         let i = self.at(y, x);
         &self.data[i..i + self.c]
+    }
+
+    /// Reshapes the map to `h`×`w`×`c` and fills it from a channel-first array
+    /// (`src[(k·h + y)·w + x]`, the layout of burn's tensors).
+    pub fn set_chw(&mut self, src: &[f32], c: usize, h: usize, w: usize) {
+        assert_eq!(src.len(), c * h * w, "channel-first size");
+        self.reset(h, w, c);
+        for y in 0..h {
+            for x in 0..w {
+                for (k, v) in self.pixel_mut(y, x).iter_mut().enumerate() {
+                    *v = src[(k * h + y) * w + x];
+                }
+            }
+        }
+    }
+
+    /// The map as a channel-first array (the inverse of [`set_chw`](Self::set_chw)).
+    pub fn to_chw(&self) -> Vec<f32> {
+        let (h, w) = (self.h, self.w);
+        let mut out = vec![0f32; self.c * h * w];
+        for y in 0..h {
+            for x in 0..w {
+                for (k, v) in self.pixel(y, x).iter().enumerate() {
+                    out[(k * h + y) * w + x] = *v;
+                }
+            }
+        }
+        out
     }
 
     /// The `c` channels of pixel (`y`, `x`), writable.
@@ -254,15 +291,7 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
         simd128::rows(layer, src, out, y0, n, w, post);
         return;
     }
-    if layer.cout == LANES {
-        #[cfg(target_arch = "x86_64")]
-        if !portable && has_avx2_fma() {
-            // SAFETY: the CPU has AVX2 and FMA (checked just above).
-            unsafe { x86::rows32(layer, src, out, y0, n, w, post) };
-            return;
-        }
-        rows32(layer, src, out, y0, n, w, post);
-    } else if layer.cout == 1 && layer.cin % 8 == 0 {
+    if layer.cout == 1 && layer.cin % 8 == 0 {
         #[cfg(target_arch = "x86_64")]
         if !portable && has_avx2_fma() && layer.cin == 8 {
             // SAFETY: the CPU has AVX2 and FMA (checked just above).
@@ -274,7 +303,13 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
         #[cfg(target_arch = "x86_64")]
         if !portable && has_avx2_fma() {
             // SAFETY: the CPU has AVX2 and FMA (checked just above).
-            unsafe { x86::rows8(layer, src, out, y0, n, w, post) };
+            unsafe {
+                if layer.cout == LANES {
+                    x86::rows32(layer, src, out, y0, n, w, post);
+                } else {
+                    x86::rows8(layer, src, out, y0, n, w, post);
+                }
+            }
             return;
         }
         rows8(layer, src, out, y0, n, w, post);
@@ -285,7 +320,8 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
 
 /// The 32-channel kernel with AVX2 + FMA intrinsics: 3 pixels × 4 vectors of 8 channels are
 /// 12 accumulator registers, plus 3 broadcast inputs and one weight vector: all 16 registers,
-/// no spills (the compiler's own vectorisation of [`rows32`] spilled).
+/// no spills (the compiler's own vectorisation of the portable [`rows8`] spilled, or stayed
+/// scalar).
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use super::{BLOCK, Conv3, LANES, Map, Post, ROWS8_PX};
@@ -293,7 +329,7 @@ mod x86 {
 
     /// Any multiple of 8 output channels with AVX2 + FMA: blocks of 4 pixels × 16 channels
     /// (8 accumulator registers; the last 8 channels of an odd multiple take a 4 × 8 block).
-    /// The compiler left the portable loop scalar (2 GMAC/s against 43 for [`rows32`]).
+    /// The compiler left the portable loop scalar (2 GMAC/s against 43 for `rows32`).
     ///
     /// # Safety
     /// The CPU must support AVX2 and FMA.
@@ -497,10 +533,10 @@ mod simd128 {
     use super::{Conv3, Map, Post};
     use core::arch::wasm32::*;
 
-    /// Pixels per block.
-    pub(super) const PX: usize = 4;
+    /// Pixels per block: the portable kernel's blocking.
+    pub(super) const PX: usize = super::ROWS8_PX;
     /// Output channels per pass (two vectors).
-    pub(super) const CH: usize = 8;
+    pub(super) const CH: usize = super::ROWS8_CH;
 
     /// Output rows `y0..y0 + n` of `layer` on `src` into `out` (see `conv_rows`).
     pub(super) fn rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
@@ -574,8 +610,9 @@ const ROWS8_PX: usize = 4;
 /// Output channels per pass of [`rows8`].
 const ROWS8_CH: usize = 8;
 
-/// Any multiple of 8 output channels (the learned world's layers): blocks of [`ROWS8_PX`]
-/// pixels × 8 channels, the same blocking and order as the page's SIMD128 kernel.
+/// Any multiple of 8 output channels (the portable kernel; natively the tests' reference for
+/// the AVX2 kernels): blocks of [`ROWS8_PX`] pixels × 8 channels, the same blocking and order
+/// as the page's SIMD128 kernel.
 #[inline(always)]
 fn rows8(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
     let (cin, cout) = (layer.cin, layer.cout);
@@ -618,73 +655,6 @@ fn rows8(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usiz
                 }
             }
             x0 += ROWS8_PX;
-        }
-    }
-}
-
-/// Pixels per block of the portable 32-channel kernel.
-const PORTABLE_PX: usize = 2;
-/// Output channels per pass of the portable 32-channel kernel (two passes make 32).
-const PORTABLE_CH: usize = 16;
-
-/// The portable kernel for 32 output channels (SIMD128 in the page): blocks of
-/// [`PORTABLE_PX`] pixels × [`PORTABLE_CH`] channels, 8 vectors of accumulators, which fit a
-/// browser's 16 vector registers with room for the broadcast inputs and one weight vector
-/// (3 × 32 accumulators spilled and ran ~15× slower than native); two passes per block.
-#[inline(always)]
-fn rows32(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
-    let cin = layer.cin;
-    let sw = src.w + 2;
-    let row_len = sw * LANES;
-    // The kernel reads PORTABLE_PX pixels from (y + ky, x + kx) for x < w, so at most
-    // (y0 + n + 1)·sw + w + 1 + PORTABLE_PX pixels: inside the map thanks to its slack.
-    assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + PORTABLE_PX) * cin);
-    let (wrows, rest) = layer.w.as_chunks::<LANES>();
-    assert!(rest.is_empty() && wrows.len() == 9 * cin && out.len() == n * row_len && layer.b.len() == LANES);
-    for r in 0..n {
-        let y = y0 + r;
-        let mut x0 = 0;
-        while x0 < w {
-            for half in 0..LANES / PORTABLE_CH {
-                let c0 = half * PORTABLE_CH;
-                let bias: [f32; PORTABLE_CH] = layer.b[c0..c0 + PORTABLE_CH].try_into().expect("16 biases");
-                let mut acc = [bias; PORTABLE_PX];
-                for tap in 0..9 {
-                    let (ky, kx) = (tap / 3, tap % 3);
-                    let base = ((y + ky) * sw + x0 + kx) * cin;
-                    for (ci, wv) in wrows[tap * cin..(tap + 1) * cin].iter().enumerate() {
-                        // SAFETY: base + p·cin + ci is below the bound asserted above.
-                        let v: [f32; PORTABLE_PX] = std::array::from_fn(|p| unsafe { *src.data.get_unchecked(base + p * cin + ci) });
-                        let wv: &[f32; PORTABLE_CH] = wv[c0..c0 + PORTABLE_CH].try_into().expect("16 weights");
-                        for p in 0..PORTABLE_PX {
-                            for co in 0..PORTABLE_CH {
-                                acc[p][co] += v[p] * wv[co];
-                            }
-                        }
-                    }
-                }
-                let m = PORTABLE_PX.min(w - x0);
-                for (p, a) in acc.iter().enumerate().take(m) {
-                    let o = r * row_len + (x0 + p + 1) * LANES + c0;
-                    let dst = &mut out[o..o + PORTABLE_CH];
-                    match post {
-                        Post::None => dst.copy_from_slice(a),
-                        Post::Relu => {
-                            for co in 0..PORTABLE_CH {
-                                dst[co] = a[co].max(0.0);
-                            }
-                        }
-                        Post::Add(s) => {
-                            let si = s.at(y, x0 + p) + c0;
-                            let sk = &s.data[si..si + PORTABLE_CH];
-                            for co in 0..PORTABLE_CH {
-                                dst[co] = a[co] + sk[co];
-                            }
-                        }
-                    }
-                }
-            }
-            x0 += PORTABLE_PX;
         }
     }
 }
@@ -873,10 +843,7 @@ pub fn default_threads() -> usize {
 mod tests {
     use super::*;
 
-    fn lcg(seed: &mut u64) -> f32 {
-        *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((*seed >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-    }
+    use super::unit as lcg;
 
     /// Direct evaluation of the definition (NCHW, zero padding) for comparison.
     fn naive(w: &[f32], b: &[f32], cout: usize, cin: usize, x: &[f32], h: usize, wd: usize) -> Vec<f32> {

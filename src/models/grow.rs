@@ -157,27 +157,14 @@ pub struct GrowCpu {
     convs: Vec<Conv3>,
 }
 
-/// A channel-first `c`×`n`² array into a map.
-fn fill(dst: &mut Map, src: &[f32], c: usize, n: usize) {
-    dst.reset(n, n, c);
-    for y in 0..n {
-        for x in 0..n {
-            for (k, v) in dst.pixel_mut(y, x).iter_mut().enumerate() {
-                *v = src[(k * n + y) * n + x];
-            }
-        }
-    }
-}
-
 /// `src`'s channels followed by one channel from `extra` (row-major, `src`'s size).
 fn with_channel(src: &Map, extra: &[f32], dst: &mut Map) {
     let (h, w, c) = (src.height(), src.width(), src.channels());
     dst.reset(h, w, c + 1);
     for y in 0..h {
         for x in 0..w {
-            let v = src.pixel(y, x).to_vec();
             let p = dst.pixel_mut(y, x);
-            p[..c].copy_from_slice(&v);
+            p[..c].copy_from_slice(src.pixel(y, x));
             p[c] = extra[y * w + x];
         }
     }
@@ -186,7 +173,7 @@ fn with_channel(src: &Map, extra: &[f32], dst: &mut Map) {
 impl GrowCpu {
     /// Every layer random (uniform ±`amplitude`, from `seed`), for tests.
     pub fn randomized(seed: u64, amplitude: f32) -> Self {
-        Self { convs: conv_layers().iter().enumerate().map(|(k, (_, o, i))| Conv3::random(*o, *i, seed ^ (k as u64) << 32, amplitude)).collect() }
+        Self { convs: cpu::random_convs(&conv_layers(), seed, amplitude) }
     }
 
     /// Reads a weight file (burnpack, as training writes it).
@@ -204,7 +191,7 @@ impl GrowCpu {
     /// [`assemble`] on an S² window.
     pub fn forward(&self, x: &[f32], n64: &[f32], n32: &[f32], side: usize, s: &mut GrowScratch, threads: usize) -> Vec<f32> {
         let c = &self.convs;
-        fill(&mut s.x, x, 6, side);
+        s.x.set_chw(x, 6, side, side);
         cpu::conv(&c[0], &s.x, &mut s.head, Post::None, threads);
         cpu::conv(&c[1], &s.head, &mut s.a, Post::Relu, threads);
         cpu::conv(&c[2], &s.a, &mut s.b, Post::Relu, threads);
@@ -255,7 +242,7 @@ mod tests {
     #[test]
     fn cpu_forward_equals_burn_forward() {
         let device = Device::flex();
-        let g = crate::models::random_weights(Grow::new(&device), &device, 3);
+        let g = crate::models::random_weights(Grow::new(&device), &device, 3, 0.1);
         let cpu_g = GrowCpu::from_model(&g).unwrap();
         let h: Vec<f32> = (0..WINDOW * WINDOW).map(|p| 500.0 + 80.0 * ((p % WINDOW) as f32 * 0.4).sin() * ((p / WINDOW) as f32 * 0.25).cos()).collect();
         let (x, n64, n32) = assemble(&h, 11, -40, 17);

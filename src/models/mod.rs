@@ -141,24 +141,24 @@ mod tests {
     }
 }
 
-/// `m` with every parameter drawn uniformly from ±0.1 by a hash of `seed` (tests that compare
-/// the CPU kernels with burn: trained-from-zero layers would prove nothing).
+/// `m` with every parameter drawn uniformly from ±`amplitude` by a hash of `seed` (tests: a
+/// zero-initialised tail or untrained layers would prove nothing).
 #[cfg(all(test, feature = "train"))]
-pub(crate) fn random_weights<M: burn::module::Module>(m: M, device: &Device, seed: u64) -> M {
+pub(crate) fn random_weights<M: burn::module::Module>(m: M, device: &Device, seed: u64, amplitude: f32) -> M {
     use burn::module::{ModuleMapper, Param};
     use crate::world::schedule::mix64;
-    struct Random(Device, u64);
+    struct Random(Device, u64, f32);
     impl ModuleMapper for Random {
         fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-            let device = self.0.clone();
+            let (device, a) = (self.0.clone(), self.2);
             self.1 = mix64(self.1);
             let seed = self.1;
             param.map(|t| {
                 let n = t.shape().num_elements();
-                let v: Vec<f32> = (0..n as u64).map(|k| ((mix64(seed ^ k) >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.2).collect();
+                let v: Vec<f32> = (0..n as u64).map(|k| ((mix64(seed ^ k) >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0) * a).collect();
                 Tensor::<D>::from_data(TensorData::new(v, t.shape()), &device)
             })
         }
     }
-    m.map(&mut Random(device.clone(), seed))
+    m.map(&mut Random(device.clone(), seed, amplitude))
 }

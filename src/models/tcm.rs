@@ -24,7 +24,7 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
 use crate::models::cpu::{self, Conv3, Map, Post};
-use crate::world::schedule::mix64;
+use crate::world::schedule::{PHASES, dependency_offsets, mix64};
 
 /// Spacing of the TCM's tiles (metres per sample).
 pub const COARSE_SPACING_M: f64 = 128.0;
@@ -45,18 +45,13 @@ pub const WIDTHS: [usize; 5] = [24, 48, 72, 96, 112];
 /// the rows its remaining convolutions read (3 at 96², 2 more per coarser scale, rounded up).
 pub const DECODER_CROP: [usize; 4] = [38, 24, 16, 12];
 
-/// Which of the 3×3 tiles are inputs, for the schedule's phase `p` (0..4), in row-major order
-/// (dj = −1, 0, 1; di = −1, 0, 1); the centre is never an input.
+/// Which of the 3×3 tiles are inputs, for the schedule's phase `p` (0..4, see
+/// [`crate::world::schedule::PHASES`]), in row-major order (dj = −1, 0, 1; di = −1, 0, 1): the
+/// schedule's dependencies; the centre is never an input.
 pub fn phase_mask(p: usize) -> [bool; 9] {
     let mut m = [false; 9];
-    match p {
-        0 => {}
-        1 => (m[3], m[5]) = (true, true),
-        2 => (m[1], m[7]) = (true, true),
-        _ => {
-            m = [true; 9];
-            m[4] = false;
-        }
+    for &(di, dj) in dependency_offsets(PHASES[p]) {
+        m[((dj + 1) * 3 + di + 1) as usize] = true;
     }
     m
 }
@@ -265,7 +260,7 @@ pub struct TcmCpu {
 impl TcmCpu {
     /// Every layer random (uniform ±`amplitude`, from `seed`), for tests.
     pub fn randomized(seed: u64, amplitude: f32) -> Self {
-        Self { convs: conv_layers().iter().enumerate().map(|(k, (_, o, i))| Conv3::random(*o, *i, seed ^ (k as u64) << 32, amplitude)).collect() }
+        Self { convs: cpu::random_convs(&conv_layers(), seed, amplitude) }
     }
 
     /// Reads a generator weight file (burnpack, as training writes it).
@@ -282,17 +277,7 @@ impl TcmCpu {
     /// One tile: `x` from [`assemble_input`] (channel-first); returns the centre tile
     /// ([`TILE_PX`]², row-major) relative to the macro level in units of [`HEIGHT_SCALE_M`].
     pub fn forward(&self, x: &[f32], s: &mut TcmScratch, threads: usize) -> Vec<f32> {
-        let n = CONTEXT_PX;
-        assert_eq!(x.len(), IN_CHANNELS * n * n, "input size");
-        s.input.reset(n, n, IN_CHANNELS);
-        for y in 0..n {
-            for xx in 0..n {
-                let px = s.input.pixel_mut(y, xx);
-                for (c, v) in px.iter_mut().enumerate() {
-                    *v = x[(c * n + y) * n + xx];
-                }
-            }
-        }
+        s.input.set_chw(x, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX);
         let c = &self.convs;
         // Encoder: stage k reads the input (k = 0) or the pooled previous stage.
         for k in 0..5 {
@@ -407,7 +392,7 @@ mod tests {
     #[test]
     fn cpu_forward_equals_burn_forward() {
         let device = Device::flex();
-        let g = crate::models::random_weights(Tcm::new(&device), &device, 5);
+        let g = crate::models::random_weights(Tcm::new(&device), &device, 5, 0.1);
         let cpu_g = TcmCpu::from_model(&g).unwrap();
         let tile: Vec<f32> = (0..TILE_PX * TILE_PX).map(|p| 300.0 + 40.0 * ((p % 32) as f32 * 0.3).sin() + (p / 32) as f32).collect();
         let mut scratch = TcmScratch::default();

@@ -335,7 +335,7 @@ impl TemCpu {
         let mut layer = |cout: usize, cin: usize, amplitude: f32| {
             // The same scale as burn's default (Kaiming uniform); values are irrelevant for
             // the zero tail except that the body stays finite.
-            let w: Vec<f32> = (0..cout * cin * 9).map(|_| amplitude * unit(&mut seed)).collect();
+            let w: Vec<f32> = (0..cout * cin * 9).map(|_| amplitude * cpu::unit(&mut seed)).collect();
             Conv3::from_oihw(cout, cin, &w, None).expect("sizes")
         };
         let bound = |cin: usize| (1.0 / (9.0 * cin as f32)).sqrt();
@@ -352,8 +352,8 @@ impl TemCpu {
     pub fn randomized(seed: u64, amplitude: f32) -> Self {
         let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
         let mut layer = |cout: usize, cin: usize| {
-            let w: Vec<f32> = (0..cout * cin * 9).map(|_| amplitude * unit(&mut s)).collect();
-            let b: Vec<f32> = (0..cout).map(|_| amplitude * unit(&mut s)).collect();
+            let w: Vec<f32> = (0..cout * cin * 9).map(|_| amplitude * cpu::unit(&mut s)).collect();
+            let b: Vec<f32> = (0..cout).map(|_| amplitude * cpu::unit(&mut s)).collect();
             Conv3::from_oihw(cout, cin, &w, Some(&b)).expect("sizes")
         };
         Self { head: layer(WIDTH, 4), body: (0..4).map(|_| layer(WIDTH, WIDTH)).collect(), merge: layer(WIDTH, WIDTH), tail: layer(1, WIDTH / 4) }
@@ -419,25 +419,11 @@ impl TemCpu {
     }
 }
 
-/// A uniform value in [−1, 1) from a 64-bit LCG state.
-fn unit(s: &mut u64) -> f32 {
-    *s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-    ((*s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-}
-
 /// [`features`] on the CPU as a channel-first array (4 × `side`²).
 pub fn features_cpu(x: &[f32], side: usize, scale_m: f32) -> Vec<f32> {
     let mut m = Map::default();
     features_into(x, side, scale_m, &mut m);
-    let mut out = vec![0f32; 4 * side * side];
-    for y in 0..side {
-        for xx in 0..side {
-            for (k, v) in m.pixel(y, xx).iter().enumerate() {
-                out[(k * side + y) * side + xx] = *v;
-            }
-        }
-    }
-    out
+    m.to_chw()
 }
 
 /// [`features`] on the CPU: the four feature channels of `x` (`side`² heights in metres,
@@ -547,20 +533,6 @@ pub fn features(xn: Tensor<4>) -> Tensor<4> {
     Tensor::cat(vec![detail, gx, gz, mag], 1)
 }
 
-/// `m` with every weight drawn uniformly from ±`amplitude` (tests: a zero tail would make
-/// every output plain bicubic and prove nothing).
-#[cfg(test)]
-pub(crate) fn randomized(m: Tem, device: &Device, amplitude: f64) -> Tem {
-    struct Random(Device, f64);
-    impl burn::module::ModuleMapper for Random {
-        fn map_float<const D: usize>(&mut self, param: burn::module::Param<Tensor<D>>) -> burn::module::Param<Tensor<D>> {
-            let (device, a) = (self.0.clone(), self.1);
-            param.map(|t| Tensor::<D>::random(t.shape(), burn::tensor::Distribution::Uniform(-a, a), &device))
-        }
-    }
-    m.map(&mut Random(device.clone(), amplitude))
-}
-
 #[cfg(all(test, feature = "train"))]
 mod tests {
     use super::*;
@@ -606,7 +578,7 @@ mod tests {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
         let burn_models = load_models(&dir, &device).unwrap();
         let mut cases: Vec<(&str, Tem, TemCpu)> = Vec::new();
-        let r = randomized(Tem::new(&device), &device, 0.05);
+        let r = crate::models::random_weights(Tem::new(&device), &device, 1, 0.05);
         let rc = TemCpu::from_model(&r).unwrap();
         cases.push(("random", r, rc));
         for k in [0, 4] {
@@ -690,7 +662,7 @@ mod tests {
     #[test]
     fn overlapping_windows_agree_away_from_the_border() {
         let device = Device::flex();
-        let m = randomized(Tem::new(&device), &device, 0.3);
+        let m = crate::models::random_weights(Tem::new(&device), &device, 2, 0.3);
         let n = 48;
         let global: Vec<f32> = (0..(n + 8) * n).map(|k| ((k % (n + 8)) as f32 * 0.37).sin() * 20.0 + ((k / (n + 8)) as f32 * 0.21).cos() * 15.0).collect();
         let cut = |x0: usize| -> Vec<f32> { (0..n).flat_map(|y| global[y * (n + 8) + x0..y * (n + 8) + x0 + n].to_vec()).collect() };

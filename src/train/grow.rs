@@ -103,8 +103,8 @@ pub struct GrowRun {
     device: Device,
 }
 
-/// The network's checkpoint and weight file name.
-pub const GROW_FILE: &str = "grow_32m.bpk";
+/// The network's checkpoint and weight file name (the learned world reads it).
+pub use crate::world::learned::GROW_FILE;
 
 fn tensor(data: Vec<f32>, shape: [usize; 4], device: &Device) -> Tensor<4> {
     Tensor::<4>::from_data(TensorData::new(data, shape), device)

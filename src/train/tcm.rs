@@ -4,9 +4,8 @@
 //! PatchGAN (least squares) that sees the tile inside its real neighbours. Checkpoints (both
 //! networks and the run's state) let a run resume in a later session.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use burn::module::Module;
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 
@@ -223,8 +222,8 @@ pub fn start_run(cfg: TcmConfig, device: &Device, resume_from: Option<&Path>) ->
     Ok(TcmRun { g, d, og, od, cfg, progress, device: device.clone() })
 }
 
-/// The generator's checkpoint and weight file name.
-pub const GEN_FILE: &str = "tcm_128m.bpk";
+/// The generator's checkpoint and weight file name (the learned world reads it).
+pub use crate::world::learned::TCM_FILE as GEN_FILE;
 
 
 impl TcmRun {
@@ -283,16 +282,6 @@ impl TcmRun {
         let state = serde_json::json!({ "config": self.cfg, "progress": self.progress });
         gan::save_run(dir, "tcm", GEN_FILE, &self.g, &self.d, &self.og, &self.od, &state)
     }
-
-    /// The generator without autodiff (for evaluation and export).
-    pub fn generator(&self) -> Tcm {
-        self.g.valid()
-    }
-}
-
-/// Where `train-tcm` keeps its checkpoint by default (outside the repository's weights).
-pub fn default_checkpoint_dir() -> PathBuf {
-    PathBuf::from("train-runs/tcm")
 }
 
 #[cfg(test)]

@@ -22,6 +22,9 @@ pub enum Phase {
     Centre = 3,
 }
 
+/// The four phases in generation order (index = `Phase as usize`).
+pub const PHASES: [Phase; 4] = [Phase::Free, Phase::Horizontal, Phase::Vertical, Phase::Centre];
+
 /// The phase of tile `c`.
 pub fn phase(c: TileCoord) -> Phase {
     match (c.i.rem_euclid(2), c.j.rem_euclid(2)) {
