@@ -10,7 +10,7 @@ use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::gan::{self, Disc};
-use super::pairs::{Dem, Rng, Split, dihedral, split_columns};
+use super::pairs::{Dem, Grid, Rng, Split, grids_at, random_window};
 use super::tcm::{L1_WEIGHT, TcmProgress};
 use crate::dem::Heightfield;
 use crate::models::grow::{FACTOR, Grow, HEIGHT_SCALE_M, MARGIN, OUT_TILE, WINDOW, assemble, base};
@@ -22,27 +22,9 @@ pub const EXTENT: usize = WINDOW * FACTOR;
 /// Offset (32 m samples) of the output tile inside that region.
 pub const CORE_OFFSET: usize = MARGIN * FACTOR;
 
-/// A DEM at 32 m.
-pub struct Grid {
-    /// Identifier from the manifest.
-    pub id: String,
-    /// Heights (metres) at 32 m.
-    pub hf: Heightfield,
-}
-
-/// Whether a sample fits in `split` of `hf`.
-pub fn fits(hf: &Heightfield, split: Split) -> bool {
-    let (c0, c1) = split_columns(hf.width, split);
-    c1 >= c0 + EXTENT && hf.height >= EXTENT
-}
-
 /// Every DEM at 32 m or finer with room for a sample in both splits, area-averaged to 32 m.
 pub fn grids(dems: &[Dem]) -> Vec<Grid> {
-    dems.iter()
-        .filter(|d| d.hf.spacing_m <= FINE_SPACING_M + 1e-9)
-        .filter_map(|d| d.hf.resample_area(FINE_SPACING_M).ok().map(|hf| Grid { id: d.id.clone(), hf }))
-        .filter(|g| [Split::Train, Split::Validation].iter().all(|&s| fits(&g.hf, s)))
-        .collect()
+    grids_at(dems, FINE_SPACING_M, EXTENT)
 }
 
 /// One example: the network's inputs, the bicubic base of the tile and the true tile.
@@ -62,27 +44,14 @@ fn core(v: &[f32]) -> Vec<f32> {
     (0..OUT_TILE * OUT_TILE).map(|p| v[(CORE_OFFSET + p / OUT_TILE) * n + CORE_OFFSET + p % OUT_TILE]).collect()
 }
 
-/// Cuts an example from a random NaN-free window of `hf` (32 m) in `split` (20 tries).
+/// Cuts an example from a random window of `hf` (32 m) in `split` ([`random_window`]).
 pub fn sample(hf: &Heightfield, split: Split, rng: &mut Rng) -> Option<Sample> {
-    if !fits(hf, split) {
-        return None;
-    }
-    let (c0, c1) = split_columns(hf.width, split);
-    for _ in 0..20 {
-        let x0 = c0 + rng.below(c1 - c0 - EXTENT + 1);
-        let y0 = rng.below(hf.height - EXTENT + 1);
-        let win = hf.window(x0, y0, EXTENT, EXTENT);
-        if win.data.iter().any(|v| !v.is_finite()) {
-            continue;
-        }
-        let fine = Heightfield::new(EXTENT, EXTENT, FINE_SPACING_M, dihedral(&win.data, EXTENT, rng.below(8)));
-        let coarse = fine.downsample2().downsample2().data;
-        let (gx0, gy0) = (rng.below(1 << 20) as i64 - (1 << 19), rng.below(1 << 20) as i64 - (1 << 19));
-        let x = assemble(&coarse, rng.next_u64(), gx0, gy0);
-        let b = core(&base(&coarse));
-        return Some(Sample { coarse, x, base: b, truth: core(&fine.data) });
-    }
-    None
+    let fine = Heightfield::new(EXTENT, EXTENT, FINE_SPACING_M, random_window(hf, split, EXTENT, rng)?);
+    let coarse = fine.downsample2().downsample2().data;
+    let (gx0, gy0) = (rng.below(1 << 20) as i64 - (1 << 19), rng.below(1 << 20) as i64 - (1 << 19));
+    let x = assemble(&coarse, rng.next_u64(), gx0, gy0);
+    let b = core(&base(&coarse));
+    Some(Sample { coarse, x, base: b, truth: core(&fine.data) })
 }
 
 /// A run of the ×4 network in progress.

@@ -133,48 +133,76 @@ pub fn chain_extent(levels: usize) -> usize {
 
 /// Whether grid `w` has room for a chain of `levels` in `split`.
 pub fn fits(w: &Heightfield, split: Split, levels: usize) -> bool {
-    let (c0, c1) = split_columns(w.width, split);
-    let extent = chain_extent(levels);
-    c1 >= c0 + extent && w.height >= extent
+    fits_square(w, split, chain_extent(levels))
+}
+
+/// Whether a `side`² window fits in `split` of `hf`.
+pub fn fits_square(hf: &Heightfield, split: Split, side: usize) -> bool {
+    let (c0, c1) = split_columns(hf.width, split);
+    c1 >= c0 + side && hf.height >= side
+}
+
+/// A random `side`² window of `hf` in `split` without no-data, in one of the 8 rotations/flips
+/// (row-major heights); `None` if it does not fit or 20 tries found only windows with
+/// no-data.
+pub fn random_window(hf: &Heightfield, split: Split, side: usize, rng: &mut Rng) -> Option<Vec<f32>> {
+    if !fits_square(hf, split, side) {
+        return None;
+    }
+    let (c0, c1) = split_columns(hf.width, split);
+    for _ in 0..20 {
+        let x0 = c0 + rng.below(c1 - c0 - side + 1);
+        let y0 = rng.below(hf.height - side + 1);
+        let win = hf.window(x0, y0, side, side);
+        if win.data.iter().all(|v| v.is_finite()) {
+            return Some(dihedral(&win.data, side, rng.below(8)));
+        }
+    }
+    None
+}
+
+/// A DEM resampled (area average) to a training spacing.
+pub struct Grid {
+    /// Identifier from the manifest.
+    pub id: String,
+    /// Heights (metres) at that spacing.
+    pub hf: Heightfield,
+}
+
+/// Every DEM at `spacing_m` or finer, area-averaged to it (never upsampled), with room for a
+/// `side`² window in both splits.
+pub fn grids_at(dems: &[Dem], spacing_m: f64, side: usize) -> Vec<Grid> {
+    dems.iter()
+        .filter(|d| d.hf.spacing_m <= spacing_m + 1e-9)
+        .filter_map(|d| d.hf.resample_area(spacing_m).ok().map(|hf| Grid { id: d.id.clone(), hf }))
+        .filter(|g| [Split::Train, Split::Validation].iter().all(|&s| fits_square(&g.hf, s, side)))
+        .collect()
 }
 
 /// Cuts a chain sample with quadrant choices `quads` (one per level after the first) from a
 /// random NaN-free window of `w` in `split`; `None` if no such window was found in 20 tries.
 /// Every level's truth is the area mean of the finest grid (never upsampled).
 pub fn chain_sample(w: &Heightfield, split: Split, levels: usize, quads: &[usize], rng: &mut Rng) -> Option<Chain> {
-    if !fits(w, split, levels) {
-        return None;
-    }
     let extent = chain_extent(levels);
-    let (c0, c1) = split_columns(w.width, split);
-    for _ in 0..20 {
-        let x0 = c0 + rng.below(c1 - c0 - extent + 1);
-        let y0 = rng.below(w.height - extent + 1);
-        let win = w.window(x0, y0, extent, extent);
-        if win.data.iter().any(|v| v.is_nan()) {
-            continue;
-        }
-        let finest = Heightfield::new(extent, extent, w.spacing_m, dihedral(&win.data, extent, rng.below(8)));
-        // pyramid[t]: the window at 2^t × the finest spacing.
-        let mut pyramid = vec![finest];
-        for _ in 0..levels {
-            let next = pyramid.last().expect("non-empty").downsample2();
-            pyramid.push(next);
-        }
-        let mut truth = Vec::with_capacity(levels);
-        // Core origin of level j in its own output grid: the input margin, then quadrants.
-        let mut core = (2 * MARGIN, 2 * MARGIN);
-        for j in 0..levels {
-            if j > 0 {
-                let q = quads[j - 1];
-                core = (2 * (core.0 + (q % 2) * QUAD), 2 * (core.1 + (q / 2) * QUAD));
-            }
-            truth.push(pyramid[levels - 1 - j].window(core.0, core.1, PATCH, PATCH).data);
-        }
-        let input = pyramid.pop().expect("coarsest").data;
-        return Some(Chain { input, truth });
+    let finest = Heightfield::new(extent, extent, w.spacing_m, random_window(w, split, extent, rng)?);
+    // pyramid[t]: the window at 2^t × the finest spacing.
+    let mut pyramid = vec![finest];
+    for _ in 0..levels {
+        let next = pyramid.last().expect("non-empty").downsample2();
+        pyramid.push(next);
     }
-    None
+    let mut truth = Vec::with_capacity(levels);
+    // Core origin of level j in its own output grid: the input margin, then quadrants.
+    let mut core = (2 * MARGIN, 2 * MARGIN);
+    for j in 0..levels {
+        if j > 0 {
+            let q = quads[j - 1];
+            core = (2 * (core.0 + (q % 2) * QUAD), 2 * (core.1 + (q / 2) * QUAD));
+        }
+        truth.push(pyramid[levels - 1 - j].window(core.0, core.1, PATCH, PATCH).data);
+    }
+    let input = pyramid.pop().expect("coarsest").data;
+    Some(Chain { input, truth })
 }
 
 /// Working grids per (DEM index, finest spacing), built on first use.

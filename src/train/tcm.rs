@@ -10,7 +10,7 @@ use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::gan::{self, Disc};
-use super::pairs::{Dem, Rng, Split, dihedral, split_columns};
+use super::pairs::{Dem, Grid, Rng, Split, grids_at, random_window};
 use crate::dem::Heightfield;
 use crate::models::tcm::{CONTEXT_PX, COARSE_SPACING_M, HEIGHT_SCALE_M, IN_CHANNELS, TILE_PX, Tcm, assemble_input, centre, phase_mask};
 
@@ -23,21 +23,9 @@ pub const MACRO_JITTER_M: f32 = 15.0;
 /// See [`MACRO_JITTER_M`].
 pub const MACRO_JITTER_FRACTION: f32 = 0.15;
 
-/// A DEM resampled to the TCM's 128 m.
-pub struct Grid {
-    /// Identifier from the manifest.
-    pub id: String,
-    /// Heights (metres) at [`COARSE_SPACING_M`].
-    pub hf: Heightfield,
-}
-
 /// Every DEM with room for a context window in both splits, area-averaged to 128 m.
 pub fn grids(dems: &[Dem]) -> Vec<Grid> {
-    dems.iter()
-        .filter(|d| d.hf.spacing_m <= COARSE_SPACING_M + 1e-9)
-        .filter_map(|d| d.hf.resample_area(COARSE_SPACING_M).ok().map(|hf| Grid { id: d.id.clone(), hf }))
-        .filter(|g| [Split::Train, Split::Validation].iter().all(|&s| fits(&g.hf, s)))
-        .collect()
+    grids_at(dems, COARSE_SPACING_M, CONTEXT_PX)
 }
 
 /// Statistics of real tile means at 128 m (4096 m tiles on a grid from each DEM's corner),
@@ -77,12 +65,6 @@ pub fn tile_mean_stats(grids: &[Grid]) -> (f64, f64, f64) {
     (avg, sd, rms)
 }
 
-/// Whether a context window fits in `split` of `hf`.
-pub fn fits(hf: &Heightfield, split: Split) -> bool {
-    let (c0, c1) = split_columns(hf.width, split);
-    c1 >= c0 + CONTEXT_PX && hf.height >= CONTEXT_PX
-}
-
 /// One training example.
 pub struct Sample {
     /// The network's input ([`IN_CHANNELS`] × 96²).
@@ -94,40 +76,26 @@ pub struct Sample {
     pub phase: usize,
 }
 
-/// Cuts a sample for phase `phase` from a random NaN-free window of `hf` in `split` (20
-/// tries): a random rotation/flip, the macro field from the jittered tile means, noise from
-/// `rng`.
+/// Cuts a sample for phase `phase` from a random window of `hf` in `split`
+/// ([`random_window`]): the macro field from the jittered tile means, noise from `rng`.
 pub fn sample(hf: &Heightfield, split: Split, phase: usize, rng: &mut Rng) -> Option<Sample> {
-    if !fits(hf, split) {
-        return None;
-    }
-    let (c0, c1) = split_columns(hf.width, split);
-    for _ in 0..20 {
-        let x0 = c0 + rng.below(c1 - c0 - CONTEXT_PX + 1);
-        let y0 = rng.below(hf.height - CONTEXT_PX + 1);
-        let win = hf.window(x0, y0, CONTEXT_PX, CONTEXT_PX);
-        if win.data.iter().any(|v| !v.is_finite()) {
-            continue;
-        }
-        let h = dihedral(&win.data, CONTEXT_PX, rng.below(8));
-        let tiles: Vec<Vec<f32>> = (0..9)
-            .map(|t| {
-                let (ti, tj) = (t % 3, t / 3);
-                (0..TILE_PX * TILE_PX).map(|p| h[(tj * TILE_PX + p / TILE_PX) * CONTEXT_PX + ti * TILE_PX + p % TILE_PX]).collect()
-            })
-            .collect();
-        let means: Vec<f32> = tiles.iter().map(|t| t.iter().sum::<f32>() / t.len() as f32).collect();
-        let avg = means.iter().sum::<f32>() / 9.0;
-        let spread = (means.iter().map(|m| (m - avg).powi(2)).sum::<f32>() / 9.0).sqrt();
-        let jitter = MACRO_JITTER_M + MACRO_JITTER_FRACTION * spread;
-        let centres: [f32; 9] = std::array::from_fn(|t| means[t] + jitter * crate::models::tcm::gauss(rng.next_u64()));
-        let mask = phase_mask(phase);
-        let given: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tiles[t].as_slice()));
-        let input = assemble_input(&given, &centres, rng.next_u64());
-        let real = h.iter().map(|v| (v - centres[4]) / HEIGHT_SCALE_M).collect();
-        return Some(Sample { input, real, phase });
-    }
-    None
+    let h = random_window(hf, split, CONTEXT_PX, rng)?;
+    let tiles: Vec<Vec<f32>> = (0..9)
+        .map(|t| {
+            let (ti, tj) = (t % 3, t / 3);
+            (0..TILE_PX * TILE_PX).map(|p| h[(tj * TILE_PX + p / TILE_PX) * CONTEXT_PX + ti * TILE_PX + p % TILE_PX]).collect()
+        })
+        .collect();
+    let means: Vec<f32> = tiles.iter().map(|t| t.iter().sum::<f32>() / t.len() as f32).collect();
+    let avg = means.iter().sum::<f32>() / 9.0;
+    let spread = (means.iter().map(|m| (m - avg).powi(2)).sum::<f32>() / 9.0).sqrt();
+    let jitter = MACRO_JITTER_M + MACRO_JITTER_FRACTION * spread;
+    let centres: [f32; 9] = std::array::from_fn(|t| means[t] + jitter * crate::models::tcm::gauss(rng.next_u64()));
+    let mask = phase_mask(phase);
+    let given: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tiles[t].as_slice()));
+    let input = assemble_input(&given, &centres, rng.next_u64());
+    let real = h.iter().map(|v| (v - centres[4]) / HEIGHT_SCALE_M).collect();
+    Some(Sample { input, real, phase })
 }
 
 /// Settings of a TCM training run.
