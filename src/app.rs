@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
+use crate::jobs::{Job, JobQueue, JobStats, Outcome};
 use crate::render::camera::{Camera, CameraController, ControlInput};
 use crate::render::gpu::{FrameParams, sun_direction};
 use crate::share::ShareState;
@@ -14,7 +15,7 @@ use crate::models::tem::LEVELS;
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
 use crate::world::refine::{INPUT_SIDE, PatchKey, PatchStore, RefineJob};
 use crate::world::schedule::{mix64, tile_seed};
-use crate::world::{ProceduralSource, TILE_SIZE_M, WorldStream};
+use crate::world::{ProceduralSource, SourceKind, TILE_SAMPLES, TILE_SIZE_M, Tile, TileCoord, WorldStream};
 
 /// Milliseconds per frame that tile generation may use at least before it waits for the next
 /// frame. When frames are slow for other reasons (a busy GPU), the budget grows to a quarter of
@@ -26,6 +27,10 @@ pub const TILE_BUDGET_MS: f64 = 4.0;
 /// the budget (~7 ms) and the node builds (≤ 15 ms measured), a frame's own work stays under
 /// the page's 50 ms main-thread goal (at 40 ms the worst frame's tiles took 52 ms).
 pub const TILE_BUDGET_MAX_MS: f64 = 25.0;
+
+/// Learned-world tiles in flight at most (the worker makes them one after the other; a second
+/// one waiting means it never idles between replies).
+pub const TILE_JOBS_IN_FLIGHT: usize = 2;
 
 /// Quadtree nodes built per frame at most (each is a 35² gather plus a mesh upload).
 pub const NODE_BUILD_BUDGET: usize = 24;
@@ -78,15 +83,37 @@ pub struct AppStats {
     pub world_ms: f64,
     /// Milliseconds the last frame spent selecting and building quadtree nodes.
     pub nodes_ms: f64,
+    /// The world's generator ("learned" or "procedural").
+    pub source: String,
+    /// The learned world's tile jobs (started, done, failed, stale, in flight).
+    pub tile_jobs: JobStats,
     /// Order-independent hash (hex) of the contents and coordinates of the tiles drawn: equal
     /// on two pages exactly when they show bit-identical tiles.
     pub view_checksum: String,
+}
+
+/// Where the learned world's models are.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum LearnedStatus {
+    /// Their weights are loading: a learned world waits (no tiles yet).
+    Loading,
+    /// Ready; tiles are made by whoever takes [`TerrainApp::tile_jobs`]. The hash names the
+    /// weights (share links carry it).
+    Ready {
+        /// Short hash of the weight files.
+        hash: String,
+    },
+    /// They could not be loaded or run (the reason, for the user): the learned world is not
+    /// available and the procedural world stands in.
+    Failed(String),
 }
 
 /// The application state of one page.
 pub struct TerrainApp {
     settings: ShareState,
     world: WorldStream,
+    learned: LearnedStatus,
+    tile_jobs: JobQueue<TileCoord>,
     nodes: NodeCache,
     refine: PatchStore,
     /// Counts the worlds this app has shown: every new world gets a new epoch, and results of
@@ -106,11 +133,17 @@ pub struct TerrainApp {
 
 impl TerrainApp {
     /// An app showing the world and view described by `s`.
+    ///
+    /// A learned world waits for [`set_learned`](Self::set_learned) (its models load
+    /// elsewhere); until then it has no tiles.
     pub fn new(s: ShareState) -> Self {
-        let world = Self::make_world(&s);
+        let learned = LearnedStatus::Loading;
+        let world = Self::make_world(&s, &learned);
         let mut app = Self {
             settings: s.clone(),
             world,
+            learned,
+            tile_jobs: JobQueue::new(TILE_JOBS_IN_FLIGHT),
             nodes: NodeCache::new(),
             refine: PatchStore::new(0, 0),
             epoch: 0,
@@ -126,8 +159,55 @@ impl TerrainApp {
         app
     }
 
-    fn make_world(s: &ShareState) -> WorldStream {
-        WorldStream::new(s.seed, Box::new(ProceduralSource::new(s.noise)), s.radius_tiles)
+    fn make_world(s: &ShareState, learned: &LearnedStatus) -> WorldStream {
+        match (s.source, learned) {
+            (SourceKind::Learned, LearnedStatus::Ready { hash }) => WorldStream::made_elsewhere(s.seed, format!("learned (TCM {hash})"), s.radius_tiles),
+            (SourceKind::Learned, LearnedStatus::Loading) => WorldStream::made_elsewhere(s.seed, "learned (loading its models…)".into(), s.radius_tiles),
+            _ => WorldStream::new(s.seed, Box::new(ProceduralSource::new(s.noise)), s.radius_tiles),
+        }
+    }
+
+    /// The generator the world shown now really uses (the procedural world stands in for a
+    /// learned one whose models failed).
+    pub fn source(&self) -> SourceKind {
+        match (self.settings.source, &self.learned) {
+            (SourceKind::Learned, LearnedStatus::Failed(_)) => SourceKind::Procedural,
+            (k, _) => k,
+        }
+    }
+
+    /// The learned world's models are ready, loading or failed. A new status rebuilds a
+    /// learned world (a failure shows the procedural one). Returns a note for the user when
+    /// the view came from a link made with other weights than `hash` (the world may differ).
+    pub fn set_learned(&mut self, status: LearnedStatus) -> Option<String> {
+        if status == self.learned {
+            return None;
+        }
+        let note = match (&status, &self.settings.weights) {
+            (LearnedStatus::Ready { hash }, Some(linked)) if self.settings.source == SourceKind::Learned && linked != hash => {
+                Some(format!("This link was made with learned-world weights {linked}; this page has {hash}, so the world may differ."))
+            }
+            _ => None,
+        };
+        self.learned = status;
+        if self.settings.source == SourceKind::Learned {
+            self.new_world();
+        }
+        note
+    }
+
+    /// The learned world's status.
+    pub fn learned(&self) -> &LearnedStatus {
+        &self.learned
+    }
+
+    /// Replaces the world with a fresh one for the current settings (new epoch).
+    fn new_world(&mut self) {
+        self.world = Self::make_world(&self.settings, &self.learned);
+        self.nodes = NodeCache::new();
+        self.epoch += 1;
+        self.tile_jobs.new_epoch();
+        self.refine = PatchStore::new(0, self.epoch);
     }
 
     fn set_view(&mut self, s: &ShareState) {
@@ -140,15 +220,12 @@ impl TerrainApp {
     /// Applies settings (and the view) from `s`: a new seed or noise rebuilds the world, a new
     /// radius resizes the cache; camera pose is taken over as is.
     pub fn apply(&mut self, s: ShareState) {
-        let world_changed = s.seed != self.settings.seed || s.noise != self.settings.noise || s.radius_tiles != self.settings.radius_tiles;
-        if world_changed {
-            self.world = Self::make_world(&s);
-            self.nodes = NodeCache::new();
-            self.epoch += 1;
-            self.refine = PatchStore::new(0, self.epoch);
-        }
+        let world_changed = s.seed != self.settings.seed || s.source != self.settings.source || s.noise != self.settings.noise || s.radius_tiles != self.settings.radius_tiles;
         self.set_view(&s);
         self.settings = s;
+        if world_changed {
+            self.new_world();
+        }
     }
 
     /// Applies settings from `s` but keeps the current camera pose (for the settings panel).
@@ -161,8 +238,46 @@ impl TerrainApp {
     }
 
     /// The current world, view and settings, as a share link carries them.
+    /// It names the generator really used and, for the learned world, its weights.
     pub fn share_state(&self) -> ShareState {
-        ShareState { position_m: self.camera.position_m.to_array(), yaw: self.camera.yaw, pitch: self.camera.pitch, ..self.settings.clone() }
+        let source = self.source();
+        let weights = match (&self.learned, source) {
+            (LearnedStatus::Ready { hash }, SourceKind::Learned) => Some(hash.clone()),
+            (_, SourceKind::Learned) => self.settings.weights.clone(),
+            _ => None,
+        };
+        ShareState { position_m: self.camera.position_m.to_array(), yaw: self.camera.yaw, pitch: self.camera.pitch, source, weights, link_version: crate::share::LINK_VERSION, ..self.settings.clone() }
+    }
+
+    /// The learned-world tiles to make now (nearest missing first, within
+    /// [`TILE_JOBS_IN_FLIGHT`]): each must come back through [`tile_done`](Self::tile_done)
+    /// or [`tile_failed`](Self::tile_failed). Empty unless the world is learned and its models
+    /// are ready.
+    pub fn tile_jobs(&mut self) -> Vec<Job<TileCoord>> {
+        if self.source() != SourceKind::Learned || !matches!(self.learned, LearnedStatus::Ready { .. }) {
+            return Vec::new();
+        }
+        let eye = self.camera.position_m;
+        self.tile_jobs.start(self.world.missing(eye.x, eye.z))
+    }
+
+    /// A learned tile came back: `heights` (metres, [`TILE_SAMPLES`]² row-major) made in `ms`
+    /// milliseconds. Kept if it belongs to the world shown now; returns whether it was.
+    pub fn tile_done(&mut self, job: &Job<TileCoord>, heights: Vec<f32>, ms: f64) -> bool {
+        if heights.len() != TILE_SAMPLES * TILE_SAMPLES || heights.iter().any(|h| !h.is_finite()) {
+            self.tile_jobs.fail(job);
+            return false;
+        }
+        if self.tile_jobs.finish(job) == Outcome::Stale {
+            return false;
+        }
+        self.world.insert(Tile::new(job.key, heights), ms);
+        true
+    }
+
+    /// A learned tile could not be made: it may be asked for again.
+    pub fn tile_failed(&mut self, job: &Job<TileCoord>) {
+        self.tile_jobs.fail(job);
     }
 
     /// The settings in force (the camera pose in it is the one last applied).
@@ -248,6 +363,8 @@ impl TerrainApp {
         self.stats.ms_per_quad = rs.ms_per_quad();
         self.stats.patches_cached = rs.cached;
         self.stats.refine_backend = self.refine_backend.clone().unwrap_or_default();
+        self.stats.source = self.source().label().into();
+        self.stats.tile_jobs = self.tile_jobs.stats();
         self.stats.eye_m = eye.to_array();
         let sum = tiles.iter().filter_map(|&c| self.world.get(c)).fold(0u64, |acc, t| acc.wrapping_add(mix64(t.checksum ^ tile_seed(0, t.coord))));
         self.stats.view_checksum = format!("{sum:016x}");
@@ -261,7 +378,10 @@ impl TerrainApp {
             fog_start_m: far * 0.35,
             fog_end_m: far,
             water_level_m: 0.0,
-            amplitude_m: (n.amplitude_m + n.base_m).max(100.0),
+            amplitude_m: match self.source() {
+                SourceKind::Learned => (crate::world::learned::MACRO_BASE_M + crate::world::learned::MACRO_AMPLITUDE_M) as f32,
+                SourceKind::Procedural => (n.amplitude_m + n.base_m).max(100.0),
+            },
             show_lod: self.show_lod,
             time_s: self.time_s as f32,
         };
@@ -353,9 +473,15 @@ impl TerrainApp {
 mod tests {
     use super::*;
 
+    /// Settings of a procedural world of `radius` tiles (the tests below stream it here, on
+    /// this thread).
+    fn procedural(radius_tiles: f64) -> ShareState {
+        ShareState { radius_tiles, source: SourceKind::Procedural, ..ShareState::default() }
+    }
+
     #[test]
     fn frames_stream_tiles_and_select_nodes() {
-        let mut app = TerrainApp::new(ShareState { radius_tiles: 2.0, ..ShareState::default() });
+        let mut app = TerrainApp::new(procedural(2.0));
         let mut drawn = 0;
         for _ in 0..200 {
             let (nodes, p) = app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
@@ -375,7 +501,7 @@ mod tests {
 
     #[test]
     fn autopilot_flies_and_reaches_new_tiles() {
-        let mut app = TerrainApp::new(ShareState { radius_tiles: 2.0, autopilot_mps: 2000.0, ..ShareState::default() });
+        let mut app = TerrainApp::new(ShareState { autopilot_mps: 2000.0, ..procedural(2.0) });
         let start = app.camera.position_m;
         for _ in 0..300 {
             app.frame(&ControlInput::default(), 1.0 / 30.0, [640, 480]);
@@ -391,7 +517,7 @@ mod tests {
     #[test]
     fn refinement_draws_nodes_below_the_base_depth() {
         let tem = crate::models::tem::TemSet::untrained(&crate::models::tem::Exec::cpu());
-        let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, ..ShareState::default() });
+        let mut app = TerrainApp::new(procedural(1.0));
         app.set_refinement(Some("CPU".into()));
         for _ in 0..60 {
             app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
@@ -418,7 +544,7 @@ mod tests {
     /// An app with refinement on, low above rough ground looking down, after enough frames
     /// that the quadtree asks for refined patches.
     fn low_refining_app() -> TerrainApp {
-        let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, ..ShareState::default() });
+        let mut app = TerrainApp::new(procedural(1.0));
         app.set_refinement(Some("CPU".into()));
         for _ in 0..60 {
             app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
@@ -495,11 +621,88 @@ mod tests {
 
     #[test]
     fn share_state_reproduces_the_view() {
-        let mut a = TerrainApp::new(ShareState::default());
+        let mut a = TerrainApp::new(procedural(4.0));
         a.frame(&ControlInput { look_px: glam::Vec2::new(40.0, 10.0), movement: glam::Vec3::Z, ..Default::default() }, 0.1, [320, 200]);
         let link = a.share_state().to_fragment();
         let b = TerrainApp::new(ShareState::from_fragment(&link).unwrap());
         assert_eq!(a.camera.position_m, b.camera.position_m);
         assert_eq!((a.camera.yaw, a.camera.pitch), (b.camera.yaw, b.camera.pitch));
+    }
+
+    /// Heights standing in for a learned tile: a plane through the tile's corner, so tiles
+    /// differ by coordinate.
+    fn fake_tile(c: TileCoord) -> Vec<f32> {
+        (0..TILE_SAMPLES * TILE_SAMPLES).map(|p| (c.i * 7 + c.j * 3) as f32 + (p % TILE_SAMPLES) as f32 * 0.01).collect()
+    }
+
+    /// The learned world asks for nothing while its models load, then for at most
+    /// TILE_JOBS_IN_FLIGHT tiles at a time, nearest first; tiles handed back fill the world
+    /// until nothing is pending; a tile made for the previous world (seed changed while it
+    /// ran) is dropped and counted stale, and bad heights are refused.
+    #[test]
+    fn learned_tiles_arrive_as_jobs_and_stale_ones_are_dropped() {
+        let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, ..ShareState::default() });
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        assert_eq!(app.source(), SourceKind::Learned);
+        assert!(app.tile_jobs().is_empty(), "no jobs while the models load");
+        assert!(app.stats().tiles_pending > 0 && app.stats().tiles_generated == 0);
+        assert_eq!(app.set_learned(LearnedStatus::Ready { hash: "abc".into() }), None);
+        let eye = app.camera.position_m;
+        let mut made = 0;
+        for _ in 0..200 {
+            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+            let jobs = app.tile_jobs();
+            assert!(jobs.len() <= TILE_JOBS_IN_FLIGHT);
+            if made == 0 {
+                assert_eq!(jobs[0].key, TileCoord::containing(eye.x, eye.z), "the tile under the camera comes first");
+            }
+            for j in &jobs {
+                assert!(app.tile_done(j, fake_tile(j.key), 5.0));
+                made += 1;
+            }
+            if jobs.is_empty() {
+                break;
+            }
+        }
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        let s = app.stats().clone();
+        assert_eq!((s.tiles_pending, s.tiles_generated, s.tile_jobs.done), (0, made, made), "{s:?}");
+        assert!(s.nodes_drawn > 0 && s.source == "learned" && (s.ms_per_tile - 5.0).abs() < 1e-9);
+        assert_eq!(app.share_state().weights.as_deref(), Some("abc"));
+        // A tile in flight when the seed changes belongs to the old world.
+        app.camera.position_m.x += 3.0 * TILE_SIZE_M;
+        let old = app.tile_jobs();
+        assert!(!old.is_empty());
+        app.apply_settings(ShareState { seed: 99, ..app.settings().clone() });
+        assert!(!app.tile_done(&old[0], fake_tile(old[0].key), 5.0), "stale tile landed");
+        assert_eq!(app.stats().tile_jobs.stale + app.tile_jobs.stats().stale, 1);
+        let new = app.tile_jobs();
+        assert!(!app.tile_done(&new[0], vec![f32::NAN; TILE_SAMPLES * TILE_SAMPLES], 5.0), "NaN heights refused");
+        assert!(!app.tile_done(&new[1], vec![0.0; 3], 5.0), "a short tile refused");
+        assert_eq!(app.tile_jobs.stats().failed, 2);
+        assert!(!app.world.contains(new[0].key) && !app.world.contains(old[0].key));
+    }
+
+    /// Models that fail leave the procedural world in place of the learned one: it streams,
+    /// and the share link names it; a link made with other weights gets a note once the
+    /// models are ready.
+    #[test]
+    fn failed_models_fall_back_to_the_procedural_world() {
+        let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, ..ShareState::default() });
+        app.set_learned(LearnedStatus::Failed("tcm_128m.bpk: HTTP 404".into()));
+        for _ in 0..30 {
+            app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        }
+        assert_eq!(app.source(), SourceKind::Procedural);
+        assert!(app.tile_jobs().is_empty());
+        let s = app.stats();
+        assert!(s.tiles_generated > 0 && s.source == "procedural", "{s:?}");
+        let link = app.share_state();
+        assert_eq!((link.source, link.weights), (SourceKind::Procedural, None));
+        let mut linked = TerrainApp::new(ShareState { weights: Some("0ld".into()), ..ShareState::default() });
+        let note = linked.set_learned(LearnedStatus::Ready { hash: "new".into() }).expect("a note");
+        assert!(note.contains("0ld") && note.contains("new"), "{note}");
+        let mut same = TerrainApp::new(ShareState { weights: Some("new".into()), ..ShareState::default() });
+        assert_eq!(same.set_learned(LearnedStatus::Ready { hash: "new".into() }), None);
     }
 }

@@ -1,21 +1,36 @@
 //! Share links: the URL fragment that holds the seed, the camera pose and the settings, so the
 //! receiver sees the same world from the same place, bit for bit.
 //!
-//! Format (version 1): `#v=1&seed=S&cam=X,Y,Z,YAW,PITCH&r=R&lod=PX&noise=KIND,OCT,PERS,LAC,WAVE,AMP,BASE&auto=V`
+//! Format (version 2): `#v=2&seed=S&src=SOURCE&w=HASH&cam=X,Y,Z,YAW,PITCH&r=R&lod=PX&noise=KIND,OCT,PERS,LAC,WAVE,AMP,BASE&auto=V`
 //! with metres for positions, radians for angles, tiles for R, pixels for PX and m/s for V.
-//! Unknown keys are ignored so older pages can open newer links. Keys and values are
+//! SOURCE is `tcm` (the learned world) or `procedural`; HASH names the learned world's weights
+//! (absent for the procedural world). Version-1 links (no `src`, no `w`) were made when the
+//! world was procedural: they open the procedural world, and the page says the world may
+//! differ. Unknown keys are ignored so older pages can open newer links. Keys and values are
 //! percent-decoded (`application/x-www-form-urlencoded`, as browsers encode them).
 //!
 //! The page's query string (`?tem=gpu|cpu|off`) holds options of this page load, not of the
 //! world: [`PageOptions`].
 
-use crate::world::{NoiseKind, NoiseParams};
+use crate::world::{NoiseKind, NoiseParams, SourceKind};
+
+/// The link version this page writes.
+pub const LINK_VERSION: u32 = 2;
+/// Longest weights hash a link may carry (hex digits).
+const MAX_HASH_DIGITS: usize = 16;
 
 /// Everything a link carries.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShareState {
     /// World seed.
     pub seed: u64,
+    /// Which generator makes the tiles.
+    pub source: SourceKind,
+    /// Hash of the learned world's weights (hex) the link was made with; `None` for the
+    /// procedural world or when not known yet.
+    pub weights: Option<String>,
+    /// Version of the link this state was read from ([`LINK_VERSION`] for states made here).
+    pub link_version: u32,
     /// Camera position (world metres: x east, y up, z south).
     pub position_m: [f64; 3],
     /// Camera heading (radians; 0 looks towards −z, positive turns towards +x).
@@ -36,6 +51,9 @@ impl Default for ShareState {
     fn default() -> Self {
         Self {
             seed: 1,
+            source: SourceKind::default(),
+            weights: None,
+            link_version: LINK_VERSION,
             position_m: [2048.0, 2900.0, 2048.0],
             yaw: 0.6,
             pitch: -0.3,
@@ -81,9 +99,15 @@ impl ShareState {
             NoiseKind::Ridged => "ridged",
         };
         let [x, y, z] = self.position_m;
+        let weights = match (self.source, &self.weights) {
+            (SourceKind::Learned, Some(h)) => format!("&w={h}"),
+            _ => String::new(),
+        };
         format!(
-            "v=1&seed={}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}",
-            self.seed, self.yaw, self.pitch, self.radius_tiles, self.lod_px, n.octaves, n.persistence, n.lacunarity, n.wavelength_m, n.amplitude_m, n.base_m, self.autopilot_mps
+            "v={LINK_VERSION}&seed={}&src={}{weights}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}",
+            self.seed,
+            self.source.key(),
+            self.yaw, self.pitch, self.radius_tiles, self.lod_px, n.octaves, n.persistence, n.lacunarity, n.wavelength_m, n.amplitude_m, n.base_m, self.autopilot_mps
         )
     }
 
@@ -101,8 +125,24 @@ impl ShareState {
         for (key, value) in form_urlencoded::parse(f.as_bytes()) {
             let (key, value) = (key.as_ref(), value.as_ref());
             match key {
-                "v" if value != "1" => return Err(ShareError(format!("unknown link version '{value}'"))),
-                "v" => {}
+                "v" => {
+                    s.link_version = match value {
+                        "1" => 1,
+                        "2" => 2,
+                        _ => return Err(ShareError(format!("unknown link version '{value}'"))),
+                    };
+                    if s.link_version == 1 {
+                        // Version 1 knew only the procedural world.
+                        s.source = SourceKind::Procedural;
+                    }
+                }
+                "src" => s.source = SourceKind::from_key(value).ok_or_else(|| ShareError(format!("unknown world source '{value}' (expected tcm or procedural)")))?,
+                "w" => {
+                    if value.is_empty() || value.len() > MAX_HASH_DIGITS || !value.bytes().all(|b| b.is_ascii_hexdigit()) {
+                        return Err(ShareError(format!("weights hash '{value}' is not 1..{MAX_HASH_DIGITS} hex digits")));
+                    }
+                    s.weights = Some(value.to_ascii_lowercase());
+                }
                 "seed" => s.seed = value.parse().map_err(|_| ShareError(format!("seed '{value}' is not a whole number")))?,
                 "cam" => {
                     let [x, y, z, yaw, pitch] = numbers::<5>(key, value)?;
@@ -214,6 +254,9 @@ mod tests {
     fn round_trip_is_exact() {
         let s = ShareState {
             seed: 18_446_744_073_709_551_615,
+            source: SourceKind::Learned,
+            weights: Some("0123abcd".into()),
+            link_version: LINK_VERSION,
             position_m: [-123_456.789_012_345, 1234.5, 0.1 + 0.2],
             yaw: -2.123_456_7,
             pitch: 0.333_333_34,
@@ -225,6 +268,21 @@ mod tests {
         let back = ShareState::from_fragment(&format!("#{}", s.to_fragment())).unwrap();
         assert_eq!(back, s);
         assert_eq!(back.position_m[2].to_bits(), (0.1f64 + 0.2).to_bits());
+        let procedural = ShareState { source: SourceKind::Procedural, weights: None, ..s };
+        let link = procedural.to_fragment();
+        assert!(link.starts_with("v=2&") && link.contains("&src=procedural&") && !link.contains("&w="), "{link}");
+        assert_eq!(ShareState::from_fragment(&link).unwrap(), procedural);
+    }
+
+    /// A version-1 link (made when the world was procedural) opens the procedural world with
+    /// its view, and says it is version 1; a version-2 link names its source and weights.
+    #[test]
+    fn version_1_links_open_the_procedural_world() {
+        let v1 = ShareState::from_fragment("v=1&seed=42&cam=100,2000,300,0.5,-0.2&r=3").unwrap();
+        assert_eq!((v1.link_version, v1.source, v1.seed, v1.position_m, v1.weights.as_deref()), (1, SourceKind::Procedural, 42, [100.0, 2000.0, 300.0], None));
+        let v2 = ShareState::from_fragment("v=2&seed=42&src=tcm&w=00FF12").unwrap();
+        assert_eq!((v2.link_version, v2.source, v2.weights.as_deref()), (2, SourceKind::Learned, Some("00ff12")));
+        assert_eq!(ShareState::default().source, SourceKind::Learned, "a page without a link starts on the learned world");
     }
 
     #[test]
@@ -248,7 +306,12 @@ mod tests {
             "noise=fbm,0,0.5,2,20000,2400,0",
             "noise=fbm,8,0.5,2",
             "noise=fbm,2.5,0.5,2,20000,2400,0",
-            "v=2&seed=1",
+            "v=3&seed=1",
+            "src=fractal",
+            "src=",
+            "w=",
+            "w=xyz",
+            "w=0123456789abcdef0",
             "justtext",
             "auto=inf",
             "%%%&&==",

@@ -35,26 +35,45 @@ impl Disc {
         }
         self.head.forward(h)
     }
+
+    /// The logits that judge `region`: those whose 8 px cell lies inside the square
+    /// `region = (first px, size px)` of the window (all of them for `None`). A window whose
+    /// real border surrounds a generated centre is judged on the centre only: the border's
+    /// logits see the same pixels for real and fake and would only teach "0.5".
+    fn judge(&self, x: Tensor<4>, region: Option<(usize, usize)>) -> Tensor<4> {
+        let logits = self.forward(x);
+        match region {
+            None => logits,
+            Some((first, size)) => {
+                let (a, n) = (first / DISC_STRIDE, size.div_ceil(DISC_STRIDE).max(1));
+                logits.narrow(2, a, n).narrow(3, a, n)
+            }
+        }
+    }
 }
+
+/// Pixels per discriminator logit (three stride-2 convolutions).
+pub const DISC_STRIDE: usize = 8;
 
 /// Adam with β = (0.5, 0.999), as pix2pix trains both networks.
 pub fn adam() -> ModuleOptimizer {
     AdamConfig::new().with_beta_1(0.5).with_beta_2(0.999).init()
 }
 
-/// One discriminator step (least squares: real → 1, fake → 0) at learning rate `lr`; returns
-/// its loss. `fake` must be detached from the generator.
-pub fn disc_step(d: &mut Disc, opt: &mut ModuleOptimizer, lr: f64, real: Tensor<4>, fake: Tensor<4>) -> f64 {
-    let loss = ((d.forward(real) - 1.0).powf_scalar(2.0).mean() + d.forward(fake).powf_scalar(2.0).mean()) * 0.5;
+/// One discriminator step (least squares: real → 1, fake → 0) at learning rate `lr`, judged on
+/// `region` (see [`Disc`]); returns its loss. `fake` must be detached from the generator.
+pub fn disc_step(d: &mut Disc, opt: &mut ModuleOptimizer, lr: f64, real: Tensor<4>, fake: Tensor<4>, region: Option<(usize, usize)>) -> f64 {
+    let loss = ((d.judge(real, region) - 1.0).powf_scalar(2.0).mean() + d.judge(fake, region).powf_scalar(2.0).mean()) * 0.5;
     let value = loss.clone().into_scalar::<f32>() as f64;
     let gp = GradientsParams::from_grads(loss.backward(), d);
     *d = opt.step(lr, d.clone(), gp);
     value
 }
 
-/// The generator's least-squares adversarial term for its outputs `fake` (fake → 1).
-pub fn gen_adversarial(d: &Disc, fake: Tensor<4>) -> Tensor<1> {
-    (d.forward(fake) - 1.0).powf_scalar(2.0).mean()
+/// The generator's least-squares adversarial term for its outputs `fake` (fake → 1), judged on
+/// `region`.
+pub fn gen_adversarial(d: &Disc, fake: Tensor<4>, region: Option<(usize, usize)>) -> Tensor<1> {
+    (d.judge(fake, region) - 1.0).powf_scalar(2.0).mean()
 }
 
 /// Saves a run's checkpoint in `dir`: the generator as `gen_file`, and `{prefix}_disc.bpk`,

@@ -15,6 +15,11 @@ use super::tcm::{L1_WEIGHT, TcmProgress};
 use crate::dem::Heightfield;
 use crate::models::grow::{FACTOR, Grow, HEIGHT_SCALE_M, MARGIN, OUT_TILE, WINDOW, assemble, base};
 
+/// The discriminator sees the residual (the detail the ×4 step adds to the bicubic base, a few
+/// metres, ~0.03 in [`HEIGHT_SCALE_M`] units) times this gain beside the base: on the heights
+/// themselves the detail was too small a part of the signal for it to learn anything (its loss
+/// sat at the uninformed 0.25).
+pub const DISC_RESIDUAL_GAIN: f32 = 20.0;
 /// Spacing (metres) of the training targets: the world's.
 pub const FINE_SPACING_M: f64 = 32.0;
 /// Side (32 m samples) of the region one sample reads.
@@ -126,15 +131,15 @@ impl GrowRun {
         let mut disc_v = 0.0;
         let mut adv_v = 0.0;
         if self.adversarial > 0.0 {
-            let real_in = Tensor::cat(vec![target.clone() + cond.clone(), cond.clone()], 1);
-            let fake_in = Tensor::cat(vec![fake.clone().detach() + cond.clone(), cond.clone()], 1);
-            disc_v = gan::disc_step(&mut self.d, &mut self.od, self.lr * 0.5, real_in, fake_in);
+            let real_in = Tensor::cat(vec![target.clone() * DISC_RESIDUAL_GAIN, cond.clone()], 1);
+            let fake_in = Tensor::cat(vec![fake.clone().detach() * DISC_RESIDUAL_GAIN, cond.clone()], 1);
+            disc_v = gan::disc_step(&mut self.d, &mut self.od, self.lr * 0.5, real_in, fake_in, None);
         }
         let l1 = (fake.clone() - target).abs().mean();
         let l1_v = l1.clone().into_scalar::<f32>() as f64;
         let mut loss = l1 * L1_WEIGHT;
         if self.adversarial > 0.0 {
-            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![fake + cond.clone(), cond], 1));
+            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![fake * DISC_RESIDUAL_GAIN, cond], 1), None);
             adv_v = adv.clone().into_scalar::<f32>() as f64;
             loss = loss + adv * self.adversarial;
         }

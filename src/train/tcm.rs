@@ -16,6 +16,8 @@ use crate::models::tcm::{CONTEXT_PX, COARSE_SPACING_M, HEIGHT_SCALE_M, IN_CHANNE
 
 /// Weight of the L1 term against the adversarial term.
 pub const L1_WEIGHT: f32 = 10.0;
+/// The part of a context window the discriminator judges: the centre tile (first px, size px).
+const CENTRE: Option<(usize, usize)> = Some((TILE_PX, TILE_PX));
 /// The macro field's tile-centre values in training are the true tile means plus noise of
 /// this standard deviation (metres) plus this fraction of the nine means' spread: at inference
 /// the field is procedural, so the network must treat it as a hint, not as the answer.
@@ -227,13 +229,13 @@ impl TcmRun {
         if adv_w > 0.0 {
             let real_in = Tensor::cat(vec![real.clone(), macro_ch.clone()], 1);
             let fake_in = Tensor::cat(vec![with_centre(real.clone(), fake.clone().detach()), macro_ch.clone()], 1);
-            disc_v = gan::disc_step(&mut self.d, &mut self.od, self.cfg.lr * 0.5, real_in, fake_in);
+            disc_v = gan::disc_step(&mut self.d, &mut self.od, self.cfg.lr * 0.5, real_in, fake_in, CENTRE);
         }
         let l1 = (fake.clone() - truth).abs().mean();
         let l1_v = l1.clone().into_scalar::<f32>() as f64;
         let mut loss = l1 * L1_WEIGHT;
         if adv_w > 0.0 {
-            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![with_centre(real, fake), macro_ch], 1));
+            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![with_centre(real, fake), macro_ch], 1), CENTRE);
             adv_v = adv.clone().into_scalar::<f32>() as f64;
             loss = loss + adv * adv_w;
         }

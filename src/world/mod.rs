@@ -18,4 +18,4 @@ pub use noise::{NoiseKind, NoiseParams, ProceduralSource};
 pub use quadtree::{LodView, NodeCache, NodeData, NodeId};
 pub use refine::{PatchKey, PatchStore, RefineJob, RefineStats};
 pub use stream::{StreamStats, WorldStream};
-pub use tile::{Neighbourhood, Tile, TileSource};
+pub use tile::{Neighbourhood, SourceKind, Tile, TileSource};

@@ -32,10 +32,19 @@ impl StreamStats {
     }
 }
 
+/// Who makes a world's tiles.
+enum Maker {
+    /// A source called here, within the frame's budget.
+    Here(Box<dyn TileSource>),
+    /// Someone else (the page's inference worker): tiles arrive through
+    /// [`WorldStream::insert`]; the string is the source's display name.
+    Elsewhere(String),
+}
+
 /// The tiles of one world (seed + source) around a moving point, generated on demand.
 pub struct WorldStream {
     seed: u64,
-    source: Box<dyn TileSource>,
+    source: Maker,
     tiles: HashMap<TileCoord, Arc<Tile>>,
     radius_tiles: f64,
     capacity: usize,
@@ -46,6 +55,17 @@ impl WorldStream {
     /// A world of `seed` made by `source`, keeping tiles within `radius_tiles` of the camera
     /// (tile units, ≥ 1) ready to draw.
     pub fn new(seed: u64, source: Box<dyn TileSource>, radius_tiles: f64) -> Self {
+        Self::with_maker(seed, Maker::Here(source), radius_tiles)
+    }
+
+    /// A world of `seed` whose tiles are made elsewhere (asynchronously) and handed in with
+    /// [`insert`](Self::insert); `name` is the source's display name. [`update`](Self::update)
+    /// then only counts the missing tiles and evicts.
+    pub fn made_elsewhere(seed: u64, name: String, radius_tiles: f64) -> Self {
+        Self::with_maker(seed, Maker::Elsewhere(name), radius_tiles)
+    }
+
+    fn with_maker(seed: u64, source: Maker, radius_tiles: f64) -> Self {
         let radius_tiles = radius_tiles.clamp(1.0, 32.0);
         Self { seed, source, tiles: HashMap::new(), radius_tiles, capacity: capacity_for(radius_tiles), stats: StreamStats::default() }
     }
@@ -57,7 +77,10 @@ impl WorldStream {
 
     /// The source's display name.
     pub fn source_name(&self) -> String {
-        self.source.name()
+        match &self.source {
+            Maker::Here(s) => s.name(),
+            Maker::Elsewhere(name) => name.clone(),
+        }
     }
 
     /// Radius (tile units) within which tiles are kept ready to draw.
@@ -127,7 +150,8 @@ impl WorldStream {
         let start = Instant::now();
         let wanted = self.wanted(x_m, z_m);
         let mut made = Vec::new();
-        for &c in &wanted {
+        let here = matches!(self.source, Maker::Here(_));
+        for &c in wanted.iter().filter(|_| here) {
             if self.tiles.contains_key(&c) {
                 continue;
             }
@@ -142,8 +166,26 @@ impl WorldStream {
         made
     }
 
+    /// Wanted tiles around (x, z) metres that are not cached, nearest first: what to ask of a
+    /// source that works elsewhere.
+    pub fn missing(&self, x_m: f64, z_m: f64) -> Vec<TileCoord> {
+        self.wanted(x_m, z_m).into_iter().filter(|c| !self.tiles.contains_key(c)).collect()
+    }
+
+    /// Takes a tile made elsewhere in `ms` milliseconds (it replaces a cached one of the same
+    /// coordinate). The caller makes sure it belongs to this world (see [`crate::jobs`]).
+    pub fn insert(&mut self, tile: Tile, ms: f64) {
+        self.stats.generate_ms += ms;
+        self.stats.generated += 1;
+        self.tiles.insert(tile.coord, Arc::new(tile));
+        self.stats.cached = self.tiles.len();
+    }
+
     /// Returns tile `c`, generating it and (for sources that read neighbours) the tiles the
     /// schedule makes it depend on. The result depends only on (seed, source, c).
+    ///
+    /// # Panics
+    /// For a world whose tiles are made elsewhere, if `c` is not cached.
     pub fn ensure(&mut self, c: TileCoord) -> Arc<Tile> {
         let mut made = Vec::new();
         self.ensure_into(c, &mut made)
@@ -153,8 +195,9 @@ impl WorldStream {
         if let Some(t) = self.tiles.get(&c) {
             return t.clone();
         }
+        let Maker::Here(source) = &self.source else { panic!("tile {c:?} is made elsewhere and has not arrived") };
         let mut inputs: [Option<Arc<Tile>>; 9] = Default::default();
-        if self.source.uses_neighbours() {
+        if source.uses_neighbours() {
             for d in dependencies(c) {
                 let k = ((d.j - c.j + 1) * 3 + (d.i - c.i + 1)) as usize;
                 inputs[k] = Some(self.ensure_into(d, made));
@@ -165,7 +208,8 @@ impl WorldStream {
             *slot = t.as_deref();
         }
         let t0 = Instant::now();
-        let tile = Arc::new(self.source.generate(self.seed, c, &nb));
+        let Maker::Here(source) = &self.source else { unreachable!("checked above") };
+        let tile = Arc::new(source.generate(self.seed, c, &nb));
         self.stats.generate_ms += t0.elapsed().as_secs_f64() * 1e3;
         self.stats.generated += 1;
         self.tiles.insert(c, tile.clone());

@@ -67,3 +67,36 @@ pub trait TileSource: Send + Sync {
     /// Generates tile `coord` of world `seed` from the neighbours the schedule names.
     fn generate(&self, seed: u64, coord: TileCoord, neighbours: &Neighbourhood<'_>) -> Tile;
 }
+
+/// Which generator makes a world's tiles (a share link names it).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum SourceKind {
+    /// The learned world: the TCM and its ×4 step ([`super::learned`]).
+    #[default]
+    Learned,
+    /// Procedural noise ([`super::noise`]).
+    Procedural,
+}
+
+impl SourceKind {
+    /// The name in share links and on the command line (`tcm`, `procedural`).
+    pub fn key(self) -> &'static str {
+        match self {
+            SourceKind::Learned => "tcm",
+            SourceKind::Procedural => "procedural",
+        }
+    }
+
+    /// Reads [`key`](Self::key)'s names.
+    pub fn from_key(key: &str) -> Option<Self> {
+        [SourceKind::Learned, SourceKind::Procedural].into_iter().find(|k| k.key() == key)
+    }
+
+    /// The name shown to the user ("learned", "procedural").
+    pub fn label(self) -> &'static str {
+        match self {
+            SourceKind::Learned => "learned",
+            SourceKind::Procedural => "procedural",
+        }
+    }
+}
