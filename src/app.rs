@@ -313,6 +313,11 @@ impl TerrainApp {
         self.stats.frame_ms_worst = *v.last().unwrap_or(&0.0);
     }
 
+    /// The heights (metres) of tile `c` of the world shown, if it is cached.
+    pub fn tile_heights(&self, c: TileCoord) -> Option<&[f32]> {
+        self.world.get(c).map(|t| t.heights.as_slice())
+    }
+
     /// Ground height (metres) under (x, z), where the tile is generated.
     pub fn ground_at(&self, x_m: f64, z_m: f64) -> Option<f32> {
         self.world.height_at(x_m, z_m)

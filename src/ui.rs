@@ -5,7 +5,7 @@
 use crate::app::AppStats;
 use crate::render::camera::CameraMode;
 use crate::share::ShareState;
-use crate::world::NoiseKind;
+use crate::world::{NoiseKind, SourceKind};
 
 /// What the page tells the overlay besides the app's own numbers.
 #[derive(Clone, Debug, Default)]
@@ -92,6 +92,9 @@ impl Overlay {
             ui.label(format!("GPU: {}", env.adapter));
             ui.label(format!("ML: {}", env.ml_status));
             ui.label(format!("Source: {}", env.source));
+            if stats.source == SourceKind::Learned.label() {
+                ui.monospace(format!("tile queue {} waiting, {} in flight, {:.0} ms/tile", stats.tiles_pending.saturating_sub(stats.tile_jobs.in_flight), stats.tile_jobs.in_flight, stats.ms_per_tile));
+            }
             if let Some((done, total)) = env.tem_loading {
                 ui.add(egui::ProgressBar::new(done as f32 / total.max(1) as f32).text(format!("loading TEM weights {done}/{total}")));
             } else if let Some(e) = &env.tem_error {
@@ -160,6 +163,18 @@ impl Overlay {
             ui.label("LOD target (px)");
             ui.add(egui::Slider::new(&mut d.lod_px, 1.0..=32.0).logarithmic(true));
             ui.end_row();
+            ui.label("World");
+            ui.horizontal(|ui| {
+                ui.selectable_value(&mut d.source, SourceKind::Learned, SourceKind::Learned.label());
+                ui.selectable_value(&mut d.source, SourceKind::Procedural, SourceKind::Procedural.label());
+            });
+            ui.end_row();
+            ui.label("Autopilot (m/s)");
+            ui.add(egui::Slider::new(&mut d.autopilot_mps, 0.0..=2000.0));
+            ui.end_row();
+            if d.source != SourceKind::Procedural {
+                return;
+            }
             ui.label("Noise");
             ui.horizontal(|ui| {
                 ui.selectable_value(&mut d.noise.kind, NoiseKind::Ridged, "ridged");
@@ -183,9 +198,6 @@ impl Overlay {
             ui.end_row();
             ui.label("Base (m)");
             ui.add(egui::Slider::new(&mut d.noise.base_m, -2000.0..=2000.0));
-            ui.end_row();
-            ui.label("Autopilot (m/s)");
-            ui.add(egui::Slider::new(&mut d.autopilot_mps, 0.0..=2000.0));
             ui.end_row();
         });
         // Apply once a drag ends (or a value is typed), not on every intermediate value: each

@@ -16,7 +16,8 @@
 pub const BLOCK: usize = 3;
 /// Pixels after a map's last row that the kernels may read (and ignore).
 const SLACK_PX: usize = 8;
-/// Output channels of the blocked kernel (layers with other widths take the plain loop).
+/// Output channels of the x86 32-channel kernel (other multiples of 8 take the 8-channel one).
+#[cfg(target_arch = "x86_64")]
 const LANES: usize = 32;
 
 /// A uniform value in [−1, 1) from a 64-bit LCG state (random layers for tests and untrained

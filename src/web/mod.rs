@@ -12,7 +12,10 @@ use std::sync::atomic::Ordering::SeqCst;
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 
-use crate::app::{MESH_KEEP_FRAMES, REFINE_BATCH, TerrainApp};
+use crate::app::{LearnedStatus, MESH_KEEP_FRAMES, REFINE_BATCH, TerrainApp};
+use crate::jobs::Job;
+use crate::world::TileCoord;
+use crate::world::learned::{GROW_FILE, TCM_FILE};
 use crate::models;
 use crate::models::tem::{Exec, LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json, weight_file};
 use crate::world::PatchKey;
@@ -34,6 +37,11 @@ thread_local! {
     /// The running eframe runner and the GPU device it draws with (replaced after a loss).
     static RUNNER: RefCell<Option<eframe::WebRunner>> = const { RefCell::new(None) };
     static DEVICE: RefCell<Option<wgpu::Device>> = const { RefCell::new(None) };
+    /// The CPU inference worker (kept across device restarts), or why there is none.
+    static WORKER: RefCell<Option<Result<Rc<worker::CpuWorker>, String>>> = const { RefCell::new(None) };
+    /// The tile the end-to-end test asked for ([`terrain_request_tile`]) and its heights once
+    /// the world has it.
+    static TILE_PROBE: RefCell<(Option<TileCoord>, Option<Vec<f32>>)> = const { RefCell::new((None, None)) };
     /// How many times the page replaced a lost GPU device.
     static RESTARTS: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
 }
@@ -85,7 +93,7 @@ enum TemEngine {
     /// burn on the shared WebGPU device.
     Gpu(TemSet),
     /// The CPU kernels in a Web Worker (the main thread only posts and receives).
-    Worker(worker::CpuWorker),
+    Worker(Rc<worker::CpuWorker>),
     /// The CPU kernels on the main thread, when the browser could not start the worker: it
     /// blocks frames, so quads are rationed.
     MainThread(TemSet),
@@ -117,6 +125,45 @@ struct Ml {
     busy: bool,
     /// Finished batches: world epoch, keys, raw output or error, milliseconds.
     results: Vec<(u64, Vec<PatchKey>, Result<Vec<f32>, String>, f64)>,
+    /// The learned world's models once their loading ended: the weights hash, or why they
+    /// are not available.
+    world: Option<Result<String, String>>,
+    /// Finished learned tiles: the job, and the heights and the worker's milliseconds or the
+    /// error.
+    tiles: Vec<(Job<TileCoord>, Result<(Vec<f32>, f64), String>)>,
+}
+
+/// The page's CPU inference worker, started once (and kept when a lost device restarts the
+/// page), or why the browser could not start it.
+async fn cpu_worker() -> Result<Rc<worker::CpuWorker>, String> {
+    if let Some(w) = WORKER.with(|w| w.borrow().clone())
+        && w.as_ref().map_or(true, |w| w.gone().is_none())
+    {
+        return w;
+    }
+    let w = worker::CpuWorker::start().await.map(Rc::new).map_err(|e| e.to_string());
+    WORKER.with(|slot| *slot.borrow_mut() = Some(w.clone()));
+    w
+}
+
+/// Loads the learned world's weights (both requests go out at once) into the CPU worker and
+/// records the hash, or why the learned world is not available, in `ml`.
+async fn start_world(worker: Result<Rc<worker::CpuWorker>, String>, ml: Rc<RefCell<Ml>>) {
+    let urls = [format!("weights/{TCM_FILE}"), format!("weights/{GROW_FILE}")];
+    let requests: Vec<_> = urls.iter().map(|u| start_fetch(u)).collect();
+    let result = async {
+        let mut files = Vec::new();
+        for (url, request) in urls.iter().zip(requests) {
+            files.push(fetched_bytes(url, request?).await.map_err(|e| format!("its weights could not be loaded ({e})"))?);
+        }
+        let w = worker.map_err(|e| format!("it needs a Web Worker ({e})"))?;
+        w.load_world(&files[0], &files[1]).await.map_err(|e| match e {
+            worker::WorkerError::Failed(e) => format!("its weights are broken ({e})"),
+            worker::WorkerError::Unavailable(e) => format!("the CPU worker stopped ({e})"),
+        })
+    }
+    .await;
+    ml.borrow_mut().world = Some(result);
 }
 
 /// Runs the fixed TEM probe on the page's models (whichever backend they run on) and returns
@@ -139,6 +186,20 @@ pub async fn terrain_tem_probe() -> Result<String, JsValue> {
 #[wasm_bindgen]
 pub fn terrain_probe_input(level: usize) -> String {
     serde_json::to_string(&probe_input(level.min(LEVELS - 1))).unwrap_or_default()
+}
+
+/// Asks the page for the heights of tile (i, j) of the world shown (see
+/// [`terrain_tile_heights`]); the end-to-end test compares them with the native CLI's.
+#[wasm_bindgen]
+pub fn terrain_request_tile(i: i32, j: i32) {
+    TILE_PROBE.with(|p| *p.borrow_mut() = (Some(TileCoord::new(i, j)), None));
+}
+
+/// The heights (JSON array, metres) of the tile asked for with [`terrain_request_tile`], or
+/// `null` while the world does not have it yet.
+#[wasm_bindgen]
+pub fn terrain_tile_heights() -> String {
+    TILE_PROBE.with(|p| serde_json::to_string(&p.borrow().1).unwrap_or_default())
 }
 
 /// Bytes of the page's wasm linear memory now (it only grows; the end-to-end test samples it
@@ -174,7 +235,7 @@ fn page_options() -> (PageOptions, Option<String>) {
 
 /// Starts burn: self-check on the shared GPU device, then loads the TEM weights onto it, or
 /// onto the CPU kernels when the GPU path is unavailable or fails (and says so).
-async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, choice: TemChoice, ml: Rc<RefCell<Ml>>) {
+async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, choice: TemChoice, worker: Result<Rc<worker::CpuWorker>, String>, ml: Rc<RefCell<Ml>>) {
     let t0 = now_ms();
     let gpu = match gpu {
         Ok(device) => match models::self_check(&device).await {
@@ -214,9 +275,13 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, cho
     let broken = |e: String| format!("TEM weights are broken ({e}); showing the 32 m world");
     let tem = match gpu {
         Ok(d) if chosen.is_gpu() => TemSet::from_bytes(files, &Exec::Burn(d)).map(TemEngine::Gpu).map_err(broken),
-        _ => match worker::CpuWorker::start(files.clone()).await {
-            Ok(w) => Ok(TemEngine::Worker(w)),
-            // Broken weights fail alike on any thread: no second try on the main thread.
+        _ => match worker.map_err(worker::WorkerError::Unavailable) {
+            Ok(w) => match w.load_tem(&files).await {
+                Ok(()) => Ok(TemEngine::Worker(w)),
+                // Broken weights fail alike on any thread: no second try on the main thread.
+                Err(worker::WorkerError::Failed(e)) => Err(broken(e)),
+                Err(worker::WorkerError::Unavailable(e)) => Err(format!("the CPU worker stopped ({e}); showing the 32 m world")),
+            },
             Err(worker::WorkerError::Failed(e)) => Err(broken(e)),
             Err(worker::WorkerError::Unavailable(e)) => {
                 web_sys::console::warn_1(&format!("CPU worker unavailable ({e}); the TEM runs on the main thread").into());
@@ -360,11 +425,14 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     // Load and warm up the TEM before the renderer starts: its GPU kernels are compiled while
     // the page shows its loading note, not in the middle of a flight (17 s on SwiftShader).
     let (page_opts, options_notice) = page_options();
-    start_ml(gpu, software, page_opts.tem, ml.clone()).await;
+    let worker = cpu_worker().await;
+    wasm_bindgen_futures::spawn_local(start_world(worker.clone(), ml.clone()));
+    start_ml(gpu, software, page_opts.tem, worker, ml.clone()).await;
 
     let hash = location_hash();
     let (share, message) = match (restart, ShareState::from_fragment(&hash)) {
         (Some((state, note)), _) => (state, Some(note)),
+        (None, Ok(s)) if s.link_version == 1 => (s, Some("This link is from an older version of the page (version 1): it opens the procedural world it was made with, which may differ from what its sender saw.".into())),
         (None, Ok(s)) => (s, options_notice),
         (None, Err(e)) => (ShareState::default(), Some(format!("{e}. Showing the default world instead."))),
     };
@@ -433,6 +501,50 @@ struct WebApp {
 }
 
 impl WebApp {
+    /// Tells the app when the learned world's models are ready or failed, hands it finished
+    /// tiles, and starts the tile jobs it asks for in the CPU worker.
+    fn pump_world(&mut self) {
+        let mut ml = self.ml.borrow_mut();
+        match (ml.world.clone(), self.app.learned().clone()) {
+            (Some(Ok(hash)), LearnedStatus::Loading) => {
+                if let Some(note) = self.app.set_learned(LearnedStatus::Ready { hash }) {
+                    self.message = Some(note);
+                }
+            }
+            (Some(Err(why)), LearnedStatus::Loading | LearnedStatus::Ready { .. }) => {
+                self.app.set_learned(LearnedStatus::Failed(why.clone()));
+                self.message = Some(format!("The learned world is not available: {why}. Showing the procedural world."));
+            }
+            _ => {}
+        }
+        for (job, result) in std::mem::take(&mut ml.tiles) {
+            match result {
+                Ok((heights, ms)) => {
+                    self.app.tile_done(&job, heights, ms);
+                }
+                Err(e) => {
+                    self.app.tile_failed(&job);
+                    ml.world = Some(Err(format!("making tile {}, {} failed ({e})", job.key.i, job.key.j)));
+                }
+            }
+        }
+        let Some(Ok(w)) = WORKER.with(|w| w.borrow().clone()) else { return };
+        if let Some(why) = w.gone() {
+            if matches!(self.app.learned(), LearnedStatus::Ready { .. }) {
+                ml.world = Some(Err(format!("the CPU worker stopped ({why})")));
+            }
+            return;
+        }
+        let seed = self.app.settings().seed;
+        for job in self.app.tile_jobs() {
+            let (w, shared) = (w.clone(), self.ml.clone());
+            wasm_bindgen_futures::spawn_local(async move {
+                let out = w.tile(seed, job.key).await.map_err(|e| e.to_string());
+                shared.borrow_mut().tiles.push((job, out));
+            });
+        }
+    }
+
     /// Hands finished TEM batches to the app, turns refinement on once the models are ready,
     /// and starts the next batch (one at a time, so frames keep their budget).
     fn pump_refinement(&mut self) {
@@ -587,7 +699,14 @@ impl eframe::App for WebApp {
 
         let Some(rs) = frame.wgpu_render_state() else { return };
         let cpu_start = now_ms();
+        self.pump_world();
         self.pump_refinement();
+        TILE_PROBE.with(|p| {
+            let mut p = p.borrow_mut();
+            if let (Some(c), None) = (p.0, &p.1) {
+                p.1 = self.app.tile_heights(c).map(<[f32]>::to_vec);
+            }
+        });
         egui::CentralPanel::no_frame().show(ui, |ui| {
             let rect = ui.max_rect();
             let resp = ui.allocate_rect(rect, egui::Sense::click_and_drag());

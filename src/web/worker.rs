@@ -1,6 +1,6 @@
 //! CPU inference in a Web Worker. The page's own wasm module is instantiated a second time in a
-//! module worker, which runs the TEM on the CPU kernels ([`crate::models::cpu`]), so the main
-//! thread never waits on inference. The main thread ([`CpuWorker`]) posts requests with an id
+//! module worker, which runs the learned world's networks and the TEM on the CPU kernels
+//! ([`crate::models::cpu`]), so the main thread never waits on inference. The main thread ([`CpuWorker`]) posts requests with an id
 //! and awaits the matching reply; the worker ([`terrain_worker_message`]) answers them in order.
 
 use std::cell::{Cell, RefCell};
@@ -13,6 +13,8 @@ use wasm_bindgen::prelude::*;
 use wasm_bindgen_futures::JsFuture;
 
 use crate::models::tem::{Exec, TemSet};
+use crate::world::learned::{LearnedModels, LearnedSource};
+use crate::world::{Neighbourhood, TileCoord, TileSource};
 
 /// The worker's script: the first message names the page's wasm-bindgen glue and carries the
 /// compiled module; the worker instantiates it and hands every later message to
@@ -88,9 +90,8 @@ pub struct CpuWorker {
 }
 
 impl CpuWorker {
-    /// Starts the worker and loads the TEM weights (`files`, level order) into it. Fails with
-    /// a message when the browser cannot start a module worker or a weight file is broken.
-    pub async fn start(files: Vec<Vec<u8>>) -> Result<Self, WorkerError> {
+    /// Starts the worker. Fails with a message when the browser cannot start a module worker.
+    pub async fn start() -> Result<Self, WorkerError> {
         let gone = |e: JsValue| WorkerError::Unavailable(js_error(e));
         let parts = Array::of1(&SCRIPT.into());
         let props = web_sys::BlobPropertyBag::new();
@@ -128,19 +129,49 @@ impl CpuWorker {
         set(&first, "glue", &GLUE_URL.with(|u| u.clone()).into());
         set(&first, "module", &wasm_bindgen::module());
         worker.post_message(&first).map_err(gone)?;
-        let this = Self { worker, pending, next_id: Cell::new(1), _on_message: on_message, _on_error: on_error };
+        Ok(Self { worker, pending, next_id: Cell::new(1), _on_message: on_message, _on_error: on_error })
+    }
+
+    /// Posts the weight `files` under request `kind` ("load" for the TEM, "load-world" for
+    /// the learned world) and returns the reply.
+    async fn load(&self, kind: &str, files: &[Vec<u8>]) -> Result<JsValue, WorkerError> {
         let msg = Object::new();
-        set(&msg, "kind", &"load".into());
+        set(&msg, "kind", &kind.into());
         let list = Array::new();
         let transfer = Array::new();
-        for f in &files {
+        for f in files {
             let bytes = Uint8Array::from(f.as_slice());
             transfer.push(&bytes.buffer());
             list.push(&bytes);
         }
         set(&msg, "files", &list);
-        this.request(msg, transfer).await?;
-        Ok(this)
+        self.request(msg, transfer).await
+    }
+
+    /// Loads the TEM weights (`files`, level order) into the worker; a broken file is a
+    /// [`WorkerError::Failed`] naming it.
+    pub async fn load_tem(&self, files: &[Vec<u8>]) -> Result<(), WorkerError> {
+        self.load("load", files).await.map(|_| ())
+    }
+
+    /// Loads the learned world's weights (the TCM's and the ×4 step's burnpack bytes) into the
+    /// worker and returns their hash.
+    pub async fn load_world(&self, tcm: &[u8], grow: &[u8]) -> Result<String, WorkerError> {
+        let reply = self.load("load-world", &[tcm.to_vec(), grow.to_vec()]).await?;
+        get(&reply, "hash").as_string().ok_or_else(|| WorkerError::Failed("the CPU worker's reply has no weights hash".into()))
+    }
+
+    /// Makes tile `c` of learned world `seed` in the worker: its heights (metres) and the
+    /// worker's milliseconds.
+    pub async fn tile(&self, seed: u64, c: TileCoord) -> Result<(Vec<f32>, f64), WorkerError> {
+        let msg = Object::new();
+        set(&msg, "kind", &"tile".into());
+        set(&msg, "seed", &seed.to_string().into());
+        set(&msg, "i", &c.i.into());
+        set(&msg, "j", &c.j.into());
+        let reply = self.request(msg, Array::new()).await?;
+        let out: Float32Array = get(&reply, "out").dyn_into().map_err(|_| WorkerError::Failed("the CPU worker's reply has no heights".into()))?;
+        Ok((out.to_vec(), get(&reply, "ms").as_f64().unwrap_or(0.0)))
     }
 
     /// Posts `msg` (its buffers in `transfer` move to the worker) and waits for the reply.
@@ -196,16 +227,42 @@ impl Drop for CpuWorker {
 thread_local! {
     /// The worker's models (set by its "load" request).
     static WORKER_TEM: RefCell<Option<TemSet>> = const { RefCell::new(None) };
+    /// The learned world (set by its "load-world" request); its cache of 128 m tiles lives
+    /// here.
+    static WORKER_WORLD: RefCell<Option<LearnedSource>> = const { RefCell::new(None) };
 }
 
-/// What a request asks of the worker; `Ok(Some(heights, ms))` for inference.
-fn handle(msg: &JsValue) -> Result<Option<(Vec<f32>, f64)>, String> {
+/// What the worker answers: nothing, inference results (heights, ms), or a weights hash.
+enum Answer {
+    Nothing,
+    Heights(Vec<f32>, f64),
+    Hash(String),
+}
+
+/// What a request asks of the worker.
+fn handle(msg: &JsValue) -> Result<Answer, String> {
+    let files = || -> Vec<Vec<u8>> { Array::from(&get(msg, "files")).iter().map(|f| Uint8Array::new(&f).to_vec()).collect() };
     match get(msg, "kind").as_string().as_deref() {
         Some("load") => {
-            let files: Vec<Vec<u8>> = Array::from(&get(msg, "files")).iter().map(|f| Uint8Array::new(&f).to_vec()).collect();
-            let tem = TemSet::from_bytes(files, &Exec::cpu())?;
+            let tem = TemSet::from_bytes(files(), &Exec::cpu())?;
             WORKER_TEM.with(|t| *t.borrow_mut() = Some(tem));
-            Ok(None)
+            Ok(Answer::Nothing)
+        }
+        Some("load-world") => {
+            let f = files();
+            let [tcm, grow] = f.as_slice() else { return Err("load-world needs two weight files".into()) };
+            let models = LearnedModels::from_bytes(tcm, grow)?;
+            let hash = models.hash.clone();
+            WORKER_WORLD.with(|w| *w.borrow_mut() = Some(LearnedSource::new(std::sync::Arc::new(models), 1)));
+            Ok(Answer::Hash(hash))
+        }
+        Some("tile") => {
+            let seed: u64 = get(msg, "seed").as_string().and_then(|s| s.parse().ok()).ok_or("the request has no seed")?;
+            let coord = |k: &str| get(msg, k).as_f64().filter(|v| v.fract() == 0.0 && v.abs() < 1e9).map(|v| v as i32).ok_or(format!("the request has no tile {k}"));
+            let c = TileCoord::new(coord("i")?, coord("j")?);
+            let t0 = web_time::Instant::now();
+            let tile = WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.generate(seed, c, &Neighbourhood::default()))).ok_or("the CPU worker has no learned world loaded")?;
+            Ok(Answer::Heights(tile.heights, t0.elapsed().as_secs_f64() * 1000.0))
         }
         Some("enhance") => {
             let num = |k: &str| get(msg, k).as_f64().map(|v| v as usize).ok_or(format!("the request has no {k}"));
@@ -217,7 +274,7 @@ fn handle(msg: &JsValue) -> Result<Option<(Vec<f32>, f64)>, String> {
                 Some(_) => Err(format!("no TEM level {level}")),
                 None => Err("the CPU worker has no models loaded".into()),
             })?;
-            Ok(Some((out, t0.elapsed().as_secs_f64() * 1000.0)))
+            Ok(Answer::Heights(out, t0.elapsed().as_secs_f64() * 1000.0))
         }
         other => Err(format!("the CPU worker does not know the request {other:?}")),
     }
@@ -231,13 +288,14 @@ pub fn terrain_worker_message(msg: JsValue) {
     set(&reply, "id", &get(&msg, "id"));
     let transfer = Array::new();
     match handle(&msg) {
-        Ok(Some((out, ms))) => {
+        Ok(Answer::Heights(out, ms)) => {
             let heights = Float32Array::from(out.as_slice());
             transfer.push(&heights.buffer());
             set(&reply, "out", &heights);
             set(&reply, "ms", &ms.into());
         }
-        Ok(None) => {}
+        Ok(Answer::Hash(h)) => set(&reply, "hash", &h.into()),
+        Ok(Answer::Nothing) => {}
         Err(e) => set(&reply, "error", &e.into()),
     }
     let scope: web_sys::DedicatedWorkerGlobalScope = js_sys::global().unchecked_into();

@@ -5,7 +5,8 @@
 //! - its 128 m tile, and those of its 8 neighbours, come from the TCM following the 4-phase
 //!   schedule ([`super::schedule`]): phase-0 tiles from nothing but the macro field and noise,
 //!   the others from the lower-phase neighbours the schedule names, recursively (at most three
-//!   levels deep). They are kept in a bounded cache, which only saves work;
+//!   levels deep). Each is then joined to the input neighbours along their shared edges
+//!   ([`super::seam`]). They are kept in a bounded cache, which only saves work;
 //! - the 32 m tile is the ×4 network applied to the 128 m field around it (the tile plus
 //!   [`grow::MARGIN`] samples of its neighbours), with noise drawn at global positions, so
 //!   neighbouring 32 m tiles agree along their edges wherever their 128 m fields do.
@@ -19,6 +20,7 @@ use std::sync::{Arc, Mutex};
 use super::coord::{TILE_SAMPLES, TileCoord};
 use super::noise::perlin;
 use super::schedule::{dependencies, tile_seed};
+use super::seam;
 use super::tile::{Neighbourhood, Tile, TileSource};
 use crate::models::grow::{self, GrowCpu, GrowScratch};
 use crate::models::tcm::{self, HEIGHT_SCALE_M, TILE_PX, TcmCpu, TcmScratch};
@@ -114,7 +116,10 @@ impl LearnedSource {
             self.models.tcm.forward(&x, &mut s.0, self.threads)
         };
         let level = centres[4];
-        let tile = Arc::new(out.into_iter().map(|v| v * HEIGHT_SCALE_M + level).collect::<Vec<f32>>());
+        let mut tile: Vec<f32> = out.into_iter().map(|v| v * HEIGHT_SCALE_M + level).collect();
+        let sides = seam::SIDES.map(|(di, dj)| deps.get(&c.offset(di, dj)).map(|t| t.as_slice()));
+        seam::join_edges(&mut tile, TILE_PX, sides);
+        let tile = Arc::new(tile);
         let mut cache = self.coarse.lock().unwrap_or_else(|p| p.into_inner());
         if cache.len() >= COARSE_CACHE_TILES {
             // Dropping everything is simple and correct: tiles are remade identically.

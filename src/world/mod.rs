@@ -10,6 +10,7 @@ pub mod noise;
 pub mod quadtree;
 pub mod refine;
 pub mod schedule;
+pub mod seam;
 pub mod stream;
 pub mod tile;
 

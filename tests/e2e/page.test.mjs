@@ -115,13 +115,18 @@ function imageSpread(buf, x0 = 0) {
   return { mean, sd, colours: colours.size };
 }
 
-const VIEW = 'v=1&seed=7&cam=3000,2500,9000,0.9,-0.3&r=3&lod=6';
+// The procedural world (the tests of streaming, links and the TEM do not wait for learned tiles).
+const VIEW = 'v=2&seed=7&src=procedural&cam=3000,2500,9000,0.9,-0.3&r=3&lod=6';
 
-test('the default world renders terrain, with no console errors', async () => {
+test('the default world is the learned one and renders terrain, with no console errors', async () => {
   const t0 = Date.now();
   const { page, errors } = await open();
-  const s = await waitFor(page, (s) => s.stats.frames > 20 && s.stats.nodes_drawn > 0 && s.stats.tiles_pending === 0, 'the first world to stream in');
+  const s = await waitFor(page, (s) => s.stats.frames > 20 && s.stats.nodes_drawn > 0 && s.stats.tiles_pending === 0, 'the first world to stream in', 300_000);
   report.first_complete_view_s = (Date.now() - t0) / 1000;
+  report.default_world = { source: s.source, tiles: s.stats.tiles_generated, ms_per_tile: s.stats.ms_per_tile, tile_jobs: s.stats.tile_jobs, link: s.link };
+  assert.equal(s.stats.source, 'learned');
+  assert.match(s.source, /^learned \(TCM [0-9a-f]{8}\)$/);
+  assert.match(s.link, /^v=2&seed=1&src=tcm&w=[0-9a-f]{8}&/);
   report.adapter = s.adapter;
   await page.waitForTimeout(500);
   const shot = await page.screenshot({ path: path.join(out, 'default.png') });
@@ -138,13 +143,86 @@ test('the default world renders terrain, with no console errors', async () => {
   await page.close();
 });
 
+/** The float32 heights of a TIFF as `terrain world` writes it (little-endian, strips). */
+function readTiffF32(buf) {
+  assert.equal(buf.toString('latin1', 0, 2), 'II', 'a little-endian TIFF');
+  const ifd = buf.readUInt32LE(4);
+  const tags = {};
+  for (let k = 0; k < buf.readUInt16LE(ifd); k++) {
+    const e = ifd + 2 + 12 * k;
+    const [tag, type, count] = [buf.readUInt16LE(e), buf.readUInt16LE(e + 2), buf.readUInt32LE(e + 4)];
+    if (![256, 257, 258, 273, 279, 339].includes(tag)) continue;
+    const size = type === 3 ? 2 : 4;
+    const at = count * size > 4 ? buf.readUInt32LE(e + 8) : e + 8;
+    tags[tag] = Array.from({ length: count }, (_, i) => (size === 2 ? buf.readUInt16LE(at + 2 * i) : buf.readUInt32LE(at + 4 * i)));
+  }
+  const [w, h] = [tags[256][0], tags[257][0]];
+  assert.equal(tags[258][0], 32);
+  assert.equal(tags[339][0], 3, 'float samples');
+  const out = [];
+  tags[273].forEach((off, i) => { for (let b = 0; b < tags[279][i]; b += 4) out.push(buf.readFloatLE(off + b)); });
+  assert.equal(out.length, w * h);
+  return out;
+}
+
+// The learned world flown slowly by the autopilot: tiles come from the CPU worker.
+const LEARNED_VIEW = 'v=2&seed=7&src=tcm&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6&auto=150';
+const LEARNED_FLIGHT_S = 20;
+
+test('the learned world: tiles from the CPU worker match the native CLI within 0.05 m; frame times while flying over it', async () => {
+  const { page, errors } = await open(LEARNED_VIEW);
+  const s = await waitFor(page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 20, 'the learned view', 300_000);
+  // The tile under the camera's start, in the page and natively.
+  await page.evaluate(() => window.wasmBindings.terrain_request_tile(0, 2));
+  let heights = null;
+  for (let k = 0; k < 40 && !heights; k++) {
+    heights = JSON.parse(await page.evaluate(() => window.wasmBindings.terrain_tile_heights()));
+    if (!heights) await page.waitForTimeout(250);
+  }
+  assert.ok(heights, 'the page never had tile (0, 2)');
+  const tif = path.join(out, 'learned_tile.tif');
+  const t0 = Date.now();
+  execFileSync(nativeBin, ['world', '--seed', '7', '--tiles', '0', '2', '1', '1', '--out', tif, '--source', 'tcm', '--weights', path.join(repo, 'weights')]);
+  const nativeMs = Date.now() - t0;
+  const native = readTiffF32(fs.readFileSync(tif));
+  assert.equal(heights.length, native.length);
+  const diff = Math.max(...heights.map((h, i) => Math.abs(h - native[i])));
+  const relief = Math.max(...native) - Math.min(...native);
+  // Frame times over the learned world while the autopilot flies on.
+  await page.evaluate(() => {
+    window.__frames = [];
+    let last = performance.now();
+    const tick = (t) => { window.__frames.push(t - last); last = t; if (window.__frames.length < 100000) requestAnimationFrame(tick); };
+    requestAnimationFrame(tick);
+  });
+  await page.waitForTimeout(LEARNED_FLIGHT_S * 1000);
+  const s1 = await stats(page);
+  const frames = (await page.evaluate(() => window.__frames)).slice(1).sort((a, b) => a - b);
+  const median = frames[Math.floor(frames.length / 2)];
+  report.learned_world = {
+    source: s1.source, tile_0_2_max_abs_diff_vs_native_m: diff, tile_0_2_relief_m: relief, native_cli_ms: nativeMs,
+    page_ms_per_tile_worker: s1.stats.ms_per_tile, tiles_generated: s1.stats.tiles_generated, tile_jobs: s1.stats.tile_jobs,
+    flight_s: LEARNED_FLIGHT_S, frames: frames.length, frame_ms_median: median, frame_ms_p95: frames[Math.floor(frames.length * 0.95)],
+    frame_ms_worst: frames[frames.length - 1], worst_over_median: frames[frames.length - 1] / median,
+  };
+  console.log('LEARNED ' + JSON.stringify(report.learned_world));
+  await page.screenshot({ path: path.join(out, 'learned.png') });
+  assert.ok(relief > 1, `a flat tile (relief ${relief} m)`);
+  assert.ok(diff < 0.05, `page (CPU worker) and native tiles differ by ${diff} m`);
+  assert.ok(s1.stats.tiles_generated > s.stats.tiles_generated, 'no learned tiles were made during the flight');
+  assert.ok(s1.stats.ms_per_tile > 0 && s1.stats.tile_jobs.failed === 0, JSON.stringify(s1.stats.tile_jobs));
+  assert.ok(frames.length > 20, `only ${frames.length} frames in ${LEARNED_FLIGHT_S} s`);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
 const FLIGHT_S = 60;
 // A fast flight over a small radius fills the tile cache (capacity 121 tiles) and, with the
 // CPU detail models in a worker refining during the flight, the patch store within the
 // warm-up (wasm memory stopped growing ~75 s in); memory is sampled after that, while tiles
 // keep being evicted and made.
 const WARM_UP_S = 60;
-const FLIGHT_VIEW = 'v=1&seed=7&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6&auto=5000';
+const FLIGHT_VIEW = 'v=2&seed=7&src=procedural&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6&auto=5000';
 const mean = (v) => v.reduce((a, b) => a + b, 0) / v.length;
 
 test('a 60-second autopilot flight with a full tile cache streams new tiles with flat JS heap and wasm memory', async () => {
@@ -262,6 +340,16 @@ test('a share link reproduces the same view and the same tiles', async () => {
   await b.page.close();
 });
 
+test('a version-1 link opens the procedural world it was made with, and says the world may differ', async () => {
+  const { page, errors } = await open('v=1&seed=7&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6');
+  const s = await waitFor(page, (s) => s.stats.frames > 10 && s.stats.tiles_pending === 0, 'the version-1 world');
+  assert.equal(s.stats.source, 'procedural');
+  assert.match(s.message ?? '', /version 1.*may differ/);
+  assert.match(s.link, /^v=2&seed=7&src=procedural&cam=/);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
 test('a malformed link shows a message and the default world', async () => {
   const { page, errors } = await open('seed=banana&cam=1,2');
   const s = await waitFor(page, (s) => s.stats.frames > 10 && s.stats.nodes_drawn > 0, 'the default world');
@@ -274,7 +362,7 @@ test('a malformed link shows a message and the default world', async () => {
 
 // Low over rough ground, looking down ahead: the camera is lifted to 3 m above the ground,
 // so the quadtree asks for the finest refined levels.
-const LOW_VIEW = 'v=1&seed=7&cam=3000,0,9000,0.9,-0.45&r=1.5&lod=4';
+const LOW_VIEW = 'v=2&seed=7&src=procedural&cam=3000,0,9000,0.9,-0.45&r=1.5&lod=4';
 const repo = path.resolve(here, '../..');
 const nativeBin = process.env.TERRAIN_BIN ?? path.join(process.env.CARGO_TARGET_DIR ?? path.join(process.env.HOME, '.cache/terrain-target'), 'debug/terrain');
 
