@@ -42,7 +42,8 @@ tail -1 "$page_log"
 wasm=$(ls dist/*.wasm); js=$(ls dist/*.js)
 raw=$(( $(stat -c %s "$wasm") + $(stat -c %s "$js") ))
 gz=$(( $(gzip -9 -c "$wasm" | wc -c) + $(gzip -9 -c "$js" | wc -c) ))
-echo "page size: wasm+js $raw bytes raw, $gz bytes gzip"
+wgz=0; for f in dist/weights/*.bpk; do wgz=$(( wgz + $(gzip -9 -c "$f" | wc -c) )); done
+echo "page size: wasm+js $raw bytes raw, $gz bytes gzip; with all weights $(( gz + wgz )) bytes gzip"
 step "page build (waited for)"
 
 (cd tests/e2e && node --test --test-concurrency=1 page.test.mjs)
