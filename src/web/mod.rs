@@ -275,15 +275,14 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, cho
     let broken = |e: String| format!("TEM weights are broken ({e}); showing the 32 m world");
     let tem = match gpu {
         Ok(d) if chosen.is_gpu() => TemSet::from_bytes(files, &Exec::Burn(d)).map(TemEngine::Gpu).map_err(broken),
-        _ => match worker.map_err(worker::WorkerError::Unavailable) {
+        _ => match worker {
             Ok(w) => match w.load_tem(&files).await {
                 Ok(()) => Ok(TemEngine::Worker(w)),
                 // Broken weights fail alike on any thread: no second try on the main thread.
                 Err(worker::WorkerError::Failed(e)) => Err(broken(e)),
                 Err(worker::WorkerError::Unavailable(e)) => Err(format!("the CPU worker stopped ({e}); showing the 32 m world")),
             },
-            Err(worker::WorkerError::Failed(e)) => Err(broken(e)),
-            Err(worker::WorkerError::Unavailable(e)) => {
+            Err(e) => {
                 web_sys::console::warn_1(&format!("CPU worker unavailable ({e}); the TEM runs on the main thread").into());
                 backend = format!("{backend} on the main thread");
                 TemSet::from_bytes(files, &Exec::cpu()).map(TemEngine::MainThread).map_err(broken)

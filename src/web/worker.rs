@@ -1,7 +1,8 @@
 //! CPU inference in a Web Worker. The page's own wasm module is instantiated a second time in a
 //! module worker, which runs the learned world's networks and the TEM on the CPU kernels
-//! ([`crate::models::cpu`]), so the main thread never waits on inference. The main thread ([`CpuWorker`]) posts requests with an id
-//! and awaits the matching reply; the worker ([`terrain_worker_message`]) answers them in order.
+//! ([`crate::models::cpu`]), so the main thread never waits on inference. The main thread
+//! ([`CpuWorker`]) posts requests with an id and awaits the matching reply; the worker
+//! ([`terrain_worker_message`]) answers them in order.
 
 use std::cell::{Cell, RefCell};
 use std::collections::HashMap;
@@ -134,13 +135,13 @@ impl CpuWorker {
 
     /// Posts the weight `files` under request `kind` ("load" for the TEM, "load-world" for
     /// the learned world) and returns the reply.
-    async fn load(&self, kind: &str, files: &[Vec<u8>]) -> Result<JsValue, WorkerError> {
+    async fn load(&self, kind: &str, files: &[&[u8]]) -> Result<JsValue, WorkerError> {
         let msg = Object::new();
         set(&msg, "kind", &kind.into());
         let list = Array::new();
         let transfer = Array::new();
         for f in files {
-            let bytes = Uint8Array::from(f.as_slice());
+            let bytes = Uint8Array::from(*f);
             transfer.push(&bytes.buffer());
             list.push(&bytes);
         }
@@ -151,13 +152,14 @@ impl CpuWorker {
     /// Loads the TEM weights (`files`, level order) into the worker; a broken file is a
     /// [`WorkerError::Failed`] naming it.
     pub async fn load_tem(&self, files: &[Vec<u8>]) -> Result<(), WorkerError> {
-        self.load("load", files).await.map(|_| ())
+        let files: Vec<&[u8]> = files.iter().map(Vec::as_slice).collect();
+        self.load("load", &files).await.map(|_| ())
     }
 
     /// Loads the learned world's weights (the TCM's and the ×4 step's burnpack bytes) into the
     /// worker and returns their hash.
     pub async fn load_world(&self, tcm: &[u8], grow: &[u8]) -> Result<String, WorkerError> {
-        let reply = self.load("load-world", &[tcm.to_vec(), grow.to_vec()]).await?;
+        let reply = self.load("load-world", &[tcm, grow]).await?;
         get(&reply, "hash").as_string().ok_or_else(|| WorkerError::Failed("the CPU worker's reply has no weights hash".into()))
     }
 

@@ -150,15 +150,16 @@ impl WorldStream {
         let start = Instant::now();
         let wanted = self.wanted(x_m, z_m);
         let mut made = Vec::new();
-        let here = matches!(self.source, Maker::Here(_));
-        for &c in wanted.iter().filter(|_| here) {
-            if self.tiles.contains_key(&c) {
-                continue;
+        if matches!(self.source, Maker::Here(_)) {
+            for &c in &wanted {
+                if self.tiles.contains_key(&c) {
+                    continue;
+                }
+                if !made.is_empty() && start.elapsed().as_secs_f64() * 1e3 >= budget_ms {
+                    break;
+                }
+                self.ensure_into(c, &mut made);
             }
-            if !made.is_empty() && start.elapsed().as_secs_f64() * 1e3 >= budget_ms {
-                break;
-            }
-            self.ensure_into(c, &mut made);
         }
         self.stats.pending = wanted.iter().filter(|c| !self.tiles.contains_key(c)).count();
         self.evict(x_m, z_m);
