@@ -11,6 +11,9 @@ use crate::jobs::{Job, JobQueue, JobStats, Outcome};
 use crate::render::camera::{Camera, CameraController, ControlInput};
 use crate::render::gpu::{FrameParams, sun_direction};
 use crate::share::ShareState;
+use crate::sketch::canvas::Canvas;
+use crate::sketch::{SKETCH_PX, Sketch};
+use crate::world::sketched::SketchSource;
 use crate::models::tem::LEVELS;
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
 use crate::world::refine::{INPUT_SIDE, PatchKey, PatchStore, RefineJob};
@@ -90,6 +93,14 @@ pub struct AppStats {
     /// Order-independent hash (hex) of the contents and coordinates of the tiles drawn: equal
     /// on two pages exactly when they show bit-identical tiles.
     pub view_checksum: String,
+    /// The sketch canvas's revision (changes with every stroke).
+    pub sketch_revision: u64,
+    /// The canvas revision whose terrain the sketch world shows (0: none yet).
+    pub sketch_shown: u64,
+    /// Milliseconds the last sketch took to become terrain (the generator's own time).
+    pub sketch_ms: f64,
+    /// The sketch world's generator jobs.
+    pub sketch_jobs: JobStats,
 }
 
 /// Where the learned world's models are.
@@ -129,7 +140,26 @@ pub struct TerrainApp {
     frame_ms: VecDeque<f64>,
     stats: AppStats,
     time_s: f64,
+    /// The sketch canvas (the sketch world shows its terrain).
+    pub canvas: Canvas,
+    sketch_models: LearnedStatus,
+    /// Sketch → terrain jobs, keyed by canvas revision (one in flight: the latest stroke wins
+    /// once it returns).
+    sketch_jobs: JobQueue<u64>,
+    /// The terrain of the sketch shown (0–255 scale) and its canvas revision.
+    sketch_terrain: Option<(u64, Arc<Vec<f32>>)>,
+    /// The canvas's code and the revision it was made at (share links).
+    sketch_code: (u64, String),
 }
+
+/// A camera pose that shows the whole sketch (8 km square at the origin) from the south:
+/// position (metres), heading and pitch (radians).
+pub fn sketch_overview(relief_m: f64) -> ([f64; 3], f32, f32) {
+    ([0.0, relief_m + 4500.0, 10_500.0], 0.0, -0.42)
+}
+
+/// Sketch → terrain jobs in flight at most.
+pub const SKETCH_JOBS_IN_FLIGHT: usize = 1;
 
 impl TerrainApp {
     /// An app showing the world and view described by `s`.
@@ -138,7 +168,10 @@ impl TerrainApp {
     /// elsewhere); until then it has no tiles.
     pub fn new(s: ShareState) -> Self {
         let learned = LearnedStatus::Loading;
-        let world = Self::make_world(&s, &learned);
+        let world = Self::make_world(&s, &learned, None);
+        let sketch = s.sketch.as_deref().and_then(|c| crate::sketch::code::decode(c).ok()).unwrap_or_else(|| crate::sketch::examples::first().1);
+        let canvas = Canvas::new(sketch);
+        let code = crate::sketch::code::encode(canvas.sketch());
         let mut app = Self {
             settings: s.clone(),
             world,
@@ -153,13 +186,22 @@ impl TerrainApp {
             frame_ms: VecDeque::new(),
             stats: AppStats::default(),
             time_s: 0.0,
+            canvas,
+            sketch_models: LearnedStatus::Loading,
+            sketch_jobs: JobQueue::new(SKETCH_JOBS_IN_FLIGHT),
+            sketch_terrain: None,
+            sketch_code: (0, code),
         };
         app.set_view(&s);
         app
     }
 
-    fn make_world(s: &ShareState, learned: &LearnedStatus) -> WorldStream {
+    fn make_world(s: &ShareState, learned: &LearnedStatus, sketch: Option<&Arc<Vec<f32>>>) -> WorldStream {
         match (s.source, learned) {
+            (SourceKind::Sketch, _) => match sketch {
+                Some(h) => WorldStream::new(s.seed, Box::new(SketchSource::new(h.clone(), s.relief_m)), s.radius_tiles),
+                None => WorldStream::made_elsewhere(s.seed, "sketch (its terrain is being made…)".into(), s.radius_tiles),
+            },
             (SourceKind::Learned, LearnedStatus::Ready { hash }) => WorldStream::made_elsewhere(s.seed, format!("learned (TCM {hash})"), s.radius_tiles),
             (SourceKind::Learned, LearnedStatus::Loading) => WorldStream::made_elsewhere(s.seed, "learned (loading its models…)".into(), s.radius_tiles),
             _ => WorldStream::new(s.seed, Box::new(ProceduralSource::new(s.noise)), s.radius_tiles),
@@ -202,7 +244,7 @@ impl TerrainApp {
 
     /// Replaces the world with a fresh one for the current settings (new epoch).
     fn new_world(&mut self) {
-        self.world = Self::make_world(&self.settings, &self.learned);
+        self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1));
         self.nodes = NodeCache::new();
         let epoch = self.tile_jobs.new_epoch();
         self.refine = PatchStore::new(0, epoch);
@@ -218,7 +260,12 @@ impl TerrainApp {
     /// Applies settings (and the view) from `s`: a new seed or noise rebuilds the world, a new
     /// radius resizes the cache; camera pose is taken over as is.
     pub fn apply(&mut self, s: ShareState) {
-        let world_changed = s.seed != self.settings.seed || s.source != self.settings.source || s.noise != self.settings.noise || s.radius_tiles != self.settings.radius_tiles;
+        let mut world_changed = s.seed != self.settings.seed || s.source != self.settings.source || s.noise != self.settings.noise || s.radius_tiles != self.settings.radius_tiles;
+        world_changed |= s.source == SourceKind::Sketch && s.relief_m != self.settings.relief_m;
+        if let Some(sketch) = s.sketch.as_deref().filter(|c| *c != self.sketch_code.1).and_then(|c| crate::sketch::code::decode(c).ok()) {
+            // A link with another sketch: draw it (undoable); its terrain follows as a job.
+            self.canvas.load(sketch);
+        }
         self.set_view(&s);
         self.settings = s;
         if world_changed {
@@ -232,6 +279,10 @@ impl TerrainApp {
         s.position_m = now.position_m;
         s.yaw = now.yaw;
         s.pitch = now.pitch;
+        if s.source == SourceKind::Sketch && now.source != SourceKind::Sketch {
+            // Entering the sketch world: look at the sketch from the south.
+            (s.position_m, s.yaw, s.pitch) = sketch_overview(s.relief_m);
+        }
         self.apply(s);
     }
 
@@ -239,12 +290,13 @@ impl TerrainApp {
     /// It names the generator really used and, for the learned world, its weights.
     pub fn share_state(&self) -> ShareState {
         let source = self.source();
-        let weights = match (&self.learned, source) {
-            (LearnedStatus::Ready { hash }, SourceKind::Learned) => Some(hash.clone()),
-            (_, SourceKind::Learned) => self.settings.weights.clone(),
+        let weights = match (&self.learned, &self.sketch_models, source) {
+            (LearnedStatus::Ready { hash }, _, SourceKind::Learned) | (_, LearnedStatus::Ready { hash }, SourceKind::Sketch) => Some(hash.clone()),
+            (_, _, SourceKind::Learned) => self.settings.weights.clone(),
             _ => None,
         };
-        ShareState { position_m: self.camera.position_m.to_array(), yaw: self.camera.yaw, pitch: self.camera.pitch, source, weights, link_version: crate::share::LINK_VERSION, ..self.settings.clone() }
+        let sketch = (source == SourceKind::Sketch).then(|| self.sketch_code.1.clone());
+        ShareState { position_m: self.camera.position_m.to_array(), yaw: self.camera.yaw, pitch: self.camera.pitch, source, weights, link_version: crate::share::LINK_VERSION, sketch, ..self.settings.clone() }
     }
 
     /// The learned-world tiles to make now (nearest missing first, within
@@ -276,6 +328,71 @@ impl TerrainApp {
     /// A learned tile could not be made: it may be asked for again.
     pub fn tile_failed(&mut self, job: &Job<TileCoord>) {
         self.tile_jobs.fail(job);
+    }
+
+    /// The sketch generator is ready (its weights' hash), loading, or failed (then the sketch
+    /// world shows the non-learned band interpolation, made here).
+    pub fn set_sketch_models(&mut self, status: LearnedStatus) {
+        self.sketch_models = status;
+    }
+
+    /// The sketch generator's status.
+    pub fn sketch_models(&self) -> &LearnedStatus {
+        &self.sketch_models
+    }
+
+    /// The sketch to turn into terrain now, if the canvas changed since the terrain shown and
+    /// no job is in flight: it must come back through [`sketch_done`](Self::sketch_done) or
+    /// [`sketch_failed`](Self::sketch_failed). With the generator failed, the band
+    /// interpolation is made here at once instead.
+    pub fn sketch_jobs(&mut self) -> Vec<(Job<u64>, Sketch)> {
+        let rev = self.canvas.revision() + 1;
+        if self.source() != SourceKind::Sketch || self.sketch_terrain.as_ref().is_some_and(|t| t.0 == rev) {
+            return Vec::new();
+        }
+        match &self.sketch_models {
+            LearnedStatus::Ready { .. } => self.sketch_jobs.start([rev]).into_iter().map(|j| (j, self.canvas.sketch().clone())).collect(),
+            LearnedStatus::Failed(_) => {
+                let t = web_time::Instant::now();
+                let h = crate::sketch::baseline::interpolate(self.canvas.sketch());
+                self.show_sketch_terrain(rev, h, t.elapsed().as_secs_f64() * 1e3);
+                Vec::new()
+            }
+            LearnedStatus::Loading => Vec::new(),
+        }
+    }
+
+    /// A sketch's terrain came back: `heights` ([`SKETCH_PX`]², 0–255 scale) made in `ms`.
+    /// Shown unless a newer sketch's terrain already is; returns whether it was.
+    pub fn sketch_done(&mut self, job: &Job<u64>, heights: Vec<f32>, ms: f64) -> bool {
+        if heights.len() != SKETCH_PX * SKETCH_PX || heights.iter().any(|h| !h.is_finite()) {
+            self.sketch_jobs.fail(job);
+            return false;
+        }
+        if self.sketch_jobs.finish(job) == Outcome::Stale || self.sketch_terrain.as_ref().is_some_and(|t| t.0 >= job.key) {
+            return false;
+        }
+        self.show_sketch_terrain(job.key, heights, ms);
+        true
+    }
+
+    /// A sketch could not be made into terrain: it may be asked for again.
+    pub fn sketch_failed(&mut self, job: &Job<u64>) {
+        self.sketch_jobs.fail(job);
+    }
+
+    fn show_sketch_terrain(&mut self, rev: u64, heights: Vec<f32>, ms: f64) {
+        self.sketch_terrain = Some((rev, Arc::new(heights)));
+        self.stats.sketch_ms = ms;
+        self.stats.sketch_shown = rev;
+        if self.settings.source == SourceKind::Sketch {
+            self.new_world();
+        }
+    }
+
+    /// The terrain of the sketch shown (0–255 scale, [`SKETCH_PX`]²), once there is one.
+    pub fn sketch_terrain(&self) -> Option<&[f32]> {
+        self.sketch_terrain.as_ref().map(|t| t.1.as_slice())
     }
 
     /// The settings in force (the camera pose in it is the one last applied).
@@ -327,6 +444,11 @@ impl TerrainApp {
     pub fn frame(&mut self, input: &ControlInput, dt_s: f64, size_px: [u32; 2]) -> (Vec<Arc<NodeData>>, FrameParams) {
         let dt_s = dt_s.clamp(0.0, 0.25);
         self.time_s += dt_s;
+        if self.sketch_code.0 != self.canvas.revision() {
+            self.sketch_code = (self.canvas.revision(), crate::sketch::code::encode(self.canvas.sketch()));
+        }
+        self.stats.sketch_revision = self.canvas.revision() + 1;
+        self.stats.sketch_jobs = self.sketch_jobs.stats();
         self.autopilot(dt_s);
         let world = &self.world;
         self.controller.update(&mut self.camera, input, dt_s, |x, z| world.height_at(x, z));
@@ -384,6 +506,7 @@ impl TerrainApp {
             amplitude_m: match self.source() {
                 SourceKind::Learned => (crate::world::learned::MACRO_BASE_M + crate::world::learned::MACRO_AMPLITUDE_M) as f32,
                 SourceKind::Procedural => (n.amplitude_m + n.base_m).max(100.0),
+                SourceKind::Sketch => self.settings.relief_m as f32,
             },
             show_lod: self.show_lod,
             time_s: self.time_s as f32,
@@ -709,4 +832,53 @@ mod tests {
         let mut same = TerrainApp::new(ShareState { weights: Some("new".into()), ..ShareState::default() });
         assert_eq!(same.set_learned(LearnedStatus::Ready { hash: "new".into() }), None);
     }
+
+    fn sketch_app() -> TerrainApp {
+        let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, source: SourceKind::Sketch, ..ShareState::default() });
+        app.set_sketch_models(LearnedStatus::Ready { hash: "00000001".into() });
+        app
+    }
+
+    #[test]
+    fn a_sketch_becomes_the_world_one_job_at_a_time_and_older_terrain_is_dropped() {
+        let mut app = sketch_app();
+        let jobs = app.sketch_jobs();
+        assert_eq!(jobs.len(), 1, "the first sketch is asked for");
+        assert!(app.sketch_jobs().is_empty(), "one job in flight at most");
+        let (first, sketch) = jobs[0].clone();
+        assert_eq!(&sketch, app.canvas.sketch());
+        // Two strokes land while the first sketch is being made.
+        app.canvas.set_tool(crate::sketch::canvas::Tool::Ridge);
+        app.canvas.press(10.0, 10.0);
+        app.canvas.drag(100.0, 10.0);
+        app.canvas.release();
+        let ramp: Vec<f32> = (0..SKETCH_PX * SKETCH_PX).map(|p| (p % SKETCH_PX) as f32).collect();
+        assert!(app.sketch_done(&first, ramp.clone(), 5.0), "the first terrain is shown");
+        let relief = app.settings().relief_m as f32;
+        // World sample x = 0 is sketch column 128.
+        assert_eq!(app.tile_heights(TileCoord::new(0, 0)), None, "tiles come with the next frame");
+        app.frame(&ControlInput::default(), 0.016, [64, 64]);
+        let h = app.tile_heights(TileCoord::new(0, 0)).expect("the tile at the origin")[0];
+        assert!((h - 128.0 / 255.0 * relief).abs() < 1e-3, "{h}");
+        // The newest sketch is asked for next; its terrain replaces the first.
+        let (second, _) = app.sketch_jobs()[0].clone();
+        assert!(second.key > first.key);
+        assert!(app.sketch_done(&second, vec![255.0; SKETCH_PX * SKETCH_PX], 5.0));
+        assert!(!app.sketch_done(&first, ramp, 5.0), "an older sketch's terrain is dropped");
+        assert!(app.sketch_jobs().is_empty(), "nothing new to make");
+        assert!(!app.sketch_done(&second, vec![f32::NAN; SKETCH_PX * SKETCH_PX], 1.0));
+    }
+
+    #[test]
+    fn without_the_generator_the_band_interpolation_is_shown_at_once() {
+        let mut app = sketch_app();
+        app.set_sketch_models(LearnedStatus::Failed("no weights".into()));
+        assert!(app.sketch_jobs().is_empty());
+        let shown = app.sketch_terrain().unwrap();
+        assert_eq!(shown, crate::sketch::baseline::interpolate(app.canvas.sketch()).as_slice());
+        let link = app.share_state();
+        assert_eq!(link.source, SourceKind::Sketch);
+        assert_eq!(crate::sketch::code::decode(link.sketch.as_deref().unwrap()).unwrap(), *app.canvas.sketch());
+    }
+
 }

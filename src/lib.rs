@@ -7,7 +7,8 @@
 //! [`share`] reads and writes links, [`dem`] reads and writes heightfields, [`models`] hosts
 //! the neural networks and their runtime, `enhance` refines whole DEMs (native), [`geomorph`]
 //! measures how terrain-like a heightfield is, [`jobs`] tracks work handed to a device or
-//! worker.
+//! worker, [`sketch`] reads, draws and extracts the sketches that sketch-to-terrain turns into
+//! a world ([`world::sketched`]).
 
 #![warn(missing_docs)]
 
@@ -20,6 +21,7 @@ pub mod jobs;
 pub mod models;
 pub mod render;
 pub mod share;
+pub mod sketch;
 #[cfg(all(feature = "train", not(target_arch = "wasm32")))]
 pub mod train;
 pub mod ui;

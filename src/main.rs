@@ -26,6 +26,15 @@ struct Cli {
     command: Command,
 }
 
+/// The networks of sketch-to-terrain.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum SketchModel {
+    /// The sketch → terrain generator (pix2pix).
+    Generator,
+    /// The VAE over sketches (variants, interpolation).
+    Vae,
+}
+
 /// Where tiles come from.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum Source {
@@ -155,6 +164,107 @@ enum Command {
         /// Worlds (seeds 1..=N) of 6×6 tiles each to measure.
         #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=64))]
         seeds: u64,
+    },
+    /// Turn a sketch (256×256 RGB PNG in the format's palette) into terrain: a 256×256 16-bit
+    /// grey PNG of relative heights (0 = the lowest point, 65535 the highest).
+    Sketch {
+        /// Sketch PNG.
+        #[arg(long)]
+        input: PathBuf,
+        /// Output 16-bit PNG.
+        #[arg(long)]
+        out: PathBuf,
+        /// Folder of the sketch generator's weights (default: ./weights, else the crate's).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+    },
+    /// Train the sketch generator on the CPU from sketches extracted from real DEMs, resumable
+    /// (feature `train`).
+    #[cfg(feature = "train")]
+    TrainSketch {
+        /// Folder of DEMs (float32 TIFF) with manifest.json.
+        #[arg(long)]
+        dem_dir: PathBuf,
+        /// Optimiser steps to run now (a resumed run adds them to the steps it had).
+        #[arg(long, default_value_t = 2000)]
+        steps: usize,
+        /// Continue the run saved in the checkpoint folder.
+        #[arg(long)]
+        resume: bool,
+        /// Checkpoint folder (generator, discriminator, optimisers, progress).
+        #[arg(long, default_value = "train-runs/sketch")]
+        checkpoint: PathBuf,
+        /// Save a checkpoint (and score the validation pairs) every N steps.
+        #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..))]
+        checkpoint_every: u64,
+        /// Crops per step (a new run only).
+        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=256))]
+        batch: u64,
+        /// Side of the training crops: a multiple of 16 (generator) or 64 (VAE) up to 256 (a new
+        /// run only).
+        #[arg(long, default_value_t = 128)]
+        crop: usize,
+        /// Pairs kept in memory (a new run only).
+        #[arg(long, default_value_t = 384, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        pool: u64,
+        /// Weight of the adversarial term against L1 (0: L1 only; a new run only).
+        #[arg(long, default_value_t = 0.01)]
+        adversarial: f32,
+        /// Held-out pairs scored at each checkpoint.
+        #[arg(long, default_value_t = 48)]
+        validation: usize,
+        /// Which network to train.
+        #[arg(long, value_enum, default_value_t = SketchModel::Generator)]
+        model: SketchModel,
+    },
+    /// Propose variants of a sketch: sketches with codes near its own in the sketch VAE, each
+    /// turned into terrain. Writes variant_K_sketch.png and variant_K_dem.png (16-bit) per
+    /// variant.
+    SketchVariants {
+        /// Sketch PNG.
+        #[arg(long)]
+        input: PathBuf,
+        /// Number of variants.
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
+        n: u32,
+        /// Output folder (created if missing).
+        #[arg(long)]
+        out_dir: PathBuf,
+        /// Seed of the variants (the same seed gives the same variants).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Folder of the sketch models' weights (default: ./weights, else the crate's).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+    },
+    /// Make a sketch from a window of a DEM with the project's extractor (bands = height
+    /// quarters, ridges and valleys from drainage): a 256×256 sketch PNG, and optionally the
+    /// window's terrain as the 16-bit PNG the sketch stands for.
+    SketchExtract {
+        /// Input DEM (.tif, .tiff, .png).
+        #[arg(long)]
+        dem: PathBuf,
+        /// Window: left column, top row and side (samples); it is resampled to 256².
+        #[arg(long, num_args = 3, value_names = ["X0", "Y0", "SIDE"], required = true)]
+        window: Vec<u32>,
+        /// Output sketch PNG.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write the window's terrain (16-bit PNG, 0 = lowest, 65535 = highest).
+        #[arg(long)]
+        dem_out: Option<PathBuf>,
+    },
+    /// Score sketch-to-terrain on the authors' pairs (512×256 PNG: sketch | 8-bit DEM): per pair
+    /// and mean RMSE / PSNR on the 0–255 scale of the generator and of the non-learned baseline
+    /// (linear interpolation between band borders), and how closely the project's extractor
+    /// reproduces each sketch from its DEM half.
+    EvalSketch {
+        /// Folder of pair PNGs.
+        #[arg(long)]
+        pairs: PathBuf,
+        /// Folder of the sketch generator's weights (default: ./weights, else the crate's).
+        #[arg(long)]
+        weights: Option<PathBuf>,
     },
     /// Evaluate the TEM on the held-out east third of every DEM (feature `train`).
     #[cfg(feature = "train")]
@@ -481,6 +591,197 @@ fn eval_tem(dir: PathBuf, weights: PathBuf, windows: usize) -> Result<(), String
     Ok(())
 }
 
+/// The sketch generator from a weights folder.
+fn sketch_generator(weights: Option<PathBuf>) -> Result<terrain::models::sketch::SketchGenCpu, String> {
+    use terrain::models::sketch::{SketchGenCpu, WEIGHT_FILE};
+    let path = weights_dir(weights).join(WEIGHT_FILE);
+    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    SketchGenCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
+    let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
+    let generator = sketch_generator(weights)?;
+    let t = std::time::Instant::now();
+    let h = generator.generate(&sk, &mut Default::default(), terrain::models::cpu::default_threads());
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    write_dem_png16(std::io::BufWriter::new(file), SKETCH_PX, &h).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    eprintln!("wrote {}: {SKETCH_PX}×{SKETCH_PX} 16-bit relative heights ({ms:.0} ms)", out.display());
+    Ok(())
+}
+
+#[cfg(feature = "train")]
+#[allow(clippy::too_many_arguments)]
+fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch::SketchConfig, validation: usize, model: SketchModel) -> Result<(), String> {
+    use terrain::train::{pairs, sketch};
+    if !cfg.adversarial.is_finite() || cfg.adversarial < 0.0 {
+        return Err(format!("--adversarial must be a finite number ≥ 0, not {}", cfg.adversarial));
+    }
+    let dems = pairs::load_dems(dem_dir)?;
+    let device = burn::tensor::Device::flex().autodiff();
+    let t = std::time::Instant::now();
+    if let SketchModel::Vae = model {
+        return train_sketch_vae(&dems, steps, resume, checkpoint, every, terrain::train::sketch_vae::VaeConfig { batch: cfg.batch, pool: cfg.pool, crop: cfg.crop, ..Default::default() }, validation, &device);
+    }
+    let mut run = sketch::SketchRun::start(cfg, &dems, &device, resume.then_some(checkpoint))?;
+    let val = sketch::pairs(&dems, pairs::Split::Validation, validation, 0x5EED);
+    eprintln!("sketch generator: {} parameters; {:?}; from step {}; pool and {} validation pairs made in {:.1} s", run.g.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
+    let end = run.progress.step + steps;
+    let mut last = None;
+    while run.progress.step < end {
+        run.step(&dems)?;
+        let p = &run.progress;
+        if p.step % 10 == 0 || p.step == end {
+            eprintln!("step {:6}  l1 {:.5} (×255 = {:.2}) adv {:.3} disc {:.3} {:.2} s/step", p.step, p.l1, p.l1 * 255.0, p.adv, p.disc, p.seconds / p.step as f64);
+        }
+        if p.step % every == 0 || p.step == end {
+            let v = sketch::validate(&run.cpu()?, &val);
+            eprintln!("validation ({} held-out pairs): RMSE {:.3} PSNR {:.2} dB; baseline {:.3} / {:.2} dB", v.pairs, v.rmse, v.psnr, v.rmse_baseline, v.psnr_baseline);
+            run.save(checkpoint, Some(&v))?;
+            last = Some(v);
+        }
+    }
+    let p = &run.progress;
+    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "validation": last, "checkpoint": checkpoint }));
+    Ok(())
+}
+
+fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::path::Path, seed: u64, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::models::sketch_vae::{SketchVaeCpu, WEIGHT_FILE};
+    use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
+    let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
+    let dir = weights_dir(weights.clone());
+    let generator = sketch_generator(weights)?;
+    let path = dir.join(WEIGHT_FILE);
+    let vae = SketchVaeCpu::from_burnpack(&std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?).map_err(|e| format!("{}: {e}", path.display()))?;
+    std::fs::create_dir_all(out_dir).map_err(|e| format!("cannot create {}: {e}", out_dir.display()))?;
+    let threads = terrain::models::cpu::default_threads();
+    let t = std::time::Instant::now();
+    let variants = vae.variants(&sk, n, seed, &mut Default::default(), threads);
+    let mut scratch = Default::default();
+    let dems: Vec<Vec<f32>> = variants.iter().map(|v| generator.generate(v, &mut scratch, threads)).collect();
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    for (k, (v, h)) in variants.iter().zip(&dems).enumerate() {
+        let write = |name: String, f: &dyn Fn(std::io::BufWriter<std::fs::File>) -> Result<(), terrain::sketch::SketchError>| -> Result<(), String> {
+            let p = out_dir.join(name);
+            let file = std::fs::File::create(&p).map_err(|e| format!("cannot create {}: {e}", p.display()))?;
+            f(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", p.display()))
+        };
+        write(format!("variant_{k}_sketch.png"), &|w| v.write_png(w))?;
+        write(format!("variant_{k}_dem.png"), &|w| write_dem_png16(w, SKETCH_PX, h))?;
+    }
+    eprintln!("wrote {n} variants (sketch + 16-bit terrain) to {} in {ms:.0} ms", out_dir.display());
+    Ok(())
+}
+
+#[cfg(feature = "train")]
+#[allow(clippy::too_many_arguments)]
+fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch_vae::VaeConfig, validation: usize, device: &burn::tensor::Device) -> Result<(), String> {
+    use terrain::train::{pairs, sketch, sketch_vae};
+    let t = std::time::Instant::now();
+    let mut run = sketch_vae::VaeRun::start(cfg, dems, device, resume.then_some(checkpoint))?;
+    let val = sketch::pairs(dems, pairs::Split::Validation, validation, 0x5EED);
+    eprintln!("sketch VAE: {} parameters; {:?}; from step {}; pool and {} validation sketches made in {:.1} s", run.m.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
+    let end = run.progress.step + steps;
+    let mut last = None;
+    while run.progress.step < end {
+        run.step(dems)?;
+        let p = &run.progress;
+        if p.step % 10 == 0 || p.step == end {
+            eprintln!("step {:6}  reconstruction {:.4} KL {:.5} per pixel {:.2} s/step", p.step, p.l1, p.adv, p.seconds / p.step as f64);
+        }
+        if p.step % every == 0 || p.step == end {
+            let v = sketch_vae::validate(&run.cpu()?, &val);
+            eprintln!("validation ({} held-out sketches): bands kept {:.3}, ridge F1 {:.3}, valley F1 {:.3}; variants change {:.3} of the bands", v.sketches, v.band_agreement, v.ridge_f1, v.valley_f1, v.variant_band_change);
+            run.save(checkpoint, Some(&v))?;
+            last = Some(v);
+        }
+    }
+    let p = &run.progress;
+    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "reconstruction": p.l1, "kl": p.adv, "validation": last, "checkpoint": checkpoint }));
+    Ok(())
+}
+
+fn sketch_extract(dem: &std::path::Path, window: &[u32], out: &std::path::Path, dem_out: Option<PathBuf>) -> Result<(), String> {
+    use terrain::dem::{Heightfield, PngScale};
+    use terrain::sketch::{SKETCH_PX, extract, write_dem_png16};
+    let [x0, y0, side] = <[u32; 3]>::try_from(window).map_err(|_| "--window takes X0 Y0 SIDE".to_string())?;
+    let (x0, y0, side) = (x0 as usize, y0 as usize, side as usize);
+    let hf = Heightfield::read_path(dem, Some(1.0), PngScale::default()).map_err(|e| format!("{}: {e}", dem.display()))?;
+    if side < 16 || x0 + side > hf.width || y0 + side > hf.height {
+        return Err(format!("the window {x0} {y0} {side} must be at least 16 samples and lie inside the {}×{} DEM", hf.width, hf.height));
+    }
+    let win = hf.window(x0, y0, side, side);
+    if win.data.iter().any(|v| !v.is_finite()) {
+        return Err("the window has no-data samples".into());
+    }
+    // Bring the window to 256²: bilinear sampling at pixel centres.
+    let f = side as f32 / SKETCH_PX as f32;
+    let at = |x: usize, y: usize| win.data[y.min(side - 1) * side + x.min(side - 1)];
+    let heights: Vec<f32> = (0..SKETCH_PX * SKETCH_PX)
+        .map(|p| {
+            let (sx, sy) = ((((p % SKETCH_PX) as f32 + 0.5) * f - 0.5).max(0.0), (((p / SKETCH_PX) as f32 + 0.5) * f - 0.5).max(0.0));
+            let (ix, iy) = (sx as usize, sy as usize);
+            let (fx, fy) = (sx - ix as f32, sy - iy as f32);
+            let top = at(ix, iy) * (1.0 - fx) + at(ix + 1, iy) * fx;
+            let bottom = at(ix, iy + 1) * (1.0 - fx) + at(ix + 1, iy + 1) * fx;
+            top * (1.0 - fy) + bottom * fy
+        })
+        .collect();
+    let e = extract::extract(&heights).ok_or("the window is flat")?;
+    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    e.sketch.write_png(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    if let Some(p) = dem_out {
+        let file = std::fs::File::create(&p).map_err(|e| format!("cannot create {}: {e}", p.display()))?;
+        write_dem_png16(std::io::BufWriter::new(file), SKETCH_PX, &e.target).map_err(|e| format!("cannot write {}: {e}", p.display()))?;
+    }
+    let (r, v) = e.sketch.stroke_cover();
+    eprintln!("wrote {}: ridges cover {:.1} %, valleys {:.1} %", out.display(), r * 100.0, v * 100.0);
+    Ok(())
+}
+
+fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::sketch::{self, baseline, extract, score};
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png"))).collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(format!("no .png pairs in {}", dir.display()));
+    }
+    let generator = sketch_generator(weights)?;
+    let mut scratch = Default::default();
+    let threads = terrain::models::cpu::default_threads();
+    let mut rows = Vec::new();
+    let mut ms = Vec::new();
+    println!("{:36} {:>8} {:>8} {:>9} {:>9} {:>6} {:>8} {:>9}", "pair", "RMSE", "PSNR", "base RMSE", "base PSNR", "bands", "ridge F1", "valley F1");
+    for f in &files {
+        let file = std::fs::File::open(f).map_err(|e| format!("{}: {e}", f.display()))?;
+        let (sk, target) = sketch::read_pair(std::io::BufReader::new(file)).map_err(|e| format!("{}: {e}", f.display()))?;
+        let base = baseline::interpolate(&sk);
+        let rmse = score::rmse(&base, &target);
+        let t = std::time::Instant::now();
+        let ours = generator.generate(&sk, &mut scratch, threads);
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+        let e = score::rmse(&ours, &target);
+        let ex = extract::extract(&target).ok_or_else(|| format!("{}: flat DEM half", f.display()))?;
+        let ag = score::Agreement::between(&ex.sketch, &sk);
+        let name = f.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+        println!("{name:36} {e:8.3} {:8.2} {rmse:9.3} {:9.2} {:6.3} {:8.3} {:9.3}", score::psnr(e), score::psnr(rmse), ag.band, ag.ridge_f1(), ag.valley_f1());
+        rows.push(serde_json::json!({ "pair": name, "rmse": e, "psnr": score::psnr(e), "rmse_baseline": rmse, "psnr_baseline": score::psnr(rmse), "extractor": {
+            "band_agreement": ag.band, "ridge_precision": ag.ridge_precision, "ridge_recall": ag.ridge_recall, "valley_precision": ag.valley_precision, "valley_recall": ag.valley_recall } }));
+    }
+    let mean = |k: &str| rows.iter().map(|r| r[k].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / rows.len() as f64;
+    let mean_ex = |k: &str| rows.iter().map(|r| r["extractor"][k].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / rows.len() as f64;
+    let f1 = |p: f64, r: f64| 2.0 * p * r / (p + r).max(1e-12);
+    println!("{:36} {:8.3} {:8.2} {:9.3} {:9.2} {:6.3} {:8.3} {:9.3}", "mean", mean("rmse"), mean("psnr"), mean("rmse_baseline"), mean("psnr_baseline"), mean_ex("band_agreement"), f1(mean_ex("ridge_precision"), mean_ex("ridge_recall")), f1(mean_ex("valley_precision"), mean_ex("valley_recall")));
+    ms.sort_by(f64::total_cmp);
+    println!("{}", serde_json::json!({ "pairs": rows.len(), "mean": { "rmse": mean("rmse"), "psnr": mean("psnr"), "rmse_baseline": mean("rmse_baseline"), "psnr_baseline": mean("psnr_baseline"),
+        "extractor_band_agreement": mean_ex("band_agreement"), "extractor_ridge_precision": mean_ex("ridge_precision"), "extractor_ridge_recall": mean_ex("ridge_recall"),
+        "extractor_valley_precision": mean_ex("valley_precision"), "extractor_valley_recall": mean_ex("valley_recall") }, "generator_ms_median": ms[ms.len() / 2], "per_pair": rows }));
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -491,6 +792,15 @@ fn main() -> ExitCode {
         Command::TemBench { level, batch, repeats, threads, weights } => tem_bench(level as usize, batch as usize, repeats as usize, threads, weights),
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
+        Command::EvalSketch { pairs, weights } => eval_sketch(&pairs, weights),
+        Command::Sketch { input, out, weights } => sketch(&input, &out, weights),
+        Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
+        #[cfg(feature = "train")]
+        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model } => {
+            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, ..Default::default() };
+            train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model)
+        }
+        Command::SketchVariants { input, n, out_dir, seed, weights } => sketch_variants(&input, n as usize, &out_dir, seed, weights),
         #[cfg(feature = "train")]
         Command::EvalTem { dem_dir, weights, windows } => eval_tem(dem_dir, weights, windows),
         #[cfg(feature = "train")]

@@ -3,10 +3,11 @@
 //!
 //! Format (version 2): `#v=2&seed=S&src=SOURCE&w=HASH&cam=X,Y,Z,YAW,PITCH&r=R&lod=PX&noise=KIND,OCT,PERS,LAC,WAVE,AMP,BASE&auto=V`
 //! with metres for positions, radians for angles, tiles for R, pixels for PX and m/s for V.
-//! SOURCE is `tcm` (the learned world) or `procedural`; HASH names the learned world's weights
-//! (absent for the procedural world). Version-1 links (no `src`, no `w`) were made when the
-//! world was procedural: they open the procedural world, and the page says the world may
-//! differ. Unknown keys are ignored so older pages can open newer links. Keys and values are
+//! SOURCE is `tcm` (the learned world), `procedural` or `sketch`; HASH names the learned world's
+//! weights, or the sketch generator's (absent for the procedural world). A sketch world adds
+//! `&sk=CODE&relief=M`: the sketch ([`crate::sketch::code`]) and its relief in metres.
+//! Version-1 links (no `src`, no `w`) were made when the world was procedural: they open the
+//! procedural world, and the page says the world may differ. Unknown keys are ignored so older pages can open newer links. Keys and values are
 //! percent-decoded (`application/x-www-form-urlencoded`, as browsers encode them).
 //!
 //! The page's query string (`?tem=gpu|cpu|off`) holds options of this page load, not of the
@@ -45,6 +46,11 @@ pub struct ShareState {
     pub noise: NoiseParams,
     /// Autopilot speed (m/s); 0 when off.
     pub autopilot_mps: f64,
+    /// The sketch of a sketch world ([`crate::sketch::code`]); `None` for other worlds or a
+    /// sketch world that starts from the page's first example.
+    pub sketch: Option<String>,
+    /// Relief of a sketch world (metres from its lowest to its highest point).
+    pub relief_m: f64,
 }
 
 impl Default for ShareState {
@@ -61,6 +67,8 @@ impl Default for ShareState {
             lod_px: 6.0,
             noise: NoiseParams::default(),
             autopilot_mps: 0.0,
+            sketch: None,
+            relief_m: crate::world::sketched::DEFAULT_RELIEF_M,
         }
     }
 }
@@ -99,10 +107,13 @@ impl ShareState {
             NoiseKind::Ridged => "ridged",
         };
         let [x, y, z] = self.position_m;
-        let weights = match (self.source, &self.weights) {
-            (SourceKind::Learned, Some(h)) => format!("&w={h}"),
+        let mut weights = match (self.source, &self.weights) {
+            (SourceKind::Learned | SourceKind::Sketch, Some(h)) => format!("&w={h}"),
             _ => String::new(),
         };
+        if let (SourceKind::Sketch, Some(code)) = (self.source, &self.sketch) {
+            weights.push_str(&format!("&sk={code}&relief={}", self.relief_m));
+        }
         format!(
             "v={LINK_VERSION}&seed={}&src={}{weights}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}",
             self.seed,
@@ -136,7 +147,7 @@ impl ShareState {
                         s.source = SourceKind::Procedural;
                     }
                 }
-                "src" => s.source = SourceKind::from_key(value).ok_or_else(|| ShareError(format!("unknown world source '{value}' (expected tcm or procedural)")))?,
+                "src" => s.source = SourceKind::from_key(value).ok_or_else(|| ShareError(format!("unknown world source '{value}' (expected tcm, procedural or sketch)")))?,
                 "w" => {
                     if value.is_empty() || value.len() > MAX_HASH_DIGITS || !value.bytes().all(|b| b.is_ascii_hexdigit()) {
                         return Err(ShareError(format!("weights hash '{value}' is not 1..{MAX_HASH_DIGITS} hex digits")));
@@ -184,6 +195,17 @@ impl ShareState {
                     let noise = NoiseParams { kind, octaves: oct as u32, persistence: pers as f32, lacunarity: lac as f32, wavelength_m: wave as f32, amplitude_m: amp as f32, base_m: base as f32 };
                     noise.validate().map_err(ShareError)?;
                     s.noise = noise;
+                }
+                "sk" => {
+                    crate::sketch::code::decode(value).map_err(|e| ShareError(e.to_string()))?;
+                    s.sketch = Some(value.to_string());
+                }
+                "relief" => {
+                    let [r] = numbers::<1>(key, value)?;
+                    if !crate::world::sketched::RELIEF_M.contains(&r) {
+                        return Err(ShareError(format!("relief {r} m is outside 10..8000 m")));
+                    }
+                    s.relief_m = r;
                 }
                 "auto" => {
                     let [v] = numbers::<1>(key, value)?;
@@ -251,6 +273,20 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_sketch_link_round_trips_its_sketch_and_relief_and_refuses_broken_ones() {
+        let code = crate::sketch::code::encode(&crate::sketch::examples::first().1);
+        let s = ShareState { source: SourceKind::Sketch, weights: Some("00ff00ff".into()), sketch: Some(code.clone()), relief_m: 2345.5, ..ShareState::default() };
+        let f = s.to_fragment();
+        assert!(f.contains("src=sketch") && f.contains(&format!("sk={code}")) && f.contains("relief=2345.5"), "{f}");
+        assert_eq!(ShareState::from_fragment(&f).unwrap(), s);
+        let broken = f.replace(&code, &code[..code.len() / 2]);
+        let err = ShareState::from_fragment(&broken).unwrap_err();
+        assert!(err.0.contains("sketch code"), "{err}");
+        let err = ShareState::from_fragment(&f.replace("relief=2345.5", "relief=1e9")).unwrap_err();
+        assert!(err.0.contains("relief"), "{err}");
+    }
+
+    #[test]
     fn round_trip_is_exact() {
         let s = ShareState {
             seed: 18_446_744_073_709_551_615,
@@ -264,6 +300,8 @@ mod tests {
             lod_px: 3.25,
             noise: NoiseParams { kind: NoiseKind::Fbm, octaves: 11, persistence: 0.47, lacunarity: 2.13, wavelength_m: 15_000.5, amplitude_m: 1999.9, base_m: -10.1 },
             autopilot_mps: 250.0,
+            sketch: None,
+            relief_m: crate::world::sketched::DEFAULT_RELIEF_M,
         };
         let back = ShareState::from_fragment(&format!("#{}", s.to_fragment())).unwrap();
         assert_eq!(back, s);

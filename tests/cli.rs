@@ -213,3 +213,99 @@ fn enhance_refines_a_dem_to_the_same_extent() {
     assert!(tem_worst < 0.25 && tem_mean < 0.05, "TEM blocks depart from the input by up to {tem_worst} m (mean {tem_mean} m)");
     assert!(tem_worst < bic_worst && tem_mean < bic_mean, "the TEM keeps block means no better than bicubic");
 }
+
+/// A sketch extracted from smooth synthetic terrain, and its 0–255 target.
+fn synthetic_sketch() -> terrain::sketch::extract::Extracted {
+    let side = terrain::sketch::SKETCH_PX;
+    let h: Vec<f32> = (0..side * side)
+        .map(|p| {
+            let (x, y) = ((p % side) as f32, (p / side) as f32);
+            (x * 0.021).sin() * 90.0 + (y * 0.017 + x * 0.006).cos() * 70.0 + (x * 0.05).sin() * (y * 0.043).cos() * 25.0
+        })
+        .collect();
+    terrain::sketch::extract::extract(&h).unwrap()
+}
+
+fn read_png16(p: &PathBuf) -> (u32, u32, Vec<u16>) {
+    let mut reader = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(p).unwrap())).read_info().unwrap();
+    let mut buf = vec![0u8; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!((info.color_type, info.bit_depth), (png::ColorType::Grayscale, png::BitDepth::Sixteen));
+    (info.width, info.height, buf[..info.buffer_size()].chunks_exact(2).map(|c| u16::from_be_bytes([c[0], c[1]])).collect())
+}
+
+#[test]
+fn sketch_makes_a_full_range_16_bit_dem_whose_height_quarters_follow_the_bands() {
+    let e = synthetic_sketch();
+    let (input, out) = (tmp("sketch.png"), tmp("sketch_dem.png"));
+    e.sketch.write_png(std::fs::File::create(&input).unwrap()).unwrap();
+    let o = run(&["sketch", "--input", input.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (w, h, v) = read_png16(&out);
+    assert_eq!((w, h), (256, 256));
+    assert_eq!((v.iter().min(), v.iter().max()), (Some(&0), Some(&65535)));
+    // The sketch's bands are the target's height quarters: the terrain made from it must put
+    // at least 90 % of the pixels in their band's quarter.
+    let agree = v.iter().zip(&e.sketch.band).filter(|&(&x, &b)| ((x as f32 / 65535.0 * 255.0 / 64.0) as u8).min(3) == b).count();
+    assert!(agree as f64 / v.len() as f64 >= 0.9, "{agree} of {} pixels in their band", v.len());
+}
+
+#[test]
+fn sketch_refuses_wrong_sizes_and_images_that_are_not_sketches() {
+    let out = tmp("never.png");
+    let small = tmp("small.png");
+    terrain::sketch::write_rgb_png(std::fs::File::create(&small).unwrap(), 100, 80, &vec![0u8; 100 * 80 * 3]).unwrap();
+    let o = run(&["sketch", "--input", small.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("256×256 pixels; this image is 100×80"), "{}", String::from_utf8_lossy(&o.stderr));
+    let grey = tmp("grey.png");
+    let rgb: Vec<u8> = (0..256 * 256).flat_map(|p| [(p % 251) as u8; 3]).collect();
+    terrain::sketch::write_rgb_png(std::fs::File::create(&grey).unwrap(), 256, 256, &rgb).unwrap();
+    let o = run(&["sketch", "--input", grey.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("not a sketch"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!out.exists(), "no output for a refused input");
+}
+
+#[test]
+fn sketch_variants_writes_n_distinct_sketches_and_their_terrain() {
+    let e = synthetic_sketch();
+    let input = tmp("variants_in.png");
+    e.sketch.write_png(std::fs::File::create(&input).unwrap()).unwrap();
+    let dir = tmp("variants");
+    let o = run(&["sketch-variants", "--input", input.to_str().unwrap(), "--n", "3", "--out-dir", dir.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let sketches: Vec<terrain::sketch::Sketch> = (0..3).map(|k| terrain::sketch::Sketch::read_path(&dir.join(format!("variant_{k}_sketch.png"))).unwrap()).collect();
+    for k in 0..3 {
+        let (w, h, _) = read_png16(&dir.join(format!("variant_{k}_dem.png")));
+        assert_eq!((w, h), (256, 256));
+    }
+    assert!(sketches[0] != sketches[1] && sketches[1] != sketches[2], "variants must differ");
+}
+
+#[test]
+fn eval_sketch_scores_every_pair_and_its_mean_is_the_mean_of_the_pairs() {
+    let dir = tmp("pairs");
+    std::fs::create_dir_all(&dir).unwrap();
+    let e = synthetic_sketch();
+    for k in 0..2 {
+        let sk = e.sketch.to_rgb();
+        let mut rgb = Vec::with_capacity(512 * 256 * 3);
+        for y in 0..256 {
+            rgb.extend_from_slice(&sk[y * 256 * 3..(y + 1) * 256 * 3]);
+            // The second pair's DEM is the first one's mirrored: a worse match for the sketch.
+            rgb.extend((0..256).flat_map(|x| [e.target[y * 256 + if k == 0 { x } else { 255 - x }].round() as u8; 3]));
+        }
+        terrain::sketch::write_rgb_png(std::fs::File::create(dir.join(format!("pair_{k}.png"))).unwrap(), 512, 256, &rgb).unwrap();
+    }
+    let o = run(&["eval-sketch", "--pairs", dir.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    let json: serde_json::Value = serde_json::from_str(text.lines().last().unwrap()).unwrap();
+    let per = json["per_pair"].as_array().unwrap();
+    assert_eq!(per.len(), 2);
+    let rmse: Vec<f64> = per.iter().map(|p| p["rmse"].as_f64().unwrap()).collect();
+    assert!(rmse[0] < rmse[1], "the matching DEM scores better: {rmse:?}");
+    assert!((json["mean"]["rmse"].as_f64().unwrap() - (rmse[0] + rmse[1]) / 2.0).abs() < 1e-9);
+    assert!(per[0]["extractor"]["band_agreement"].as_f64().unwrap() > 0.99, "the extractor reads its own sketch's DEM back");
+}

@@ -762,6 +762,18 @@ pub fn pool2(src: &Map, dst: &mut Map) {
     }
 }
 
+/// `src` upsampled ×2 (nearest): `dst` becomes twice the size with the same channels.
+pub fn up2(src: &Map, dst: &mut Map) {
+    let c = src.c;
+    dst.reset(2 * src.h, 2 * src.w, c);
+    for y in 0..2 * src.h {
+        for x in 0..2 * src.w {
+            let (o, i) = (dst.at(y, x), src.at(y / 2, x / 2));
+            dst.data[o..o + c].copy_from_slice(&src.data[i..i + c]);
+        }
+    }
+}
+
 /// The `side`² centre of `coarse` upsampled ×2 (nearest) followed by the `side`² centre of
 /// `skip`, as one map of `coarse.c + skip.c` channels (a UNet decoder's input).
 pub fn up2_concat(coarse: &Map, skip: &Map, side: usize, dst: &mut Map) {

@@ -7,6 +7,8 @@
 pub mod cpu;
 pub mod grow;
 pub mod runtime;
+pub mod sketch;
+pub mod sketch_vae;
 pub mod tcm;
 pub mod tem;
 

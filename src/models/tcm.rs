@@ -133,16 +133,16 @@ pub struct Stage {
     b: Conv2d,
 }
 
-fn conv3(cin: usize, cout: usize, device: &Device) -> Conv2d {
+pub(crate) fn conv3(cin: usize, cout: usize, device: &Device) -> Conv2d {
     Conv2dConfig::new([cin, cout], [3, 3]).with_padding(PaddingConfig2d::Same).init(device)
 }
 
 impl Stage {
-    fn new(cin: usize, cout: usize, device: &Device) -> Self {
+    pub(crate) fn new(cin: usize, cout: usize, device: &Device) -> Self {
         Self { a: conv3(cin, cout, device), b: conv3(cout, cout, device) }
     }
 
-    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+    pub(crate) fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         relu(self.b.forward(relu(self.a.forward(x))))
     }
 

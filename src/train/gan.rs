@@ -11,7 +11,8 @@ use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::activation::leaky_relu;
 use burn::tensor::{Device, Tensor};
 
-/// A PatchGAN discriminator: a 2-channel window (heights and a condition) → logits at 1/8 of
+/// A PatchGAN discriminator: a window of heights and a condition (2 channels unless made with
+/// [`Disc::with_inputs`]) → logits at 1/8 of
 /// its size, three stride-2 3×3 convolutions with leaky ReLU and a 3×3 head. Training only.
 #[derive(Module, Debug)]
 pub struct Disc {
@@ -20,9 +21,15 @@ pub struct Disc {
 }
 
 impl Disc {
-    /// A freshly initialised discriminator on `device`.
+    /// A freshly initialised discriminator of 2-channel windows on `device`.
     pub fn new(device: &Device) -> Self {
-        let widths = [2, 32, 64, 128];
+        Self::with_inputs(2, device)
+    }
+
+    /// A freshly initialised discriminator of `channels`-channel windows (heights first, then
+    /// the condition) on `device`.
+    pub fn with_inputs(channels: usize, device: &Device) -> Self {
+        let widths = [channels, 32, 64, 128];
         let convs = widths.windows(2).map(|w| Conv2dConfig::new([w[0], w[1]], [3, 3]).with_stride([2, 2]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device)).collect();
         Self { convs, head: Conv2dConfig::new([128, 1], [3, 3]).with_padding(PaddingConfig2d::Same).init(device) }
     }

@@ -8,6 +8,8 @@
 pub mod gan;
 pub mod grow;
 pub mod pairs;
+pub mod sketch;
+pub mod sketch_vae;
 pub mod tcm;
 pub mod world_eval;
 

@@ -24,6 +24,8 @@ use crate::render::camera::ControlInput;
 use crate::render::gpu::TerrainRenderer;
 use crate::models::runtime::{self, Backend, CpuReason};
 use crate::share::{PageOptions, ShareState, TemChoice};
+use crate::sketch::Sketch;
+use crate::ui::sketch::SketchPanel;
 use crate::ui::{Environment, Overlay};
 
 const NO_WEBGPU: &str = "This page needs WebGPU, which this browser does not offer. Try a current Chrome, Edge or Safari (or enable WebGPU in the browser's settings).";
@@ -131,6 +133,27 @@ struct Ml {
     /// Finished learned tiles: the job, and the heights and the worker's milliseconds or the
     /// error.
     tiles: Vec<(Job<TileCoord>, Result<(Vec<f32>, f64), String>)>,
+    /// The sketch models: not asked for yet (`None`), loading, loaded (the generator's hash)
+    /// or why they are not available.
+    sketch: Option<Option<Result<String, String>>>,
+    /// Finished sketch → terrain jobs.
+    sketches: Vec<(Job<u64>, Result<(Vec<f32>, f64), String>)>,
+    /// Proposed variants (or why they failed), once they come back.
+    variants: Option<Result<Vec<(Sketch, Vec<f32>)>, String>>,
+    /// A blend came back (or failed).
+    blend: Option<Result<(Sketch, Vec<f32>), String>>,
+    /// Variants or a blend are being made.
+    sketch_busy: bool,
+    /// Blends that came back and were drawn.
+    blends: u32,
+}
+
+/// Loads the sketch models (generator and VAE, fetched at once) into the CPU worker and
+/// records the generator's hash, or why they are not available, in `ml`.
+async fn start_sketch(worker: Result<Rc<worker::CpuWorker>, String>, ml: Rc<RefCell<Ml>>) {
+    let files = [crate::models::sketch::WEIGHT_FILE, crate::models::sketch_vae::WEIGHT_FILE];
+    let result = load_pair(files, worker, |w, a, b| async move { w.load_sketch(&a, &b).await }).await;
+    ml.borrow_mut().sketch = Some(Some(result));
 }
 
 /// The page's CPU inference worker, started once (and kept when a lost device restarts the
@@ -149,21 +172,29 @@ async fn cpu_worker() -> Result<Rc<worker::CpuWorker>, String> {
 /// Loads the learned world's weights (both requests go out at once) into the CPU worker and
 /// records the hash, or why the learned world is not available, in `ml`.
 async fn start_world(worker: Result<Rc<worker::CpuWorker>, String>, ml: Rc<RefCell<Ml>>) {
-    let urls = [format!("weights/{TCM_FILE}"), format!("weights/{GROW_FILE}")];
-    let requests: Vec<_> = urls.iter().map(|u| start_fetch(u)).collect();
-    let result = async {
-        let mut files = Vec::new();
-        for (url, request) in urls.iter().zip(requests) {
-            files.push(fetched_bytes(url, request?).await.map_err(|e| format!("its weights could not be loaded ({e})"))?);
-        }
-        let w = worker.map_err(|e| format!("it needs a Web Worker ({e})"))?;
-        w.load_world(&files[0], &files[1]).await.map_err(|e| match e {
-            worker::WorkerError::Failed(e) => format!("its weights are broken ({e})"),
-            worker::WorkerError::Unavailable(e) => format!("the CPU worker stopped ({e})"),
-        })
-    }
-    .await;
+    let result = load_pair([TCM_FILE, GROW_FILE], worker, |w, a, b| async move { w.load_world(&a, &b).await }).await;
     ml.borrow_mut().world = Some(result);
+}
+
+/// Fetches two weight files (both requests go out at once) and hands them to the CPU worker
+/// with `load`; returns its answer (a weights hash) or why the models are not available.
+async fn load_pair<F, Fut>(files: [&str; 2], worker: Result<Rc<worker::CpuWorker>, String>, load: F) -> Result<String, String>
+where
+    F: FnOnce(Rc<worker::CpuWorker>, Vec<u8>, Vec<u8>) -> Fut,
+    Fut: std::future::Future<Output = Result<String, worker::WorkerError>>,
+{
+    let urls = files.map(|f| format!("weights/{f}"));
+    let requests: Vec<_> = urls.iter().map(|u| start_fetch(u)).collect();
+    let mut bytes = Vec::new();
+    for (url, request) in urls.iter().zip(requests) {
+        bytes.push(fetched_bytes(url, request?).await.map_err(|e| format!("its weights could not be loaded ({e})"))?);
+    }
+    let w = worker.map_err(|e| format!("it needs a Web Worker ({e})"))?;
+    let (b, a) = (bytes.pop().unwrap_or_default(), bytes.pop().unwrap_or_default());
+    load(w, a, b).await.map_err(|e| match e {
+        worker::WorkerError::Failed(e) => format!("its weights are broken ({e})"),
+        worker::WorkerError::Unavailable(e) => format!("the CPU worker stopped ({e})"),
+    })
 }
 
 /// Runs the fixed TEM probe on the page's models (whichever backend they run on) and returns
@@ -467,6 +498,10 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
                     last_hash: hash,
                     last_url_write_ms: 0.0,
                     copied_at_ms: None,
+                    sketch_panel: SketchPanel::default(),
+                    examples: crate::sketch::examples::all(),
+                    import: Rc::default(),
+                    pending_blend: None,
                 }))
             }),
         )
@@ -497,9 +532,180 @@ struct WebApp {
     last_hash: String,
     last_url_write_ms: f64,
     copied_at_ms: Option<f64>,
+    sketch_panel: SketchPanel,
+    examples: Vec<(&'static str, Sketch)>,
+    /// A sketch PNG the user opened (or why it could not be read), once it is read.
+    import: Rc<RefCell<Option<Result<Sketch, String>>>>,
+    /// A blend α asked for while another blend was being made (the latest wins).
+    pending_blend: Option<f32>,
+}
+
+/// Offers `bytes` as a file download named `name`.
+fn download(name: &str, bytes: &[u8], mime: &str) -> Result<(), String> {
+    let err = |e: JsValue| format!("{e:?}");
+    let parts = js_sys::Array::of1(&js_sys::Uint8Array::from(bytes));
+    let props = web_sys::BlobPropertyBag::new();
+    props.set_type(mime);
+    let blob = web_sys::Blob::new_with_u8_array_sequence_and_options(&parts, &props).map_err(err)?;
+    let url = web_sys::Url::create_object_url_with_blob(&blob).map_err(err)?;
+    let document = web_sys::window().and_then(|w| w.document()).ok_or("no document")?;
+    let a: web_sys::HtmlAnchorElement = document.create_element("a").map_err(err)?.dyn_into().map_err(|_| "no anchor element")?;
+    a.set_href(&url);
+    a.set_download(name);
+    a.click();
+    let _ = web_sys::Url::revoke_object_url(&url);
+    Ok(())
+}
+
+/// Asks the user for a sketch PNG; the sketch (or why it is not one) lands in `slot`.
+fn pick_sketch_file(slot: Rc<RefCell<Option<Result<Sketch, String>>>>) -> Result<(), String> {
+    let err = |e: JsValue| format!("{e:?}");
+    let document = web_sys::window().and_then(|w| w.document()).ok_or("no document")?;
+    let input: web_sys::HtmlInputElement = document.create_element("input").map_err(err)?.dyn_into().map_err(|_| "no input element")?;
+    input.set_type("file");
+    input.set_accept("image/png");
+    input.set_id("terrain_sketch_file");
+    let _ = input.set_attribute("style", "display:none");
+    document.body().ok_or("no body")?.append_child(&input).map_err(err)?;
+    let el = input.clone();
+    let on_change = Closure::<dyn FnMut()>::new(move || {
+        let Some(file) = el.files().and_then(|f| f.get(0)) else { return };
+        let (slot, el) = (slot.clone(), el.clone());
+        wasm_bindgen_futures::spawn_local(async move {
+            let read = wasm_bindgen_futures::JsFuture::from(file.array_buffer()).await;
+            let result = match read {
+                Ok(buf) => Sketch::read_png(std::io::Cursor::new(js_sys::Uint8Array::new(&buf).to_vec())).map_err(|e| format!("{}: {e}", file.name())),
+                Err(e) => Err(format!("{} could not be read: {e:?}", file.name())),
+            };
+            *slot.borrow_mut() = Some(result);
+            el.remove();
+        });
+    });
+    input.set_onchange(Some(on_change.as_ref().unchecked_ref()));
+    on_change.forget();
+    input.click();
+    Ok(())
 }
 
 impl WebApp {
+    /// Loads the sketch models once the sketch world is shown, hands finished terrains,
+    /// variants and blends to the app and the panel, and starts the next sketch job.
+    fn pump_sketch(&mut self, ctx: &egui::Context) {
+        if self.app.source() != crate::world::SourceKind::Sketch {
+            return;
+        }
+        let Some(Ok(w)) = WORKER.with(|w| w.borrow().clone()) else {
+            if !matches!(self.app.sketch_models(), LearnedStatus::Failed(_)) {
+                self.app.set_sketch_models(LearnedStatus::Failed("no CPU worker".into()));
+                self.message = Some("The sketch generator needs a Web Worker: showing the band interpolation instead.".into());
+            }
+            return;
+        };
+        let mut ml = self.ml.borrow_mut();
+        match ml.sketch.clone() {
+            None => {
+                ml.sketch = Some(None);
+                wasm_bindgen_futures::spawn_local(start_sketch(Ok(w.clone()), self.ml.clone()));
+            }
+            Some(Some(Ok(hash))) if !matches!(self.app.sketch_models(), LearnedStatus::Ready { .. }) => self.app.set_sketch_models(LearnedStatus::Ready { hash }),
+            Some(Some(Err(why))) if !matches!(self.app.sketch_models(), LearnedStatus::Failed(_)) => {
+                self.app.set_sketch_models(LearnedStatus::Failed(why.clone()));
+                self.message = Some(format!("The sketch generator is not available: {why}. Showing the band interpolation instead."));
+            }
+            _ => {}
+        }
+        for (job, result) in std::mem::take(&mut ml.sketches) {
+            match result {
+                Ok((h, ms)) => {
+                    self.app.sketch_done(&job, h, ms);
+                }
+                Err(e) => {
+                    self.app.sketch_failed(&job);
+                    self.message = Some(format!("The sketch could not be made into terrain: {e}"));
+                }
+            }
+        }
+        match ml.variants.take() {
+            Some(Ok(v)) => self.sketch_panel.set_variants(ctx, v),
+            Some(Err(e)) => self.message = Some(format!("No variants: {e}")),
+            None => {}
+        }
+        match ml.blend.take() {
+            Some(Ok((s, _))) => {
+                ml.blends += 1;
+                self.app.canvas.load(s);
+            }
+            Some(Err(e)) => self.message = Some(format!("No blend: {e}")),
+            None => {}
+        }
+        if !ml.sketch_busy
+            && let Some(alpha) = self.pending_blend.take()
+            && let Some((a, b)) = self.sketch_panel.blend_pair()
+        {
+            ml.sketch_busy = true;
+            let (w, shared, a, b) = (w.clone(), self.ml.clone(), a.clone(), b.clone());
+            wasm_bindgen_futures::spawn_local(async move {
+                let r = w.blend(&a, &b, alpha).await.map_err(|e| e.to_string());
+                let mut ml = shared.borrow_mut();
+                ml.blend = Some(r);
+                ml.sketch_busy = false;
+            });
+        }
+        drop(ml);
+        for (job, sketch) in self.app.sketch_jobs() {
+            let (w, shared) = (w.clone(), self.ml.clone());
+            wasm_bindgen_futures::spawn_local(async move {
+                let out = w.sketch(&sketch).await.map_err(|e| e.to_string());
+                shared.borrow_mut().sketches.push((job, out));
+            });
+        }
+    }
+
+    /// The sketch panel's requests: files, variants, blends, relief.
+    fn sketch_actions(&mut self, act: crate::ui::sketch::SketchActions) {
+        if act.export {
+            let mut png = Vec::new();
+            let r = self.app.canvas.sketch().write_png(&mut png).map_err(|e| e.to_string()).and_then(|_| download("sketch.png", &png, "image/png"));
+            if let Err(e) = r {
+                self.message = Some(format!("The sketch could not be exported: {e}"));
+            }
+        }
+        if act.import
+            && let Err(e) = pick_sketch_file(self.import.clone())
+        {
+            self.message = Some(format!("No file dialog: {e}"));
+        }
+        match self.import.borrow_mut().take() {
+            Some(Ok(s)) => self.app.canvas.load(s),
+            Some(Err(e)) => self.message = Some(e),
+            None => {}
+        }
+        if act.variants {
+            let ready = matches!(self.app.sketch_models(), LearnedStatus::Ready { .. });
+            if let (true, Some(Ok(w))) = (ready, WORKER.with(|w| w.borrow().clone())) {
+                self.ml.borrow_mut().sketch_busy = true;
+                let (shared, sketch) = (self.ml.clone(), self.app.canvas.sketch().clone());
+                let seed = self.app.stats().sketch_revision;
+                wasm_bindgen_futures::spawn_local(async move {
+                    let r = w.variants(&sketch, 4, seed).await.map_err(|e| e.to_string());
+                    let mut ml = shared.borrow_mut();
+                    ml.variants = Some(r);
+                    ml.sketch_busy = false;
+                });
+            } else {
+                self.message = Some("Variants need the sketch models, which are not ready.".into());
+            }
+        }
+        if let Some(a) = act.blend {
+            self.pending_blend = Some(a);
+        }
+        if let Some(r) = act.relief_m {
+            let mut s = self.app.share_state();
+            s.relief_m = r;
+            self.app.apply_settings(s.clone());
+            self.overlay.reset(s);
+        }
+    }
     /// Tells the app when the learned world's models are ready or failed, hands it finished
     /// tiles, and starts the tile jobs it asks for in the CPU worker.
     fn pump_world(&mut self) {
@@ -700,6 +906,7 @@ impl eframe::App for WebApp {
         let cpu_start = now_ms();
         self.pump_world();
         self.pump_refinement();
+        self.pump_sketch(&ctx);
         TILE_PROBE.with(|p| {
             let mut p = p.borrow_mut();
             if let (Some(c), None) = (p.0, &p.1) {
@@ -765,6 +972,12 @@ impl eframe::App for WebApp {
         if act.dismiss_message {
             self.message = None;
         }
+        if self.app.source() == crate::world::SourceKind::Sketch {
+            let busy = self.ml.borrow().sketch_busy || self.app.stats().sketch_jobs.in_flight > 0;
+            let relief = self.app.settings().relief_m;
+            let sk = self.sketch_panel.show(&ctx, &mut self.app.canvas, relief, busy, &self.examples);
+            self.sketch_actions(sk);
+        }
         if act.copy_link {
             self.last_url_write_ms = 0.0;
             self.write_hash(now);
@@ -793,6 +1006,13 @@ impl eframe::App for WebApp {
             "device_restarts": RESTARTS.get(),
             "link": link,
             "mode": format!("{:?}", mode),
+            // The sketch canvas on screen (CSS pixels: x, y, width, height), for tests that
+            // draw on it.
+            "sketch_canvas": self.sketch_panel.canvas_rect.filter(|_| self.app.source() == crate::world::SourceKind::Sketch).map(|r| [r.min.x, r.min.y, r.width(), r.height()]),
+            "sketch_models": format!("{:?}", self.app.sketch_models()),
+            "sketch_variants": self.sketch_panel.variant_count(),
+            "sketch_blends": self.ml.borrow().blends,
+            "sketch_buttons": self.sketch_panel.buttons.iter().map(|(k, r)| (k.clone(), [r.min.x, r.min.y, r.width(), r.height()])).collect::<std::collections::BTreeMap<_, _>>(),
         });
         STATS_JSON.with(|s| *s.borrow_mut() = json.to_string());
         ctx.request_repaint();

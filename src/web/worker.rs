@@ -13,7 +13,10 @@ use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 use wasm_bindgen_futures::JsFuture;
 
+use crate::models::sketch::SketchGenCpu;
+use crate::models::sketch_vae::SketchVaeCpu;
 use crate::models::tem::{Exec, TemSet};
+use crate::sketch::{SKETCH_PX, Sketch, code};
 use crate::world::learned::{LearnedModels, LearnedSource};
 use crate::world::{Neighbourhood, TileCoord, TileSource};
 
@@ -176,6 +179,47 @@ impl CpuWorker {
         Ok((out.to_vec(), get(&reply, "ms").as_f64().unwrap_or(0.0)))
     }
 
+    /// Loads the sketch models (the generator's and the VAE's burnpack bytes) into the worker
+    /// and returns the generator's hash.
+    pub async fn load_sketch(&self, generator: &[u8], vae: &[u8]) -> Result<String, WorkerError> {
+        let reply = self.load("load-sketch", &[generator, vae]).await?;
+        get(&reply, "hash").as_string().ok_or_else(|| WorkerError::Failed("the CPU worker's reply has no weights hash".into()))
+    }
+
+    /// Turns a sketch into terrain in the worker: heights (0–255 scale, 256²) and the
+    /// worker's milliseconds.
+    pub async fn sketch(&self, sketch: &Sketch) -> Result<(Vec<f32>, f64), WorkerError> {
+        let msg = Object::new();
+        set(&msg, "kind", &"sketch".into());
+        set(&msg, "code", &code::encode(sketch).into());
+        let reply = self.request(msg, Array::new()).await?;
+        let out: Float32Array = get(&reply, "out").dyn_into().map_err(|_| WorkerError::Failed("the CPU worker's reply has no heights".into()))?;
+        Ok((out.to_vec(), get(&reply, "ms").as_f64().unwrap_or(0.0)))
+    }
+
+    /// `n` variants of a sketch (seeded), each with its terrain, made in the worker.
+    pub async fn variants(&self, sketch: &Sketch, n: usize, seed: u64) -> Result<Vec<(Sketch, Vec<f32>)>, WorkerError> {
+        let msg = Object::new();
+        set(&msg, "kind", &"variants".into());
+        set(&msg, "code", &code::encode(sketch).into());
+        set(&msg, "n", &(n as u32).into());
+        set(&msg, "seed", &seed.to_string().into());
+        let reply = self.request(msg, Array::new()).await?;
+        sketches_of(&reply)
+    }
+
+    /// The sketch α·a + (1 − α)·b in the VAE's code space, with its terrain, made in the
+    /// worker.
+    pub async fn blend(&self, a: &Sketch, b: &Sketch, alpha: f32) -> Result<(Sketch, Vec<f32>), WorkerError> {
+        let msg = Object::new();
+        set(&msg, "kind", &"blend".into());
+        set(&msg, "code", &code::encode(a).into());
+        set(&msg, "other", &code::encode(b).into());
+        set(&msg, "alpha", &alpha.into());
+        let reply = self.request(msg, Array::new()).await?;
+        sketches_of(&reply)?.pop().ok_or_else(|| WorkerError::Failed("the CPU worker's reply has no sketch".into()))
+    }
+
     /// Posts `msg` (its buffers in `transfer` move to the worker) and waits for the reply.
     async fn request(&self, msg: Object, transfer: Array) -> Result<JsValue, WorkerError> {
         if let Some(why) = &self.pending.borrow().dead {
@@ -219,6 +263,26 @@ impl CpuWorker {
     }
 }
 
+/// The sketches (codes) and their terrains (concatenated heights) of a reply.
+fn sketches_of(reply: &JsValue) -> Result<Vec<(Sketch, Vec<f32>)>, WorkerError> {
+    let bad = |why: &str| WorkerError::Failed(format!("the CPU worker's reply {why}"));
+    let codes = Array::from(&get(reply, "codes"));
+    let out: Float32Array = get(reply, "out").dyn_into().map_err(|_| bad("has no heights"))?;
+    let heights = out.to_vec();
+    let n = SKETCH_PX * SKETCH_PX;
+    if heights.len() != codes.length() as usize * n {
+        return Err(bad("has the wrong number of heights"));
+    }
+    codes
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let s = code::decode(&c.as_string().unwrap_or_default()).map_err(|e| bad(&e.to_string()))?;
+            Ok((s, heights[k * n..(k + 1) * n].to_vec()))
+        })
+        .collect()
+}
+
 impl Drop for CpuWorker {
     fn drop(&mut self) {
         self.worker.terminate();
@@ -232,6 +296,13 @@ thread_local! {
     /// The learned world (set by its "load-world" request); its cache of 128 m tiles lives
     /// here.
     static WORKER_WORLD: RefCell<Option<LearnedSource>> = const { RefCell::new(None) };
+    /// The sketch generator and VAE (set by the "load-sketch" request).
+    static WORKER_SKETCH: RefCell<Option<(SketchGenCpu, SketchVaeCpu)>> = const { RefCell::new(None) };
+}
+
+/// Runs `f` with the worker's sketch models.
+fn with_sketch<T>(f: impl FnOnce(&SketchGenCpu, &SketchVaeCpu) -> T) -> Result<T, String> {
+    WORKER_SKETCH.with(|m| m.borrow().as_ref().map(|(g, v)| f(g, v))).ok_or_else(|| "the CPU worker has no sketch models loaded".to_string())
 }
 
 /// What the worker answers: nothing, inference results (heights, ms), or a weights hash.
@@ -239,6 +310,13 @@ enum Answer {
     Nothing,
     Heights(Vec<f32>, f64),
     Hash(String),
+    /// Sketches (codes) and their terrains, concatenated.
+    Sketches(Vec<String>, Vec<f32>),
+}
+
+/// The sketch in field `key` of a request (its code).
+fn sketch_arg(msg: &JsValue, key: &str) -> Result<Sketch, String> {
+    code::decode(&get(msg, key).as_string().ok_or(format!("the request has no {key}"))?).map_err(|e| e.to_string())
 }
 
 /// What a request asks of the worker.
@@ -257,6 +335,40 @@ fn handle(msg: &JsValue) -> Result<Answer, String> {
             let hash = models.hash.clone();
             WORKER_WORLD.with(|w| *w.borrow_mut() = Some(LearnedSource::new(std::sync::Arc::new(models), 1)));
             Ok(Answer::Hash(hash))
+        }
+        Some("load-sketch") => {
+            let f = files();
+            let [generator, vae] = f.as_slice() else { return Err("load-sketch needs two weight files".into()) };
+            let g = SketchGenCpu::from_burnpack(generator).map_err(|e| format!("{}: {e}", crate::models::sketch::WEIGHT_FILE))?;
+            let v = SketchVaeCpu::from_burnpack(vae).map_err(|e| format!("{}: {e}", crate::models::sketch_vae::WEIGHT_FILE))?;
+            let hash = format!("{:08x}", crate::world::schedule::mix64(generator.iter().fold(0u64, |h, &b| crate::world::schedule::mix64(h ^ b as u64))) >> 32);
+            WORKER_SKETCH.with(|m| *m.borrow_mut() = Some((g, v)));
+            Ok(Answer::Hash(hash))
+        }
+        Some("sketch") => {
+            let sketch = sketch_arg(msg, "code")?;
+            let t0 = web_time::Instant::now();
+            let h = with_sketch(|g, _| g.generate(&sketch, &mut Default::default(), 1))?;
+            Ok(Answer::Heights(h, t0.elapsed().as_secs_f64() * 1000.0))
+        }
+        Some("variants") => {
+            let sketch = sketch_arg(msg, "code")?;
+            let n = get(msg, "n").as_f64().filter(|n| (1.0..=16.0).contains(n)).ok_or("the request needs 1..16 variants")? as usize;
+            let seed: u64 = get(msg, "seed").as_string().and_then(|s| s.parse().ok()).ok_or("the request has no seed")?;
+            with_sketch(|g, v| {
+                let list = v.variants(&sketch, n, seed, &mut Default::default(), 1);
+                let heights = list.iter().flat_map(|s| g.generate(s, &mut Default::default(), 1)).collect();
+                Answer::Sketches(list.iter().map(code::encode).collect(), heights)
+            })
+        }
+        Some("blend") => {
+            let (a, b) = (sketch_arg(msg, "code")?, sketch_arg(msg, "other")?);
+            let alpha = get(msg, "alpha").as_f64().filter(|a| (0.0..=1.0).contains(a)).ok_or("the request needs an alpha in 0..1")? as f32;
+            with_sketch(|g, v| {
+                let s = v.interpolate(&a, &b, alpha, &mut Default::default(), 1);
+                let h = g.generate(&s, &mut Default::default(), 1);
+                Answer::Sketches(vec![code::encode(&s)], h)
+            })
         }
         Some("tile") => {
             let seed: u64 = get(msg, "seed").as_string().and_then(|s| s.parse().ok()).ok_or("the request has no seed")?;
@@ -297,6 +409,12 @@ pub fn terrain_worker_message(msg: JsValue) {
             set(&reply, "ms", &ms.into());
         }
         Ok(Answer::Hash(h)) => set(&reply, "hash", &h.into()),
+        Ok(Answer::Sketches(codes, out)) => {
+            let heights = Float32Array::from(out.as_slice());
+            transfer.push(&heights.buffer());
+            set(&reply, "out", &heights);
+            set(&reply, "codes", &codes.iter().map(|c| JsValue::from_str(c)).collect::<Array>());
+        }
         Ok(Answer::Nothing) => {}
         Err(e) => set(&reply, "error", &e.into()),
     }

@@ -11,6 +11,7 @@ pub mod quadtree;
 pub mod refine;
 pub mod schedule;
 pub mod seam;
+pub mod sketched;
 pub mod stream;
 pub mod tile;
 

@@ -76,20 +76,23 @@ pub enum SourceKind {
     Learned,
     /// Procedural noise ([`super::noise`]).
     Procedural,
+    /// The terrain drawn on the sketch canvas ([`super::sketched`]).
+    Sketch,
 }
 
 impl SourceKind {
-    /// The name in share links and on the command line (`tcm`, `procedural`).
+    /// The name in share links and on the command line (`tcm`, `procedural`, `sketch`).
     pub fn key(self) -> &'static str {
         match self {
             SourceKind::Learned => "tcm",
             SourceKind::Procedural => "procedural",
+            SourceKind::Sketch => "sketch",
         }
     }
 
     /// Reads [`key`](Self::key)'s names.
     pub fn from_key(key: &str) -> Option<Self> {
-        [SourceKind::Learned, SourceKind::Procedural].into_iter().find(|k| k.key() == key)
+        [SourceKind::Learned, SourceKind::Procedural, SourceKind::Sketch].into_iter().find(|k| k.key() == key)
     }
 
     /// The name shown to the user ("learned", "procedural").
@@ -97,6 +100,7 @@ impl SourceKind {
         match self {
             SourceKind::Learned => "learned",
             SourceKind::Procedural => "procedural",
+            SourceKind::Sketch => "sketch",
         }
     }
 }

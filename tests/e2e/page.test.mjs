@@ -13,6 +13,7 @@ import { fileURLToPath } from 'node:url';
 import { chromium } from 'playwright-core';
 import { PNG } from 'pngjs';
 import { execFileSync } from 'node:child_process';
+import zlib from 'node:zlib';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const dist = process.env.TERRAIN_DIST ?? path.resolve(here, '../../dist');
@@ -75,8 +76,8 @@ after(async () => {
 });
 
 /** Opens the page at `fragment`, collecting console errors and uncaught exceptions. */
-async function open(fragment = '', query = '') {
-  const page = await browser.newPage({ viewport: { width: 960, height: 600 } });
+async function open(fragment = '', query = '', viewport = { width: 960, height: 600 }) {
+  const page = await browser.newPage({ viewport, acceptDownloads: true });
   const errors = [];
   page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
   page.on('pageerror', (e) => errors.push(String(e)));
@@ -525,4 +526,138 @@ test('without WebGPU the page says so instead of failing silently', async () => 
   } finally {
     await plain.close();
   }
+});
+
+// ---- Sketch to terrain ----
+
+const SKETCH_VIEW = 'v=2&seed=7&src=sketch&cam=0,6000,10500,0,-0.42&r=3&lod=6';
+const BIG = { width: 1280, height: 900 };
+const pct = (v, q) => { const s = [...v].sort((a, b) => a - b); return s[Math.min(s.length - 1, Math.floor(q * s.length))]; };
+const sketchCode = (link) => new URLSearchParams(link).get('sk');
+/** Bands and strokes of a sketch code: one nibble per pixel (band | ridge << 2 | valley << 3). */
+function decodeSketch(code) {
+  const raw = zlib.inflateRawSync(Buffer.from(code, 'base64url'));
+  assert.equal(raw.length, 256 * 256 / 2);
+  return Array.from({ length: 256 * 256 }, (_, p) => (raw[p >> 1] >> (4 * (p & 1))) & 15);
+}
+/** Nibbles of a sketch PNG (the format's palette). */
+function pngSketch(buf) {
+  const png = PNG.sync.read(buf);
+  assert.equal(png.width, 256);
+  return Array.from({ length: 256 * 256 }, (_, p) => {
+    const [r, g, b] = [png.data[4 * p], png.data[4 * p + 1], png.data[4 * p + 2]];
+    const band = [63, 127, 191, 255].map((v, k) => [Math.abs(v - g), k]).sort((a, b) => a[0] - b[0])[0][1];
+    return band | (r >= 128 ? 4 : 0) | (b >= 128 ? 8 : 0);
+  });
+}
+const centre = (r) => [r[0] + r[2] / 2, r[1] + r[3] / 2];
+async function click(page, s, name) {
+  const r = s.sketch_buttons[name];
+  assert.ok(r, `no ${name} button in ${JSON.stringify(Object.keys(s.sketch_buttons))}`);
+  await page.mouse.click(...centre(r));
+}
+const shownNow = (s) => s.stats.sketch_shown === s.stats.sketch_revision;
+async function tileHeights(page, i, j) {
+  await page.evaluate(([i, j]) => window.wasmBindings.terrain_request_tile(i, j), [i, j]);
+  for (let k = 0; k < 200; k++) {
+    const t = JSON.parse(await page.evaluate(() => window.wasmBindings.terrain_tile_heights()));
+    if (t) return t;
+    await page.waitForTimeout(50);
+  }
+  throw new Error(`tile ${i}, ${j} never arrived`);
+}
+
+test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, clear, export/import, variants; a link reproduces the terrain', async () => {
+  const { page, errors } = await open(SKETCH_VIEW, '', BIG);
+  let s = await waitFor(page, (s) => s.sketch_models.startsWith('Ready') && s.stats.sketch_shown > 0 && shownNow(s) && s.sketch_canvas, 'the first sketch terrain');
+  const [cx, cy, cw] = s.sketch_canvas;
+  const at = (u, v) => [cx + (u / 256) * cw, cy + (v / 256) * cw];
+  // A scripted drawing: 8 strokes of the default tool (band 2, 12 px); for each, the time from
+  // releasing the pointer to the 3-D world showing that stroke's terrain.
+  const latencies = [];
+  const codes = [sketchCode(s.link)];
+  for (let k = 0; k < 8; k++) {
+    const before = s.stats.sketch_revision;
+    await page.mouse.move(...at(30 + 25 * k, 40));
+    await page.mouse.down();
+    for (let t = 1; t <= 6; t++) await page.mouse.move(...at(30 + 25 * k + 4 * t, 40 + 28 * t));
+    const t0 = Date.now();
+    await page.mouse.up();
+    s = await waitFor(page, (q) => q.stats.sketch_revision > before && shownNow(q), `stroke ${k} terrain`, 60_000);
+    latencies.push(Date.now() - t0);
+    codes.push(sketchCode(s.link));
+  }
+  assert.equal(new Set(codes).size, codes.length, 'every stroke changed the sketch');
+  report.sketch = { stroke_to_terrain_ms_median: pct(latencies, 0.5), stroke_to_terrain_ms_p95: pct(latencies, 0.95), generator_ms: s.stats.sketch_ms, latencies };
+  // Undo and redo walk the history back and forth, one stroke at a time.
+  await click(page, s, 'undo');
+  s = await waitFor(page, (q) => sketchCode(q.link) === codes[7] && shownNow(q), 'undo');
+  await click(page, s, 'undo');
+  s = await waitFor(page, (q) => sketchCode(q.link) === codes[6], 'a second undo');
+  await click(page, s, 'redo');
+  s = await waitFor(page, (q) => sketchCode(q.link) === codes[7], 'redo');
+  await click(page, s, 'redo');
+  s = await waitFor(page, (q) => sketchCode(q.link) === codes[8] && shownNow(q), 'a second redo');
+  // Export: the downloaded PNG is exactly the sketch in the link.
+  const dl = page.waitForEvent('download');
+  await click(page, s, 'export');
+  const file = path.join(out, 'sketch.png');
+  await (await dl).saveAs(file);
+  assert.deepEqual(pngSketch(fs.readFileSync(file)), decodeSketch(codes[8]));
+  // Clear, then import the exported file: the sketch comes back.
+  await click(page, s, 'clear');
+  s = await waitFor(page, (q) => decodeSketch(sketchCode(q.link)).every((n) => n === 1), 'clear');
+  // The Import button adds the page's file input (headless Chromium opens no dialog for it);
+  // the test picks the file on that input, as the dialog would.
+  await click(page, s, 'import');
+  await page.waitForSelector('#terrain_sketch_file', { state: 'attached', timeout: 30_000 });
+  await page.setInputFiles('#terrain_sketch_file', file);
+  s = await waitFor(page, (q) => sketchCode(q.link) === codes[8] && shownNow(q), 'import');
+  // Variants: four thumbnails; clicking one adopts its sketch.
+  await click(page, s, 'variants');
+  s = await waitFor(page, (q) => q.sketch_variants === 4 && q.sketch_buttons.variant0, 'four variants', 120_000);
+  await click(page, s, 'variant0');
+  s = await waitFor(page, (q) => sketchCode(q.link) !== codes[8] && shownNow(q), 'the adopted variant');
+  await page.screenshot({ path: path.join(out, 'sketch.png.screenshot.png') });
+  // The link reproduces the same terrain in another page.
+  const link = s.link;
+  const other = await open(link, '', BIG);
+  await waitFor(other.page, (q) => q.sketch_models.startsWith('Ready') && q.stats.sketch_shown > 0 && shownNow(q) && sketchCode(q.link) === sketchCode(link), 'the linked sketch terrain');
+  let worst = 0;
+  for (const [i, j] of [[-1, -1], [0, -1], [-1, 0], [0, 0]]) {
+    const a = await tileHeights(page, i, j);
+    const b = await tileHeights(other.page, i, j);
+    assert.equal(a.length, 128 * 128);
+    for (let k = 0; k < a.length; k++) worst = Math.max(worst, Math.abs(a[k] - b[k]));
+  }
+  // And the native CLI on the same sketch: the page's sketch tiles vs `terrain sketch` (its
+  // 16-bit output scaled by the relief).
+  const linked = path.join(out, 'linked_sketch.png');
+  const sk = decodeSketch(sketchCode(link));
+  const img = new PNG({ width: 256, height: 256 });
+  sk.forEach((n, p) => { img.data.set([n & 4 ? 255 : 0, [63, 127, 191, 255][n & 3], n & 8 ? 255 : 0, 255], 4 * p); });
+  fs.writeFileSync(linked, PNG.sync.write(img));
+  const dem = path.join(out, 'linked_dem.png');
+  execFileSync(nativeBin, ['sketch', '--input', linked, '--out', dem, '--weights', path.join(repo, 'weights')]);
+  const native = PNG.sync.read(fs.readFileSync(dem), { skipRescale: true });
+  const relief = Number(new URLSearchParams(link).get('relief'));
+  let worstNative = 0;
+  for (const [i, j] of [[-1, -1], [0, -1], [-1, 0], [0, 0]]) {
+    const a = await tileHeights(page, i, j);
+    for (let k = 0; k < a.length; k++) {
+      const u = (i + 1) * 128 + (k % 128), v = (j + 1) * 128 + Math.floor(k / 128);
+      const n = native.data[4 * (v * 256 + u)]; // pngjs keeps 16 bits as RGBA Uint16
+      worstNative = Math.max(worstNative, Math.abs(a[k] - (n / 65535) * relief));
+    }
+  }
+  report.sketch.link_chars = link.length;
+  report.sketch.sketch_code_chars = sketchCode(link).length;
+  report.sketch.link_max_dh_m = worst;
+  report.sketch.native_max_dh_m = worstNative;
+  assert.equal(worst, 0, 'the link gave different terrain');
+  assert.ok(worstNative < (relief / 65535) * 0.5 + 0.05, `page vs native CLI: ${worstNative} m`);
+  assert.deepEqual(errors, []);
+  assert.deepEqual(other.errors, []);
+  await page.close();
+  await other.page.close();
 });

@@ -2,6 +2,8 @@
 //! messages. It edits a copy of the settings and reports what the user asked for; the shell
 //! applies it.
 
+pub mod sketch;
+
 use crate::app::AppStats;
 use crate::render::camera::CameraMode;
 use crate::share::ShareState;
@@ -167,6 +169,7 @@ impl Overlay {
             ui.horizontal(|ui| {
                 ui.selectable_value(&mut d.source, SourceKind::Learned, SourceKind::Learned.label());
                 ui.selectable_value(&mut d.source, SourceKind::Procedural, SourceKind::Procedural.label());
+                ui.selectable_value(&mut d.source, SourceKind::Sketch, SourceKind::Sketch.label());
             });
             ui.end_row();
             ui.label("Autopilot (m/s)");

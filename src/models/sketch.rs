@@ -1,0 +1,210 @@
+//! The sketch generator: a compact UNet that turns a sketch ([`crate::sketch`]) into relative
+//! heights on the format's scale, by learning what the non-learned interpolation between band
+//! borders ([`crate::sketch::baseline`]) misses (pix2pix's task, trained with L1 + PatchGAN).
+//!
+//! Input ([`IN_CHANNELS`] × H × W, any H and W divisible by 16; [`SKETCH_PX`]² in use):
+//! band / 3, ridge, valley ([`Sketch::channels`]) and the baseline / 255. Output: heights / 255,
+//! the baseline plus the network's correction; the caller stretches them to 0–255 like the
+//! targets. Network: two 3×3 convolutions + ReLU per scale ([`WIDTHS`] at 1, 1/2 … 1/16 of the
+//! size; 2×2 mean pooling between them), a decoder that upsamples (nearest), concatenates the
+//! skip and applies two convolutions, and a 3×3 output convolution. No normalisation layers:
+//! training and inference compute the same function.
+
+use burn::module::Module;
+use burn::nn::conv::Conv2d;
+use burn::tensor::{Device, Tensor};
+
+use crate::models::cpu::{self, Conv3, Map, Post};
+use crate::models::tcm::{Stage, conv3, pool2, up2};
+use crate::sketch::{self, SKETCH_PX, Sketch, baseline};
+
+/// Input channels: the sketch's three ([`sketch::INPUT_CHANNELS`]) and the baseline.
+pub const IN_CHANNELS: usize = sketch::INPUT_CHANNELS + 1;
+/// Channels per scale, full size to 1/16.
+pub const WIDTHS: [usize; 5] = [12, 24, 48, 64, 96];
+/// Scales (the input side must be divisible by 2^(SCALES−1)).
+pub const SCALES: usize = WIDTHS.len();
+/// Name of the weight file in a weights folder.
+pub const WEIGHT_FILE: &str = "sketch_gen.bpk";
+
+/// The network's input for `sketch`, channel-first ([`IN_CHANNELS`] × [`SKETCH_PX`]²), and the
+/// baseline it starts from (0–255).
+pub fn assemble_input(sketch: &Sketch) -> (Vec<f32>, Vec<f32>) {
+    let base = baseline::interpolate(sketch);
+    let mut x = sketch.channels();
+    x.extend(base.iter().map(|v| v / 255.0));
+    (x, base)
+}
+
+/// The sketch generator.
+#[derive(Module, Debug)]
+pub struct SketchGen {
+    enc: Vec<Stage>,
+    dec: Vec<Stage>,
+    out: Conv2d,
+}
+
+impl SketchGen {
+    /// A freshly initialised generator on `device`.
+    pub fn new(device: &Device) -> Self {
+        let w = WIDTHS;
+        let enc = (0..SCALES).map(|k| Stage::new(if k == 0 { IN_CHANNELS } else { w[k - 1] }, w[k], device)).collect();
+        let dec = (0..SCALES - 1).map(|k| Stage::new(w[k + 1] + w[k], w[k], device)).collect();
+        Self { enc, dec, out: conv3(w[0], 1, device) }
+    }
+
+    /// Number of learned parameters.
+    pub fn parameters(&self) -> usize {
+        self.num_params()
+    }
+
+    /// Heights / 255 ([B, 1, H, W]) for inputs `x` ([B, [`IN_CHANNELS`], H, W]).
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let base = x.clone().narrow(1, IN_CHANNELS - 1, 1);
+        let mut skips = Vec::with_capacity(SCALES - 1);
+        let mut h = x;
+        for (k, stage) in self.enc.iter().enumerate() {
+            if k > 0 {
+                h = pool2(h);
+            }
+            h = stage.forward(h);
+            if k < SCALES - 1 {
+                skips.push(h.clone());
+            }
+        }
+        for k in (0..SCALES - 1).rev() {
+            h = self.dec[k].forward(Tensor::cat(vec![up2(h), skips[k].clone()], 1));
+        }
+        base + self.out.forward(h)
+    }
+}
+
+/// Names and shapes (name, output channels, input channels) of the generator's convolutions
+/// in network order, as burn names them in a weight file.
+pub fn conv_layers() -> Vec<(String, usize, usize)> {
+    let w = WIDTHS;
+    let mut v = Vec::new();
+    for k in 0..SCALES {
+        v.push((format!("enc.{k}.a"), w[k], if k == 0 { IN_CHANNELS } else { w[k - 1] }));
+        v.push((format!("enc.{k}.b"), w[k], w[k]));
+    }
+    for k in 0..SCALES - 1 {
+        v.push((format!("dec.{k}.a"), w[k], w[k + 1] + w[k]));
+        v.push((format!("dec.{k}.b"), w[k], w[k]));
+    }
+    v.push(("out".into(), 1, w[0]));
+    v
+}
+
+/// Reused activation buffers of [`SketchGenCpu::forward`].
+#[derive(Default)]
+pub struct SketchScratch {
+    input: Map,
+    skips: [Map; SCALES - 1],
+    pooled: Map,
+    t: Map,
+    h: Map,
+    cat: Map,
+    out: Map,
+}
+
+/// The sketch generator on the project's own CPU kernels: the same network as
+/// [`SketchGen::forward`] without a tensor framework (the CLI, the page's worker).
+#[derive(Clone, Debug)]
+pub struct SketchGenCpu {
+    convs: Vec<Conv3>,
+}
+
+impl SketchGenCpu {
+    /// Every layer random (uniform ±`amplitude`, from `seed`), for tests.
+    pub fn randomized(seed: u64, amplitude: f32) -> Self {
+        Self { convs: cpu::random_convs(&conv_layers(), seed, amplitude) }
+    }
+
+    /// Reads a generator weight file (burnpack, as training writes it).
+    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
+        Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
+    }
+
+    /// Copies a burn generator's weights.
+    pub fn from_model(m: &SketchGen) -> Result<Self, String> {
+        let convs = m.enc.iter().chain(&m.dec).flat_map(|st| st.convs()).chain([&m.out]);
+        Ok(Self { convs: convs.map(cpu::conv_from_burn).collect::<Result<_, _>>()? })
+    }
+
+    /// Heights / 255 (`side`², row-major) for the channel-first input `x` of a `side`² sketch.
+    pub fn forward(&self, x: &[f32], side: usize, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
+        s.input.set_chw(x, IN_CHANNELS, side, side);
+        let c = &self.convs;
+        for k in 0..SCALES {
+            let src = if k == 0 {
+                &s.input
+            } else {
+                cpu::pool2(&s.skips[k - 1], &mut s.pooled);
+                &s.pooled
+            };
+            cpu::conv(&c[2 * k], src, &mut s.t, Post::Relu, threads);
+            let dst = if k < SCALES - 1 { &mut s.skips[k] } else { &mut s.h };
+            cpu::conv(&c[2 * k + 1], &s.t, dst, Post::Relu, threads);
+        }
+        let d = 2 * SCALES;
+        for k in (0..SCALES - 1).rev() {
+            let side_k = s.skips[k].height();
+            cpu::up2_concat(&s.h, &s.skips[k], side_k, &mut s.cat);
+            cpu::conv(&c[d + 2 * k], &s.cat, &mut s.t, Post::Relu, threads);
+            cpu::conv(&c[d + 2 * k + 1], &s.t, &mut s.h, Post::Relu, threads);
+        }
+        cpu::conv(&c[d + 2 * (SCALES - 1)], &s.h, &mut s.out, Post::None, threads);
+        let n = side * side;
+        (0..n).map(|p| x[(IN_CHANNELS - 1) * n + p] + s.out.pixel(p / side, p % side)[0]).collect()
+    }
+
+    /// The terrain of a sketch on the format's 0–255 scale (stretched to span it, like the
+    /// targets), [`SKETCH_PX`]² row-major.
+    pub fn generate(&self, sketch: &Sketch, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
+        let (x, _) = assemble_input(sketch);
+        let mut h: Vec<f32> = self.forward(&x, SKETCH_PX, s, threads).into_iter().map(|v| v * 255.0).collect();
+        baseline::stretch(&mut h);
+        h
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The generator maps [2, 4, 64, 64] to [2, 1, 64, 64] with at most 1 M parameters.
+    #[cfg(feature = "train")]
+    #[test]
+    fn generator_shapes_and_size() {
+        let device = Device::flex();
+        let g = SketchGen::new(&device);
+        let x = Tensor::<4>::zeros([2, IN_CHANNELS, 64, 64], &device);
+        assert_eq!(g.forward(x).dims(), [2, 1, 64, 64]);
+        let p = g.parameters();
+        assert!(p <= 1_000_000, "{p} parameters");
+        println!("sketch generator parameters: {p}");
+    }
+
+    /// The CPU kernels compute the burn generator: random weights (uniform ±0.1, biases too)
+    /// on a 64² input with 1 and 2 threads; every output within 1e-4 (on a 0–1 scale).
+    #[cfg(feature = "train")]
+    #[test]
+    fn cpu_forward_equals_burn_forward() {
+        let device = Device::flex();
+        let g = crate::models::random_weights(SketchGen::new(&device), &device, 11, 0.1);
+        let cpu_g = SketchGenCpu::from_model(&g).unwrap();
+        let side = 64;
+        let x: Vec<f32> = (0..IN_CHANNELS * side * side).map(|i| ((i * 37 % 101) as f32 / 101.0) * if i % 7 == 0 { -1.0 } else { 1.0 }).collect();
+        let burn_out: Vec<f32> = g.forward(Tensor::<4>::from_data(burn::tensor::TensorData::new(x.clone(), [1, IN_CHANNELS, side, side]), &device)).into_data().try_to_vec::<f32>().unwrap();
+        let mut scratch = SketchScratch::default();
+        for threads in [1, 2] {
+            let ours = cpu_g.forward(&x, side, &mut scratch, threads);
+            let base = &x[(IN_CHANNELS - 1) * side * side..];
+            let scale = burn_out.iter().zip(base).map(|(v, b)| (v - b).abs()).fold(0f32, f32::max);
+            assert!(scale > 1e-3, "the random network's correction is not trivially zero ({scale})");
+            let worst = ours.iter().zip(&burn_out).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+            assert!(worst < 1e-4, "{threads} threads: CPU and burn differ by {worst}");
+        }
+    }
+}

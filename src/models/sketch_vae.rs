@@ -1,0 +1,242 @@
+//! The sketch VAE: a variational autoencoder over sketches whose 128-number latent code lets
+//! the page propose variants of a sketch (codes near its own) and slide between two sketches
+//! (z = α·z₁ + (1 − α)·z₂), as the sketch paper's stage 1.
+//!
+//! Encoder: six stages of a 3×3 convolution + ReLU and 2×2 mean pooling ([`SKETCH_PX`]² → 4²,
+//! [`ENC_WIDTHS`]), then a 3×3 convolution to the mean and log-variance of the code:
+//! [`LATENT_CHANNELS`] × 4² = [`LATENT`] numbers. Decoder: a 3×3 convolution from the code, six
+//! stages of ×2 nearest upsampling + 3×3 convolution + ReLU ([`DEC_WIDTHS`]) and a 3×3
+//! convolution to the logits of the four bands, the ridge layer and the valley layer. Only
+//! convolutions, so the project's CPU kernels run it; no normalisation layers (training and
+//! inference compute the same function).
+
+use burn::module::Module;
+use burn::nn::conv::Conv2d;
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor};
+
+use crate::models::cpu::{self, Conv3, Map, Post};
+use crate::models::tcm::{pool2, up2};
+use crate::sketch::{BANDS, INPUT_CHANNELS, SKETCH_PX, Sketch};
+use crate::world::schedule::mix64;
+
+/// Side of the code's grid (pixels).
+pub const CODE_PX: usize = 4;
+/// Channels of the code.
+pub const LATENT_CHANNELS: usize = 8;
+/// Numbers in a code.
+pub const LATENT: usize = LATENT_CHANNELS * CODE_PX * CODE_PX;
+/// Encoder channels per stage (at 256², 128², … 8² before each pooling).
+pub const ENC_WIDTHS: [usize; 6] = [16, 32, 64, 96, 128, 128];
+/// Decoder channels per stage (at 8², 16², … 256² after each upsampling).
+pub const DEC_WIDTHS: [usize; 6] = [128, 96, 64, 32, 16, 16];
+/// Channels of the code's first decoder convolution (at 4²).
+pub const DEC_IN: usize = 128;
+/// Output channels: the four band logits, then the ridge and valley logits.
+pub const OUT_CHANNELS: usize = BANDS + 2;
+/// Name of the weight file in a weights folder.
+pub const WEIGHT_FILE: &str = "sketch_vae.bpk";
+/// Standard deviation (units of the prior) of the codes drawn around a sketch's own for
+/// variants.
+pub const VARIANT_SPREAD: f32 = 0.6;
+
+/// A 3×3 convolution (zero padding) with He initialisation: the VAE is a plain stack of 15
+/// ReLU layers without skips, and burn's default (PyTorch's) initialisation shrinks the
+/// signal about six-fold per layer, so nothing would reach the decoder.
+fn conv3(cin: usize, cout: usize, device: &Device) -> Conv2d {
+    burn::nn::conv::Conv2dConfig::new([cin, cout], [3, 3])
+        .with_padding(burn::nn::PaddingConfig2d::Same)
+        .with_initializer(burn::nn::Initializer::KaimingNormal { gain: std::f64::consts::SQRT_2, fan_out_only: false })
+        .init(device)
+}
+
+/// The sketch VAE.
+#[derive(Module, Debug)]
+pub struct SketchVae {
+    enc: Vec<Conv2d>,
+    head: Conv2d,
+    from_code: Conv2d,
+    dec: Vec<Conv2d>,
+    out: Conv2d,
+}
+
+impl SketchVae {
+    /// A freshly initialised VAE on `device`.
+    pub fn new(device: &Device) -> Self {
+        let enc = (0..6).map(|k| conv3(if k == 0 { INPUT_CHANNELS } else { ENC_WIDTHS[k - 1] }, ENC_WIDTHS[k], device)).collect();
+        let dec = (0..6).map(|k| conv3(if k == 0 { DEC_IN } else { DEC_WIDTHS[k - 1] }, DEC_WIDTHS[k], device)).collect();
+        Self { enc, head: conv3(ENC_WIDTHS[5], 2 * LATENT_CHANNELS, device), from_code: conv3(LATENT_CHANNELS, DEC_IN, device), dec, out: conv3(DEC_WIDTHS[5], OUT_CHANNELS, device) }
+    }
+
+    /// Number of learned parameters.
+    pub fn parameters(&self) -> usize {
+        self.num_params()
+    }
+
+    /// (mean, log-variance) of the codes ([B, [`LATENT_CHANNELS`], 4, 4] each) of sketches `x`
+    /// ([B, [`INPUT_CHANNELS`], 256, 256] from [`Sketch::channels`]).
+    pub fn encode(&self, x: Tensor<4>) -> (Tensor<4>, Tensor<4>) {
+        let mut h = x;
+        for c in &self.enc {
+            h = pool2(relu(c.forward(h)));
+        }
+        let out = self.head.forward(h);
+        (out.clone().narrow(1, 0, LATENT_CHANNELS), out.narrow(1, LATENT_CHANNELS, LATENT_CHANNELS).clamp(-12.0, 6.0))
+    }
+
+    /// Logits ([B, [`OUT_CHANNELS`], 256, 256]) of the sketches of codes `z`.
+    pub fn decode(&self, z: Tensor<4>) -> Tensor<4> {
+        let mut h = relu(self.from_code.forward(z));
+        for c in &self.dec {
+            h = relu(c.forward(up2(h)));
+        }
+        self.out.forward(h)
+    }
+}
+
+/// Names and shapes (name, output channels, input channels) of the VAE's convolutions in the
+/// order of [`SketchVaeCpu`]: encoder, head, code, decoder, output.
+pub fn conv_layers() -> Vec<(String, usize, usize)> {
+    let mut v = Vec::new();
+    for k in 0..6 {
+        v.push((format!("enc.{k}"), ENC_WIDTHS[k], if k == 0 { INPUT_CHANNELS } else { ENC_WIDTHS[k - 1] }));
+    }
+    v.push(("head".into(), 2 * LATENT_CHANNELS, ENC_WIDTHS[5]));
+    v.push(("from_code".into(), DEC_IN, LATENT_CHANNELS));
+    for k in 0..6 {
+        v.push((format!("dec.{k}"), DEC_WIDTHS[k], if k == 0 { DEC_IN } else { DEC_WIDTHS[k - 1] }));
+    }
+    v.push(("out".into(), OUT_CHANNELS, DEC_WIDTHS[5]));
+    v
+}
+
+/// A code: [`LATENT`] numbers, channel-first ([`LATENT_CHANNELS`] × 4²).
+pub type Code = Vec<f32>;
+
+/// The VAE on the project's CPU kernels (the CLI and the page's worker).
+#[derive(Clone, Debug)]
+pub struct SketchVaeCpu {
+    convs: Vec<Conv3>,
+}
+
+/// Reused buffers of [`SketchVaeCpu`].
+#[derive(Default)]
+pub struct VaeScratch {
+    a: Map,
+    b: Map,
+}
+
+impl SketchVaeCpu {
+    /// Every layer random (uniform ±`amplitude`, from `seed`), for tests.
+    pub fn randomized(seed: u64, amplitude: f32) -> Self {
+        Self { convs: cpu::random_convs(&conv_layers(), seed, amplitude) }
+    }
+
+    /// Reads a VAE weight file (burnpack, as training writes it).
+    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
+        Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
+    }
+
+    /// Copies a burn VAE's weights.
+    pub fn from_model(m: &SketchVae) -> Result<Self, String> {
+        let convs = m.enc.iter().chain([&m.head, &m.from_code]).chain(&m.dec).chain([&m.out]);
+        Ok(Self { convs: convs.map(cpu::conv_from_burn).collect::<Result<_, _>>()? })
+    }
+
+    /// (mean, log-variance) of the code of `sketch`.
+    pub fn encode(&self, sketch: &Sketch, s: &mut VaeScratch, threads: usize) -> (Code, Code) {
+        s.a.set_chw(&sketch.channels(), INPUT_CHANNELS, SKETCH_PX, SKETCH_PX);
+        for k in 0..6 {
+            cpu::conv(&self.convs[k], &s.a, &mut s.b, Post::Relu, threads);
+            cpu::pool2(&s.b, &mut s.a);
+        }
+        cpu::conv(&self.convs[6], &s.a, &mut s.b, Post::None, threads);
+        let out = s.b.to_chw();
+        let n = LATENT;
+        (out[..n].to_vec(), out[n..2 * n].iter().map(|v| v.clamp(-12.0, 6.0)).collect())
+    }
+
+    /// The sketch of code `z`: the most likely band per pixel, strokes where their
+    /// probability exceeds one half.
+    pub fn decode(&self, z: &[f32], s: &mut VaeScratch, threads: usize) -> Sketch {
+        s.a.set_chw(z, LATENT_CHANNELS, CODE_PX, CODE_PX);
+        cpu::conv(&self.convs[7], &s.a, &mut s.b, Post::Relu, threads);
+        for k in 0..6 {
+            cpu::up2(&s.b, &mut s.a);
+            cpu::conv(&self.convs[8 + k], &s.a, &mut s.b, Post::Relu, threads);
+        }
+        cpu::conv(&self.convs[14], &s.b, &mut s.a, Post::None, threads);
+        let mut sk = Sketch::filled(0);
+        for p in 0..SKETCH_PX * SKETCH_PX {
+            let l = s.a.pixel(p / SKETCH_PX, p % SKETCH_PX);
+            sk.band[p] = (0..BANDS).max_by(|&a, &b| l[a].total_cmp(&l[b])).unwrap_or(0) as u8;
+            sk.ridge[p] = l[BANDS] > 0.0;
+            sk.valley[p] = l[BANDS + 1] > 0.0;
+        }
+        sk
+    }
+
+    /// `n` codes around `sketch`'s own (its mean plus [`VARIANT_SPREAD`] × seeded normal
+    /// noise), decoded: variants of the sketch. The same seed gives the same variants.
+    pub fn variants(&self, sketch: &Sketch, n: usize, seed: u64, s: &mut VaeScratch, threads: usize) -> Vec<Sketch> {
+        let (mu, _) = self.encode(sketch, s, threads);
+        (0..n)
+            .map(|k| {
+                let z: Code = mu.iter().enumerate().map(|(i, m)| m + VARIANT_SPREAD * crate::models::tcm::gauss(mix64(seed ^ mix64((k * LATENT + i) as u64 + 1)))).collect();
+                self.decode(&z, s, threads)
+            })
+            .collect()
+    }
+
+    /// The sketch between `a` (α = 1) and `b` (α = 0): the decoded α·z_a + (1 − α)·z_b of
+    /// their mean codes.
+    pub fn interpolate(&self, a: &Sketch, b: &Sketch, alpha: f32, s: &mut VaeScratch, threads: usize) -> Sketch {
+        let (za, _) = self.encode(a, s, threads);
+        let (zb, _) = self.encode(b, s, threads);
+        let z: Code = za.iter().zip(&zb).map(|(x, y)| alpha * x + (1.0 - alpha) * y).collect();
+        self.decode(&z, s, threads)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Codes have 128 numbers; the VAE stays under 1 M parameters; the CPU kernels compute the
+    /// burn encoder and decoder (random weights ±0.1: means within 1e-4, and the decoded
+    /// sketch equal to the argmax/threshold of burn's logits on all but tie pixels).
+    #[cfg(feature = "train")]
+    #[test]
+    fn cpu_encode_decode_equal_burn() {
+        use burn::tensor::TensorData;
+        assert_eq!(LATENT, 128);
+        let device = Device::flex();
+        let m = crate::models::random_weights(SketchVae::new(&device), &device, 21, 0.1);
+        assert!(m.parameters() <= 1_000_000, "{} parameters", m.parameters());
+        let c = SketchVaeCpu::from_model(&m).unwrap();
+        let mut sk = Sketch::filled(1);
+        for p in 0..sk.band.len() {
+            sk.band[p] = ((p % SKETCH_PX) / 64) as u8;
+            sk.ridge[p] = (p / SKETCH_PX) % 50 == 7;
+        }
+        let x = Tensor::<4>::from_data(TensorData::new(sk.channels(), [1, INPUT_CHANNELS, SKETCH_PX, SKETCH_PX]), &device);
+        let (mu, logvar) = m.encode(x);
+        let mu_b: Vec<f32> = mu.clone().into_data().try_to_vec().unwrap();
+        let lv_b: Vec<f32> = logvar.into_data().try_to_vec().unwrap();
+        let mut s = VaeScratch::default();
+        let (mu_c, lv_c) = c.encode(&sk, &mut s, 2);
+        let worst = mu_b.iter().chain(&lv_b).zip(mu_c.iter().chain(&lv_c)).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(worst < 1e-4, "encoder differs by {worst}");
+        let logits: Vec<f32> = m.decode(mu).into_data().try_to_vec().unwrap();
+        let dec = c.decode(&mu_c, &mut s, 1);
+        let n = SKETCH_PX * SKETCH_PX;
+        let mut differ = 0;
+        for p in 0..n {
+            let band = (0..BANDS).max_by(|&a, &b| logits[a * n + p].total_cmp(&logits[b * n + p])).unwrap() as u8;
+            if band != dec.band[p] || (logits[BANDS * n + p] > 0.0) != dec.ridge[p] {
+                differ += 1;
+            }
+        }
+        assert!(differ <= n / 1000, "{differ} pixels differ");
+    }
+}

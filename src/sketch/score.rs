@@ -1,0 +1,102 @@
+//! Scores on the sketch format's 0–255 height scale and agreement between two sketches.
+
+use super::distance::distance_to;
+use super::{SKETCH_PX, Sketch};
+
+/// Root-mean-square difference of two height fields (same scale, same length).
+pub fn rmse(a: &[f32], b: &[f32]) -> f64 {
+    let sum: f64 = a.iter().zip(b).map(|(&x, &y)| ((x - y) as f64).powi(2)).sum();
+    (sum / a.len().max(1) as f64).sqrt()
+}
+
+/// Peak signal-to-noise ratio (dB) for an RMSE on the 0–255 scale (peak 255).
+pub fn psnr(rmse: f64) -> f64 {
+    20.0 * (255.0 / rmse.max(1e-9)).log10()
+}
+
+/// How closely one sketch follows another (e.g. extracted vs drawn by the authors).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Agreement {
+    /// Fraction of pixels with the same band.
+    pub band: f64,
+    /// Ridges: fraction of `ours` ridge pixels within [`STROKE_TOLERANCE_PX`] of a `theirs`
+    /// ridge pixel (precision) and the converse (recall).
+    pub ridge_precision: f64,
+    /// See `ridge_precision`.
+    pub ridge_recall: f64,
+    /// Valleys: as for ridges.
+    pub valley_precision: f64,
+    /// See `valley_precision`.
+    pub valley_recall: f64,
+}
+
+/// Distance (pixels) within which a stroke pixel counts as matching the other sketch's stroke.
+pub const STROKE_TOLERANCE_PX: f32 = 3.0;
+
+impl Agreement {
+    /// Compares `ours` with `theirs`.
+    pub fn between(ours: &Sketch, theirs: &Sketch) -> Self {
+        let n = ours.band.len();
+        let band = (0..n).filter(|&p| ours.band[p] == theirs.band[p]).count() as f64 / n as f64;
+        let (rp, rr) = overlap(&ours.ridge, &theirs.ridge);
+        let (vp, vr) = overlap(&ours.valley, &theirs.valley);
+        Self { band, ridge_precision: rp, ridge_recall: rr, valley_precision: vp, valley_recall: vr }
+    }
+
+    /// F1 score of the ridge overlap.
+    pub fn ridge_f1(&self) -> f64 {
+        f1(self.ridge_precision, self.ridge_recall)
+    }
+
+    /// F1 score of the valley overlap.
+    pub fn valley_f1(&self) -> f64 {
+        f1(self.valley_precision, self.valley_recall)
+    }
+}
+
+fn f1(p: f64, r: f64) -> f64 {
+    if p + r > 0.0 { 2.0 * p * r / (p + r) } else { 0.0 }
+}
+
+/// (precision, recall) of mask `a` against mask `b` within [`STROKE_TOLERANCE_PX`].
+fn overlap(a: &[bool], b: &[bool]) -> (f64, f64) {
+    let near = |from: &[bool], to: &[bool]| -> f64 {
+        let d = distance_to(to, SKETCH_PX, SKETCH_PX);
+        let total = from.iter().filter(|&&x| x).count();
+        if total == 0 {
+            return 0.0;
+        }
+        from.iter().zip(&d).filter(|&(&x, &dist)| x && dist <= STROKE_TOLERANCE_PX).count() as f64 / total as f64
+    };
+    (near(a, b), near(b, a))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rmse_and_psnr_of_a_constant_offset_of_5_are_5_and_34_15_db() {
+        let a = vec![10f32; 100];
+        let b = vec![15f32; 100];
+        assert!((rmse(&a, &b) - 5.0).abs() < 1e-9);
+        assert!((psnr(5.0) - 34.151).abs() < 1e-3, "{}", psnr(5.0));
+    }
+
+    #[test]
+    fn a_stroke_shifted_by_two_pixels_matches_fully_and_one_shifted_by_ten_not_at_all() {
+        let mut a = Sketch::filled(0);
+        let mut b = Sketch::filled(0);
+        let mut c = Sketch::filled(0);
+        for x in 20..200 {
+            a.ridge[100 * SKETCH_PX + x] = true;
+            b.ridge[102 * SKETCH_PX + x] = true;
+            c.ridge[110 * SKETCH_PX + x] = true;
+        }
+        let ab = Agreement::between(&a, &b);
+        assert_eq!((ab.ridge_precision, ab.ridge_recall, ab.band), (1.0, 1.0, 1.0));
+        let ac = Agreement::between(&a, &c);
+        assert_eq!((ac.ridge_precision, ac.ridge_recall), (0.0, 0.0));
+        assert_eq!(ac.valley_f1(), 0.0);
+    }
+}

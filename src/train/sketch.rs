@@ -1,0 +1,286 @@
+//! Training the sketch generator ([`crate::models::sketch`]) on the CPU: sketch/terrain pairs
+//! made by the project's extractor ([`crate::sketch::extract`]) from windows of real DEMs at
+//! several scales (64 to 512 samples, brought to 256² by bicubic upsampling or area
+//! averaging), the 8 rotations/flips, random crops; loss L1 + a small PatchGAN (least squares)
+//! that sees the heights beside the sketch, as pix2pix. Checkpoints let a run resume in a later
+//! session; the validation set is the held-out east third of every DEM.
+
+use std::path::Path;
+
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Tensor, TensorData};
+
+use super::gan::{self, Disc};
+use super::pairs::{Dem, Rng, Split, fits_square, random_window};
+use super::tcm::TcmProgress as Progress;
+use crate::dem::Heightfield;
+use crate::models::sketch::{IN_CHANNELS, SketchGen, SketchGenCpu, SketchScratch, WEIGHT_FILE, assemble_input};
+use crate::sketch::{SKETCH_PX, baseline, extract, score};
+
+/// Source window sides (samples) a pair is cut at, before they are brought to [`SKETCH_PX`].
+pub const WINDOW_SIDES: [usize; 4] = [64, 128, 256, 512];
+/// Least height range (metres) of a window to make a pair from (flatter ones are mostly
+/// quantisation steps once stretched to 0–255).
+pub const MIN_RELIEF_M: f32 = 20.0;
+
+/// One training pair: the generator's input and the target heights / 255.
+#[derive(Clone)]
+pub struct Pair {
+    /// [`IN_CHANNELS`] × [`SKETCH_PX`]², channel-first.
+    pub input: Vec<f32>,
+    /// Target heights / 255 ([`SKETCH_PX`]²).
+    pub target: Vec<f32>,
+}
+
+/// A pair cut from a random window of one of `dems` in `split` (`None` if the drawn window
+/// did not fit, had no-data or was too flat).
+pub fn random_pair(dems: &[Dem], split: Split, rng: &mut Rng) -> Option<Pair> {
+    let hf = &dems[rng.below(dems.len())].hf;
+    let sides: Vec<usize> = WINDOW_SIDES.iter().copied().filter(|&s| fits_square(hf, split, s)).collect();
+    if sides.is_empty() {
+        return None;
+    }
+    let side = sides[rng.below(sides.len())];
+    let win = random_window(hf, split, side, rng)?;
+    let (lo, hi) = win.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    if hi - lo < MIN_RELIEF_M {
+        return None;
+    }
+    let grid = Heightfield::new(side, side, hf.spacing_m, win);
+    let heights = match side {
+        s if s < SKETCH_PX => grid.upsample_bicubic(SKETCH_PX / s).data,
+        s if s > SKETCH_PX => grid.resample_area(hf.spacing_m * (s / SKETCH_PX) as f64).ok()?.data,
+        _ => grid.data,
+    };
+    let e = extract::extract(&heights)?;
+    let (input, _) = assemble_input(&e.sketch);
+    Some(Pair { input, target: e.target.iter().map(|v| v / 255.0).collect() })
+}
+
+/// `n` pairs from `split`, drawn with a sampler seeded by `seed`, made on every core.
+pub fn pairs(dems: &[Dem], split: Split, n: usize, seed: u64) -> Vec<Pair> {
+    let threads = crate::models::cpu::default_threads().max(1);
+    let per = n.div_ceil(threads);
+    let mut out: Vec<Pair> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads)
+            .map(|t| {
+                s.spawn(move || {
+                    let mut rng = Rng(seed ^ (t as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+                    let mut v = Vec::new();
+                    let mut tries = 0;
+                    while v.len() < per && tries < per * 50 {
+                        tries += 1;
+                        if let Some(p) = random_pair(dems, split, &mut rng) {
+                            v.push(p);
+                        }
+                    }
+                    v
+                })
+            })
+            .collect();
+        handles.into_iter().flat_map(|h| h.join().unwrap_or_default()).collect()
+    });
+    out.truncate(n);
+    out
+}
+
+/// Settings of a sketch training run.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SketchConfig {
+    /// Crops per step.
+    pub batch: usize,
+    /// Side of the square crops trained on (divisible by 16).
+    pub crop: usize,
+    /// Pairs kept in memory; a few are replaced by fresh ones every step.
+    pub pool: usize,
+    /// Adam learning rate of the generator (the discriminator's is half).
+    pub lr: f64,
+    /// Weight of the adversarial term against L1 (pix2pix: 1/100).
+    pub adversarial: f32,
+    /// Seed of the sampler.
+    pub seed: u64,
+}
+
+impl Default for SketchConfig {
+    fn default() -> Self {
+        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1 }
+    }
+}
+
+/// Pairs replaced in the pool per step.
+const REFRESH_PER_STEP: usize = 2;
+
+/// A run in progress.
+pub struct SketchRun {
+    /// The generator.
+    pub g: SketchGen,
+    d: Disc,
+    og: ModuleOptimizer,
+    od: ModuleOptimizer,
+    /// Settings.
+    pub cfg: SketchConfig,
+    /// Progress so far.
+    pub progress: Progress,
+    pool: Vec<Pair>,
+    device: Device,
+}
+
+fn tensor(data: Vec<f32>, shape: [usize; 4], device: &Device) -> Tensor<4> {
+    Tensor::<4>::from_data(TensorData::new(data, shape), device)
+}
+
+impl SketchRun {
+    /// Starts a run on `device` (an autodiff device) with a pool of pairs from the training
+    /// split of `dems`, or resumes the checkpoint in `resume_from`.
+    pub fn start(cfg: SketchConfig, dems: &[Dem], device: &Device, resume_from: Option<&Path>) -> Result<Self, String> {
+        if cfg.crop == 0 || cfg.crop % 16 != 0 || cfg.crop > SKETCH_PX {
+            return Err(format!("the crop side must be a multiple of 16 up to {SKETCH_PX}, not {}", cfg.crop));
+        }
+        let mut g = SketchGen::new(device);
+        let mut d = Disc::with_inputs(1 + crate::sketch::INPUT_CHANNELS, device);
+        let (mut og, mut od) = (gan::adam(), gan::adam());
+        let mut progress = Progress::default();
+        let mut cfg = cfg;
+        if let Some(dir) = resume_from {
+            let state;
+            (og, od, state) = gan::load_run(dir, "sketch", WEIGHT_FILE, &mut g, &mut d)?;
+            progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("sketch_state.json: {e}"))?;
+            cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("sketch_state.json: {e}"))?;
+        }
+        let pool = pairs(dems, Split::Train, cfg.pool, cfg.seed ^ progress.step as u64);
+        if pool.is_empty() {
+            return Err("no DEM gives a NaN-free training window with relief".into());
+        }
+        Ok(Self { g, d, og, od, cfg, progress, pool, device: device.clone() })
+    }
+
+    /// One optimiser step of both networks on random crops of the pool; then a few pool pairs
+    /// are replaced by fresh ones from `dems`.
+    pub fn step(&mut self, dems: &[Dem]) -> Result<(), String> {
+        let t0 = web_time::Instant::now();
+        let mut rng = Rng(self.cfg.seed.wrapping_mul(0x1_0000_0001) ^ self.progress.step as u64);
+        let (b, c, n) = (self.cfg.batch, self.cfg.crop, SKETCH_PX);
+        let (mut xs, mut ys) = (Vec::with_capacity(b * IN_CHANNELS * c * c), Vec::with_capacity(b * c * c));
+        for _ in 0..b {
+            let p = &self.pool[rng.below(self.pool.len())];
+            let (x0, y0) = (rng.below(n - c + 1), rng.below(n - c + 1));
+            for ch in 0..IN_CHANNELS {
+                for y in y0..y0 + c {
+                    xs.extend_from_slice(&p.input[ch * n * n + y * n + x0..ch * n * n + y * n + x0 + c]);
+                }
+            }
+            for y in y0..y0 + c {
+                ys.extend_from_slice(&p.target[y * n + x0..y * n + x0 + c]);
+            }
+        }
+        let dev = &self.device;
+        let x = tensor(xs, [b, IN_CHANNELS, c, c], dev);
+        let real = tensor(ys, [b, 1, c, c], dev);
+        let cond = x.clone().narrow(1, 0, crate::sketch::INPUT_CHANNELS);
+        let fake = self.g.forward(x);
+        let adv_w = self.cfg.adversarial;
+        let (mut adv_v, mut disc_v) = (0.0, 0.0);
+        if adv_w > 0.0 {
+            let real_in = Tensor::cat(vec![real.clone(), cond.clone()], 1);
+            let fake_in = Tensor::cat(vec![fake.clone().detach(), cond.clone()], 1);
+            disc_v = gan::disc_step(&mut self.d, &mut self.od, self.cfg.lr * 0.5, real_in, fake_in, None);
+        }
+        let l1 = (fake.clone() - real).abs().mean();
+        let l1_v = l1.clone().into_scalar::<f32>() as f64;
+        let mut loss = l1;
+        if adv_w > 0.0 {
+            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![fake, cond], 1), None);
+            adv_v = adv.clone().into_scalar::<f32>() as f64;
+            loss = loss + adv * adv_w;
+        }
+        let gp = GradientsParams::from_grads(loss.backward(), &self.g);
+        self.g = self.og.step(self.cfg.lr, self.g.clone(), gp);
+        for k in 0..REFRESH_PER_STEP {
+            if let Some(p) = random_pair(dems, Split::Train, &mut rng) {
+                let slot = (self.progress.step * REFRESH_PER_STEP + k) % self.pool.len();
+                self.pool[slot] = p;
+            }
+        }
+        self.progress.record(l1_v, adv_v, disc_v, t0.elapsed().as_secs_f64());
+        Ok(())
+    }
+
+    /// The generator on the CPU kernels.
+    pub fn cpu(&self) -> Result<SketchGenCpu, String> {
+        SketchGenCpu::from_model(&self.g)
+    }
+
+    /// Saves the checkpoint in `dir` (the generator as [`WEIGHT_FILE`]), with `validation`.
+    pub fn save(&self, dir: &Path, validation: Option<&Validation>) -> Result<(), String> {
+        let state = serde_json::json!({ "config": self.cfg, "progress": self.progress, "validation": validation });
+        gan::save_run(dir, "sketch", WEIGHT_FILE, &self.g, &self.d, &self.og, &self.od, &state)
+    }
+}
+
+/// Scores on held-out pairs, on the format's 0–255 scale.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Validation {
+    /// Pairs scored.
+    pub pairs: usize,
+    /// Mean RMSE of the generator (output stretched to 0–255 like the targets).
+    pub rmse: f64,
+    /// Mean PSNR (dB) of the generator.
+    pub psnr: f64,
+    /// Mean RMSE of the non-learned baseline.
+    pub rmse_baseline: f64,
+    /// Mean PSNR (dB) of the baseline.
+    pub psnr_baseline: f64,
+}
+
+/// Scores `generator` and the baseline on `pairs` (full [`SKETCH_PX`]² inputs).
+pub fn validate(generator: &SketchGenCpu, pairs: &[Pair]) -> Validation {
+    let mut scratch = SketchScratch::default();
+    let threads = crate::models::cpu::default_threads();
+    let (mut r, mut p, mut rb, mut pb) = (0.0, 0.0, 0.0, 0.0);
+    for pair in pairs {
+        let target: Vec<f32> = pair.target.iter().map(|v| v * 255.0).collect();
+        let mut out: Vec<f32> = generator.forward(&pair.input, SKETCH_PX, &mut scratch, threads).into_iter().map(|v| v * 255.0).collect();
+        baseline::stretch(&mut out);
+        let base: Vec<f32> = pair.input[(IN_CHANNELS - 1) * SKETCH_PX * SKETCH_PX..].iter().map(|v| v * 255.0).collect();
+        let (e, eb) = (score::rmse(&out, &target), score::rmse(&base, &target));
+        (r, p, rb, pb) = (r + e, p + score::psnr(e), rb + eb, pb + score::psnr(eb));
+    }
+    let n = pairs.len().max(1) as f64;
+    Validation { pairs: pairs.len(), rmse: r / n, psnr: p / n, rmse_baseline: rb / n, psnr_baseline: pb / n }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn synthetic(w: usize, h: usize, spacing: f64) -> Dem {
+        let f = |x: f32, y: f32| (x * 0.031).sin() * 140.0 + (y * 0.047 + x * 0.011).cos() * 95.0 + ((x * 0.17).sin() * (y * 0.13).cos()) * 16.0 + 900.0;
+        Dem { id: "synthetic".into(), hf: Heightfield::new(w, h, spacing, (0..w * h).map(|k| f((k % w) as f32, (k / w) as f32)).collect()) }
+    }
+
+    /// Two steps, a checkpoint, a resumed third step: finite losses, the step count carried
+    /// over, and the saved weights read by the CPU kernels, which score the validation pairs.
+    #[test]
+    fn smoke_training_resumes_from_its_checkpoint() {
+        let dems = vec![synthetic(420, 200, 30.0)];
+        let device = Device::flex().autodiff();
+        let cfg = SketchConfig { batch: 1, crop: 32, pool: 2, ..Default::default() };
+        let dir = std::env::temp_dir().join(format!("terrain-sketch-smoke-{}", std::process::id()));
+        let mut run = SketchRun::start(cfg.clone(), &dems, &device, None).unwrap();
+        run.step(&dems).unwrap();
+        run.step(&dems).unwrap();
+        run.save(&dir, None).unwrap();
+        let mut run = SketchRun::start(cfg, &dems, &device, Some(&dir)).unwrap();
+        assert_eq!(run.progress.step, 2);
+        run.step(&dems).unwrap();
+        let p = &run.progress;
+        assert_eq!(p.step, 3);
+        assert!(p.l1.is_finite() && p.l1 > 0.0 && p.disc > 0.0 && p.adv.is_finite(), "{p:?}");
+        let generator = SketchGenCpu::from_burnpack(&std::fs::read(dir.join(WEIGHT_FILE)).unwrap()).unwrap();
+        let val = pairs(&dems, Split::Validation, 1, 5);
+        assert_eq!(val.len(), 1);
+        let v = validate(&generator, &val);
+        assert!(v.rmse.is_finite() && v.rmse_baseline.is_finite() && v.rmse_baseline > 0.0, "{v:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

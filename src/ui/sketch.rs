@@ -1,0 +1,251 @@
+//! The sketch panel: the drawing canvas (bands, ridge, valley, eraser, fill, brush size,
+//! undo/redo, clear), the examples, the relief, import/export, variants as thumbnails and the
+//! slider between the sketch and another one. It edits the app's [`Canvas`] directly and
+//! reports what needs the shell (files, the worker).
+
+use crate::sketch::canvas::{BRUSH_PX, Canvas, Tool};
+use crate::sketch::{SKETCH_PX, Sketch};
+use crate::world::sketched::RELIEF_M;
+
+/// What the user asked of the shell this frame.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SketchActions {
+    /// Download the sketch as a PNG.
+    pub export: bool,
+    /// Open a sketch PNG.
+    pub import: bool,
+    /// Propose variants of the sketch.
+    pub variants: bool,
+    /// Blend the sketch (α = 1) with the chosen partner (α = 0) at this α.
+    pub blend: Option<f32>,
+    /// A new relief (metres).
+    pub relief_m: Option<f64>,
+}
+
+/// Thumbnails of proposed variants: each sketch and a shaded picture of its terrain.
+pub struct Variant {
+    /// The variant sketch.
+    pub sketch: Sketch,
+    texture: egui::TextureHandle,
+}
+
+/// Panel state between frames.
+#[derive(Default)]
+pub struct SketchPanel {
+    texture: Option<(u64, egui::TextureHandle)>,
+    variants: Vec<Variant>,
+    /// The sketch the slider blends with (a variant or an example), and the sketch it blends
+    /// from (the canvas when the partner was chosen).
+    partner: Option<(Sketch, Sketch)>,
+    alpha: f32,
+    /// Where the canvas was drawn last frame (points), for tests that draw with the pointer.
+    pub canvas_rect: Option<egui::Rect>,
+    /// Where the panel's buttons were drawn last frame (points), by name, for tests that
+    /// click them.
+    pub buttons: std::collections::BTreeMap<String, egui::Rect>,
+}
+
+/// Side of the canvas on screen (points).
+const CANVAS_PT: f32 = 320.0;
+
+/// A grey hillshade of terrain `h` (`side`², any scale) as a thumbnail of `out`² pixels.
+pub fn hillshade(h: &[f32], side: usize, out: usize) -> egui::ColorImage {
+    let (lo, hi) = h.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let scale = 255.0 / (hi - lo).max(1e-6);
+    let step = side / out;
+    let at = |x: usize, y: usize| h[y.min(side - 1) * side + x.min(side - 1)] * scale;
+    let mut px = Vec::with_capacity(out * out);
+    for y in 0..out {
+        for x in 0..out {
+            let (sx, sy) = (x * step, y * step);
+            let dx = at(sx + step, sy) - at(sx.saturating_sub(step), sy);
+            let dy = at(sx, sy + step) - at(sx, sy.saturating_sub(step));
+            let shade = (0.75 - 0.02 * (dx + dy) / step as f32).clamp(0.0, 1.0);
+            let g = (shade * 220.0 + (at(sx, sy) - lo * scale) * 0.14) as u8;
+            px.push(egui::Color32::from_gray(g));
+        }
+    }
+    egui::ColorImage::new([out, out], px)
+}
+
+impl SketchPanel {
+    /// Shows proposed variants (sketch and terrain on the 0–255 scale each).
+    pub fn set_variants(&mut self, ctx: &egui::Context, variants: Vec<(Sketch, Vec<f32>)>) {
+        self.variants = variants
+            .into_iter()
+            .enumerate()
+            .map(|(k, (sketch, h))| Variant { sketch, texture: ctx.load_texture(format!("variant{k}"), hillshade(&h, SKETCH_PX, 64), egui::TextureOptions::LINEAR) })
+            .collect();
+    }
+
+    /// Draws the panel for `canvas` with `relief_m`; `busy` says a terrain or variants are
+    /// being made.
+    pub fn show(&mut self, ctx: &egui::Context, canvas: &mut Canvas, relief_m: f64, busy: bool, examples: &[(&str, Sketch)]) -> SketchActions {
+        let mut act = SketchActions::default();
+        self.buttons.clear();
+        let mut rects = std::collections::BTreeMap::new();
+        let mut note = |name: &str, r: &egui::Response| {
+            rects.insert(name.to_string(), r.rect);
+        };
+        egui::Window::new("Sketch").anchor(egui::Align2::RIGHT_TOP, [-8.0, 8.0]).resizable(false).default_width(CANVAS_PT).show(ctx, |ui| {
+            ui.horizontal_wrapped(|ui| {
+                let tool = canvas.tool();
+                let mut pick = |ui: &mut egui::Ui, t: Tool, label: &str, tip: &str| {
+                    if ui.selectable_label(tool == t, label).on_hover_text(tip).clicked() {
+                        canvas.set_tool(t);
+                    }
+                };
+                for b in 0..4u8 {
+                    pick(ui, Tool::Band(b), &format!("▮{b}"), "paint level-set band (0 lowest, 3 highest)");
+                }
+                pick(ui, Tool::Ridge, "ridge", "draw a ridge line");
+                pick(ui, Tool::Valley, "valley", "draw a valley line");
+                pick(ui, Tool::Eraser, "eraser", "erase ridge and valley lines");
+                let fill_band = match tool {
+                    Tool::Band(b) | Tool::Fill(b) => b,
+                    _ => 2,
+                };
+                pick(ui, Tool::Fill(fill_band), &format!("fill {fill_band}"), "fill a band region with the band chosen last");
+            });
+            let mut size = canvas.brush_px();
+            if ui.add(egui::Slider::new(&mut size, BRUSH_PX).text("brush px")).changed() {
+                canvas.set_brush_px(size);
+            }
+            self.canvas_widget(ui, canvas);
+            ui.horizontal(|ui| {
+                let (can_undo, can_redo) = canvas.history();
+                let r = ui.add_enabled(can_undo, egui::Button::new("Undo"));
+                note("undo", &r);
+                if r.clicked() {
+                    canvas.undo();
+                }
+                let r = ui.add_enabled(can_redo, egui::Button::new("Redo"));
+                note("redo", &r);
+                if r.clicked() {
+                    canvas.redo();
+                }
+                let r = ui.button("Clear");
+                note("clear", &r);
+                if r.clicked() {
+                    canvas.clear();
+                }
+                let r = ui.button("Export PNG");
+                note("export", &r);
+                if r.clicked() {
+                    act.export = true;
+                }
+                let r = ui.button("Import PNG");
+                note("import", &r);
+                if r.clicked() {
+                    act.import = true;
+                }
+                if busy {
+                    ui.spinner();
+                }
+            });
+            ui.horizontal_wrapped(|ui| {
+                ui.label("Examples:");
+                for (name, s) in examples {
+                    if ui.small_button(*name).clicked() {
+                        canvas.load(s.clone());
+                    }
+                }
+            });
+            let mut relief = relief_m;
+            if ui.add(egui::Slider::new(&mut relief, RELIEF_M).logarithmic(true).text("relief m")).drag_stopped() || (relief != relief_m && !ui.ctx().egui_is_using_pointer()) {
+                act.relief_m = Some(relief);
+            }
+            ui.separator();
+            ui.horizontal(|ui| {
+                let r = ui.button("Variants").on_hover_text("sketches near this one (VAE), each made into terrain");
+                note("variants", &r);
+                if r.clicked() {
+                    act.variants = true;
+                }
+                if !self.variants.is_empty() {
+                    ui.label("click one to adopt it, ⇄ to blend with it");
+                }
+            });
+            ui.horizontal(|ui| {
+                for (k, v) in self.variants.iter().enumerate() {
+                    ui.vertical(|ui| {
+                        let r = ui.add(egui::Button::image(egui::Image::new(&v.texture).fit_to_exact_size(egui::vec2(64.0, 64.0))));
+                        note(&format!("variant{k}"), &r);
+                        if r.clicked() {
+                            canvas.load(v.sketch.clone());
+                        }
+                        let r = ui.small_button("⇄");
+                        note(&format!("blend{k}"), &r);
+                        if r.clicked() {
+                            self.partner = Some((v.sketch.clone(), canvas.sketch().clone()));
+                            self.alpha = 1.0;
+                        }
+                    });
+                }
+            });
+            if let Some((partner, _)) = &self.partner {
+                let _ = partner;
+                let mut a = self.alpha;
+                let resp = ui.add(egui::Slider::new(&mut a, 0.0..=1.0).text("blend (1 = yours)"));
+                note("blend_slider", &resp);
+                if resp.changed() {
+                    self.alpha = a;
+                    act.blend = Some(a);
+                }
+            }
+        });
+        self.buttons = rects;
+        act
+    }
+
+    /// Number of variants shown.
+    pub fn variant_count(&self) -> usize {
+        self.variants.len()
+    }
+
+    /// The sketch (from) and partner the blend slider works with, if one was chosen.
+    pub fn blend_pair(&self) -> Option<(&Sketch, &Sketch)> {
+        self.partner.as_ref().map(|(partner, from)| (from, partner))
+    }
+
+    fn canvas_widget(&mut self, ui: &mut egui::Ui, canvas: &mut Canvas) {
+        let rev = canvas.revision();
+        if self.texture.as_ref().is_none_or(|t| t.0 != rev) {
+            let image = egui::ColorImage::from_rgb([SKETCH_PX, SKETCH_PX], &canvas.sketch().to_rgb());
+            match &mut self.texture {
+                Some((r, tex)) => {
+                    tex.set(image, egui::TextureOptions::NEAREST);
+                    *r = rev;
+                }
+                None => self.texture = Some((rev, ui.ctx().load_texture("sketch", image, egui::TextureOptions::NEAREST))),
+            }
+        }
+        let (rect, resp) = ui.allocate_exact_size(egui::vec2(CANVAS_PT, CANVAS_PT), egui::Sense::click_and_drag());
+        if let Some((_, tex)) = &self.texture {
+            ui.painter().image(tex.id(), rect, egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)), egui::Color32::WHITE);
+        }
+        self.canvas_rect = Some(rect);
+        let to_px = |p: egui::Pos2| ((p.x - rect.min.x) / rect.width() * SKETCH_PX as f32, (p.y - rect.min.y) / rect.height() * SKETCH_PX as f32);
+        if let Some(p) = resp.interact_pointer_pos() {
+            let (x, y) = to_px(p);
+            if resp.drag_started() || (resp.clicked() && !canvas.drawing()) {
+                canvas.press(x, y);
+            } else if resp.dragged() {
+                canvas.drag(x, y);
+            }
+        }
+        if resp.drag_stopped() || resp.clicked() {
+            canvas.release();
+        }
+        // The brush outline under the pointer.
+        if let Some(p) = resp.hover_pos() {
+            let r = match canvas.tool() {
+                Tool::Ridge | Tool::Valley => crate::sketch::STROKE_PX as f32,
+                _ => canvas.brush_px(),
+            } / 2.0
+                * rect.width()
+                / SKETCH_PX as f32;
+            ui.painter().circle_stroke(p, r.max(2.0), egui::Stroke::new(1.0, egui::Color32::WHITE));
+        }
+    }
+}

@@ -1,0 +1,84 @@
+//! The world of a sketch: the terrain made from the sketch canvas ([`crate::sketch`]) placed
+//! on the 2 × 2 tiles around the origin (its 256² samples at the world's 32 m: 8,192 m
+//! across), heights = the terrain's 0–255 scale × relief / 255 metres. Around it the ground
+//! falls smoothly from the sketch's edge to 0 m over [`FADE_M`]; beyond that it is flat.
+
+use std::sync::Arc;
+
+use super::{BASE_SPACING_M, Neighbourhood, TILE_SAMPLES, Tile, TileCoord, TileSource};
+use crate::sketch::SKETCH_PX;
+
+/// Distance over which the ground around the sketch falls to 0 m (metres).
+pub const FADE_M: f64 = 4096.0;
+/// Default relief of a sketch (metres between its lowest and highest point).
+pub const DEFAULT_RELIEF_M: f64 = 1500.0;
+/// Reliefs a sketch may be given (metres).
+pub const RELIEF_M: std::ops::RangeInclusive<f64> = 10.0..=8000.0;
+/// First world sample (x and z) covered by the sketch: it is centred on the origin.
+pub const FIRST_SAMPLE: i64 = -(SKETCH_PX as i64) / 2;
+
+/// Tile source of a sketch's terrain.
+pub struct SketchSource {
+    heights: Arc<Vec<f32>>,
+    relief_m: f32,
+}
+
+impl SketchSource {
+    /// The world of `heights` ([`SKETCH_PX`]² on the 0–255 scale) with `relief_m` metres from
+    /// 0 to 255 (clamped to [`RELIEF_M`]).
+    pub fn new(heights: Arc<Vec<f32>>, relief_m: f64) -> Self {
+        assert_eq!(heights.len(), SKETCH_PX * SKETCH_PX, "a sketch's terrain is {SKETCH_PX}² samples");
+        Self { heights, relief_m: relief_m.clamp(*RELIEF_M.start(), *RELIEF_M.end()) as f32 }
+    }
+
+    /// Height (metres) at world sample (`gx`, `gz`).
+    pub fn height(&self, gx: i64, gz: i64) -> f32 {
+        let n = SKETCH_PX as i64;
+        let (u, v) = (gx - FIRST_SAMPLE, gz - FIRST_SAMPLE);
+        let (cu, cv) = (u.clamp(0, n - 1), v.clamp(0, n - 1));
+        let h = self.heights[(cv * n + cu) as usize] / 255.0 * self.relief_m;
+        if (cu, cv) == (u, v) {
+            return h;
+        }
+        let d = (((u - cu) as f64).hypot((v - cv) as f64)) * BASE_SPACING_M;
+        let t = (1.0 - d / FADE_M).max(0.0);
+        h * (t * t) as f32
+    }
+}
+
+impl TileSource for SketchSource {
+    fn name(&self) -> String {
+        format!("sketch ({:.0} m relief)", self.relief_m)
+    }
+
+    fn uses_neighbours(&self) -> bool {
+        false
+    }
+
+    fn generate(&self, _seed: u64, coord: TileCoord, _neighbours: &Neighbourhood<'_>) -> Tile {
+        let (x0, z0) = (coord.i as i64 * TILE_SAMPLES as i64, coord.j as i64 * TILE_SAMPLES as i64);
+        let heights = (0..TILE_SAMPLES * TILE_SAMPLES).map(|p| self.height(x0 + (p % TILE_SAMPLES) as i64, z0 + (p / TILE_SAMPLES) as i64)).collect();
+        Tile::new(coord, heights)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_sketch_covers_the_four_tiles_at_the_origin_and_fades_to_zero_4_km_out() {
+        let h: Vec<f32> = (0..SKETCH_PX * SKETCH_PX).map(|p| (p % SKETCH_PX) as f32 / (SKETCH_PX - 1) as f32 * 255.0).collect();
+        let src = SketchSource::new(Arc::new(h), 1000.0);
+        let tile = src.generate(1, TileCoord::new(0, 0), &Neighbourhood::default());
+        // Tile (0, 0) holds sketch columns 128..256: its last column is the sketch's top.
+        assert_eq!(tile.heights[TILE_SAMPLES - 1], 1000.0);
+        assert!((tile.heights[0] - 128.0 / 255.0 * 1000.0).abs() < 1e-3);
+        let west = src.generate(1, TileCoord::new(-1, 0), &Neighbourhood::default());
+        assert_eq!(west.heights[0], 0.0, "the sketch's lowest column");
+        // East of the sketch: the edge height, falling to 0 at FADE_M.
+        assert!((src.height(128, 0) - 1000.0 * (1.0 - 32.0 / 4096.0f32).powi(2)).abs() < 1e-2);
+        assert_eq!(src.height(127 + 128, 0), 0.0);
+        assert!(src.generate(1, TileCoord::new(3, 0), &Neighbourhood::default()).heights.iter().all(|&v| v == 0.0));
+    }
+}
