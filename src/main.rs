@@ -649,13 +649,12 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
 }
 
 fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::path::Path, seed: u64, weights: Option<PathBuf>) -> Result<(), String> {
-    use terrain::models::sketch_vae::{SketchVaeCpu, WEIGHT_FILE};
+    use terrain::models::sketch_vae::SketchModels;
     use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
     let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
-    let dir = weights_dir(weights.clone());
-    let generator = sketch_generator(weights)?;
-    let path = dir.join(WEIGHT_FILE);
-    let vae = SketchVaeCpu::from_burnpack(&std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?).map_err(|e| format!("{}: {e}", path.display()))?;
+    let dir = weights_dir(weights);
+    let read = |file: &str| std::fs::read(dir.join(file)).map_err(|e| format!("{}: {e}", dir.join(file).display()));
+    let SketchModels { generator, vae, .. } = SketchModels::from_bytes(&read(terrain::models::sketch::WEIGHT_FILE)?, &read(terrain::models::sketch_vae::WEIGHT_FILE)?).map_err(|e| format!("{}: {e}", dir.display()))?;
     std::fs::create_dir_all(out_dir).map_err(|e| format!("cannot create {}: {e}", out_dir.display()))?;
     let threads = terrain::models::cpu::default_threads();
     let t = std::time::Instant::now();

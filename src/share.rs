@@ -4,7 +4,7 @@
 //! Format (version 2): `#v=2&seed=S&src=SOURCE&w=HASH&cam=X,Y,Z,YAW,PITCH&r=R&lod=PX&noise=KIND,OCT,PERS,LAC,WAVE,AMP,BASE&auto=V`
 //! with metres for positions, radians for angles, tiles for R, pixels for PX and m/s for V.
 //! SOURCE is `tcm` (the learned world), `procedural` or `sketch`; HASH names the learned world's
-//! weights, or the sketch generator's (absent for the procedural world). A sketch world adds
+//! weights, or the sketch models' (absent for the procedural world). A sketch world adds
 //! `&sk=CODE&relief=M`: the sketch ([`crate::sketch::code`]) and its relief in metres.
 //! Version-1 links (no `src`, no `w`) were made when the world was procedural: they open the
 //! procedural world, and the page says the world may differ. Unknown keys are ignored so older pages can open newer links. Keys and values are

@@ -18,6 +18,13 @@ use burn::tensor::{Device, Tensor, TensorData};
 
 pub use burn::tensor::wgpu::{WgpuSetup, wgpu as burn_wgpu};
 
+/// Short hash (8 hex digits, FNV-1a over the bytes in order) of a model's weight files: names
+/// the weights in share links and the overlay.
+pub fn weights_hash(files: &[&[u8]]) -> String {
+    let h = files.iter().flat_map(|f| f.iter()).fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ *b as u64).wrapping_mul(0x0000_0100_0000_01b3));
+    format!("{:08x}", h >> 32)
+}
+
 /// Side of the self-check image (pixels).
 const CHECK_SIZE: usize = 32;
 

@@ -198,9 +198,37 @@ impl SketchVaeCpu {
     }
 }
 
+/// The sketch models the page and `terrain sketch-variants` use together: the generator, the
+/// VAE and the hash that names them.
+#[derive(Clone, Debug)]
+pub struct SketchModels {
+    /// The sketch → terrain generator.
+    pub generator: crate::models::sketch::SketchGenCpu,
+    /// The VAE (variants, blends).
+    pub vae: SketchVaeCpu,
+    /// Short hash of both weight files ([`crate::models::weights_hash`]).
+    pub hash: String,
+}
+
+impl SketchModels {
+    /// Reads both weight files (burnpack bytes); a broken file is an error naming it.
+    pub fn from_bytes(generator: &[u8], vae: &[u8]) -> Result<Self, String> {
+        let g = crate::models::sketch::SketchGenCpu::from_burnpack(generator).map_err(|e| format!("{}: {e}", crate::models::sketch::WEIGHT_FILE))?;
+        let v = SketchVaeCpu::from_burnpack(vae).map_err(|e| format!("{WEIGHT_FILE}: {e}"))?;
+        Ok(Self { generator: g, vae: v, hash: crate::models::weights_hash(&[generator, vae]) })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A broken weight file is an error naming it.
+    #[test]
+    fn a_broken_vae_file_is_named() {
+        let err = SketchModels::from_bytes(b"not weights", b"not weights").unwrap_err();
+        assert!(err.starts_with(crate::models::sketch::WEIGHT_FILE), "{err}");
+    }
 
     /// Codes have 128 numbers; the VAE stays under 1 M parameters; the CPU kernels compute the
     /// burn encoder and decoder (random weights ±0.1: means within 1e-4, and the decoded

@@ -183,8 +183,7 @@ impl SketchPanel {
                     });
                 }
             });
-            if let Some((partner, _)) = &self.partner {
-                let _ = partner;
+            if self.partner.is_some() {
                 let mut a = self.alpha;
                 let resp = ui.add(egui::Slider::new(&mut a, 0.0..=1.0).text("blend (1 = yours)"));
                 note("blend_slider", &resp);

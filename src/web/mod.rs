@@ -133,7 +133,7 @@ struct Ml {
     /// Finished learned tiles: the job, and the heights and the worker's milliseconds or the
     /// error.
     tiles: Vec<(Job<TileCoord>, Result<(Vec<f32>, f64), String>)>,
-    /// The sketch models: not asked for yet (`None`), loading, loaded (the generator's hash)
+    /// The sketch models: not asked for yet (`None`), loading, loaded (their hash)
     /// or why they are not available.
     sketch: Option<Option<Result<String, String>>>,
     /// Finished sketch → terrain jobs.
@@ -149,7 +149,7 @@ struct Ml {
 }
 
 /// Loads the sketch models (generator and VAE, fetched at once) into the CPU worker and
-/// records the generator's hash, or why they are not available, in `ml`.
+/// records their hash, or why they are not available, in `ml`.
 async fn start_sketch(worker: Result<Rc<worker::CpuWorker>, String>, ml: Rc<RefCell<Ml>>) {
     let files = [crate::models::sketch::WEIGHT_FILE, crate::models::sketch_vae::WEIGHT_FILE];
     let result = load_pair(files, worker, |w, a, b| async move { w.load_sketch(&a, &b).await }).await;

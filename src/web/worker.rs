@@ -14,7 +14,7 @@ use wasm_bindgen::prelude::*;
 use wasm_bindgen_futures::JsFuture;
 
 use crate::models::sketch::SketchGenCpu;
-use crate::models::sketch_vae::SketchVaeCpu;
+use crate::models::sketch_vae::{SketchModels, SketchVaeCpu};
 use crate::models::tem::{Exec, TemSet};
 use crate::sketch::{SKETCH_PX, Sketch, code};
 use crate::world::learned::{LearnedModels, LearnedSource};
@@ -180,7 +180,7 @@ impl CpuWorker {
     }
 
     /// Loads the sketch models (the generator's and the VAE's burnpack bytes) into the worker
-    /// and returns the generator's hash.
+    /// and returns their hash.
     pub async fn load_sketch(&self, generator: &[u8], vae: &[u8]) -> Result<String, WorkerError> {
         let reply = self.load("load-sketch", &[generator, vae]).await?;
         get(&reply, "hash").as_string().ok_or_else(|| WorkerError::Failed("the CPU worker's reply has no weights hash".into()))
@@ -297,12 +297,12 @@ thread_local! {
     /// here.
     static WORKER_WORLD: RefCell<Option<LearnedSource>> = const { RefCell::new(None) };
     /// The sketch generator and VAE (set by the "load-sketch" request).
-    static WORKER_SKETCH: RefCell<Option<(SketchGenCpu, SketchVaeCpu)>> = const { RefCell::new(None) };
+    static WORKER_SKETCH: RefCell<Option<SketchModels>> = const { RefCell::new(None) };
 }
 
 /// Runs `f` with the worker's sketch models.
 fn with_sketch<T>(f: impl FnOnce(&SketchGenCpu, &SketchVaeCpu) -> T) -> Result<T, String> {
-    WORKER_SKETCH.with(|m| m.borrow().as_ref().map(|(g, v)| f(g, v))).ok_or_else(|| "the CPU worker has no sketch models loaded".to_string())
+    WORKER_SKETCH.with(|m| m.borrow().as_ref().map(|m| f(&m.generator, &m.vae))).ok_or_else(|| "the CPU worker has no sketch models loaded".to_string())
 }
 
 /// What the worker answers: nothing, inference results (heights, ms), or a weights hash.
@@ -339,10 +339,9 @@ fn handle(msg: &JsValue) -> Result<Answer, String> {
         Some("load-sketch") => {
             let f = files();
             let [generator, vae] = f.as_slice() else { return Err("load-sketch needs two weight files".into()) };
-            let g = SketchGenCpu::from_burnpack(generator).map_err(|e| format!("{}: {e}", crate::models::sketch::WEIGHT_FILE))?;
-            let v = SketchVaeCpu::from_burnpack(vae).map_err(|e| format!("{}: {e}", crate::models::sketch_vae::WEIGHT_FILE))?;
-            let hash = format!("{:08x}", crate::world::schedule::mix64(generator.iter().fold(0u64, |h, &b| crate::world::schedule::mix64(h ^ b as u64))) >> 32);
-            WORKER_SKETCH.with(|m| *m.borrow_mut() = Some((g, v)));
+            let models = SketchModels::from_bytes(generator, vae)?;
+            let hash = models.hash.clone();
+            WORKER_SKETCH.with(|m| *m.borrow_mut() = Some(models));
             Ok(Answer::Hash(hash))
         }
         Some("sketch") => {

@@ -65,8 +65,7 @@ impl LearnedModels {
     pub fn from_bytes(tcm_bytes: &[u8], grow_bytes: &[u8]) -> Result<Self, String> {
         let tcm = TcmCpu::from_burnpack(tcm_bytes).map_err(|e| format!("{}: {e}", TCM_FILE))?;
         let grow = GrowCpu::from_burnpack(grow_bytes).map_err(|e| format!("{}: {e}", GROW_FILE))?;
-        let h = tcm_bytes.iter().chain(grow_bytes).fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ *b as u64).wrapping_mul(0x0000_0100_0000_01b3));
-        Ok(Self { tcm, grow, hash: format!("{:08x}", h >> 32) })
+        Ok(Self { tcm, grow, hash: crate::models::weights_hash(&[tcm_bytes, grow_bytes]) })
     }
 
     /// Wraps networks already built (tests, training runs).
