@@ -113,7 +113,7 @@ pub fn measure(h: &[f32], side: usize, spacing_m: f64) -> Result<Stats, StatsErr
         laplacian_skewness,
         laplacian_kurtosis,
         spectral_slope: spectral_slope(h, n),
-        depression_fraction: depression_fraction(h, n, DEPRESSION_DEPTH_M),
+        depression_fraction: crate::world::drainage::depression_fraction(h, n, DEPRESSION_DEPTH_M),
         local_relief_m: relief / (blocks * blocks) as f64,
     })
 }
@@ -228,48 +228,6 @@ fn spectral_slope(h: &[f32], n: usize) -> f64 {
     if den > 0.0 { num / den } else { 0.0 }
 }
 
-/// Fraction of the window's samples whose priority-flood filled height exceeds the original
-/// by more than `depth_m` (the window's border drains).
-fn depression_fraction(h: &[f32], n: usize, depth_m: f32) -> f64 {
-    use std::cmp::Reverse;
-    use std::collections::BinaryHeap;
-    #[derive(PartialEq, PartialOrd)]
-    struct Key(f32);
-    impl Eq for Key {}
-    impl Ord for Key {
-        fn cmp(&self, o: &Self) -> std::cmp::Ordering {
-            self.0.total_cmp(&o.0)
-        }
-    }
-    let mut filled = h.to_vec();
-    let mut done = vec![false; n * n];
-    let mut heap = BinaryHeap::new();
-    for i in 0..n {
-        for p in [i, (n - 1) * n + i, i * n, i * n + n - 1] {
-            if !done[p] {
-                done[p] = true;
-                heap.push(Reverse((Key(filled[p]), p)));
-            }
-        }
-    }
-    while let Some(Reverse((Key(z), p))) = heap.pop() {
-        let (x, y) = (p % n, p / n);
-        let nbrs = [(x.wrapping_sub(1), y), (x + 1, y), (x, y.wrapping_sub(1)), (x, y + 1)];
-        for (qx, qy) in nbrs {
-            if qx >= n || qy >= n {
-                continue;
-            }
-            let q = qy * n + qx;
-            if !done[q] {
-                done[q] = true;
-                filled[q] = filled[q].max(z);
-                heap.push(Reverse((Key(filled[q]), q)));
-            }
-        }
-    }
-    filled.iter().zip(h).filter(|(f, o)| **f - **o > depth_m).count() as f64 / (n * n) as f64
-}
-
 /// The interquartile range / 1.349 of `v`, else its standard deviation if that is 0 (else 1).
 pub fn spread(v: &[f64]) -> f64 {
     let mut s = v.to_vec();
@@ -340,12 +298,12 @@ mod tests {
     fn a_bowl_is_a_closed_depression() {
         let n = 64;
         let h = field(n, |x, y| (x - 31.5).powi(2) + (y - 31.5).powi(2));
-        let f = depression_fraction(&h, n, 0.5);
+        let f = crate::world::drainage::depression_fraction(&h, n, 0.5);
         // The spill height is the border's minimum, 31.5² ≈ 992: the disc of radius ≈ 31.5
         // covers π·31.5² / 64² ≈ 0.76 of the window (minus the last half-metre ring).
         assert!((f - 0.76).abs() < 0.03, "{f}");
         let tilted = field(n, |x, y| (x - 31.5).powi(2) + (y - 31.5).powi(2) + 200.0 * x);
-        assert!(depression_fraction(&tilted, n, 0.5) < f, "tilting opens the bowl");
+        assert!(crate::world::drainage::depression_fraction(&tilted, n, 0.5) < f, "tilting opens the bowl");
     }
 
     /// Fields synthesised with a power-law spectrum P ∝ k^β (random phases) measure β within

@@ -505,6 +505,18 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
     let learned = LearnedSource::new(models.clone(), terrain::models::cpu::default_threads());
     let procedural = ProceduralSource::new(NoiseParams::default());
     const SIDE_TILES: usize = 6;
+    // Each statistic's median over a set of windows, to see which way a world is off.
+    let medians = |st: &[geomorph::Stats]| -> serde_json::Map<String, serde_json::Value> {
+        STAT_NAMES
+            .iter()
+            .enumerate()
+            .map(|(k, n)| {
+                let mut v: Vec<f64> = st.iter().map(|s| s.values()[k]).collect();
+                v.sort_by(f64::total_cmp);
+                (n.to_string(), serde_json::json!(v[v.len() / 2]))
+            })
+            .collect()
+    };
     let mut regions: Vec<(&str, Vec<terrain::dem::Heightfield>, f64)> = Vec::new();
     for (name, src) in [("tcm", &learned as &dyn TileSource), ("procedural", &procedural as &dyn TileSource)] {
         let t0 = std::time::Instant::now();
@@ -526,9 +538,9 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
             let d = geomorph::distance(&st, &real);
             means.push(d[STAT_NAMES.len()]);
             let per: serde_json::Map<String, serde_json::Value> = STAT_NAMES.iter().zip(&d).map(|(n, v)| (n.to_string(), serde_json::json!(v))).collect();
-            worlds.insert(name.to_string(), serde_json::json!({ "windows": st.len(), "distance": d[STAT_NAMES.len()], "per_statistic": per }));
+            worlds.insert(name.to_string(), serde_json::json!({ "windows": st.len(), "distance": d[STAT_NAMES.len()], "per_statistic": per, "medians": medians(&st) }));
         }
-        sides.push(serde_json::json!({ "window": side, "real_windows": real.len(), "worlds": worlds, "ratio_tcm_over_procedural": means[0] / means[1] }));
+        sides.push(serde_json::json!({ "window": side, "real_windows": real.len(), "real_medians": medians(&real), "worlds": worlds, "ratio_tcm_over_procedural": means[0] / means[1] }));
     }
     let seams: serde_json::Map<String, serde_json::Value> = regions
         .iter()

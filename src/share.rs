@@ -98,7 +98,31 @@ fn numbers<const N: usize>(key: &str, value: &str) -> Result<[f64; N], ShareErro
     Ok(out)
 }
 
+/// Longest share link the page copies (characters of the fragment): mail and chat apps,
+/// and servers with 8 KiB request lines, cut longer addresses.
+pub const MAX_LINK_CHARS: usize = 8000;
+
+/// A sketch too detailed for a link of at most [`MAX_LINK_CHARS`].
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("this sketch makes a link of {chars} characters, more than the {MAX_LINK_CHARS} that mail and chat apps keep")]
+pub struct LinkTooLong {
+    /// Length of the full fragment (characters).
+    pub chars: usize,
+    /// The fragment with everything but the sketch, to send with the sketch as a file.
+    pub without_sketch: String,
+}
+
 impl ShareState {
+    /// The fragment to hand out: [`Self::to_fragment`], or — when the sketch makes it longer
+    /// than [`MAX_LINK_CHARS`] — an error carrying the link without its sketch.
+    pub fn share_fragment(&self) -> Result<String, LinkTooLong> {
+        let f = self.to_fragment();
+        if f.len() <= MAX_LINK_CHARS {
+            return Ok(f);
+        }
+        Err(LinkTooLong { chars: f.len(), without_sketch: ShareState { sketch: None, ..self.clone() }.to_fragment() })
+    }
+
     /// The fragment (without '#') for this state.
     pub fn to_fragment(&self) -> String {
         let n = &self.noise;
@@ -111,8 +135,11 @@ impl ShareState {
             (SourceKind::Learned | SourceKind::Sketch, Some(h)) => format!("&w={h}"),
             _ => String::new(),
         };
-        if let (SourceKind::Sketch, Some(code)) = (self.source, &self.sketch) {
-            weights.push_str(&format!("&sk={code}&relief={}", self.relief_m));
+        if self.source == SourceKind::Sketch {
+            if let Some(code) = &self.sketch {
+                weights.push_str(&format!("&sk={code}"));
+            }
+            weights.push_str(&format!("&relief={}", self.relief_m));
         }
         format!(
             "v={LINK_VERSION}&seed={}&src={}{weights}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}",
@@ -271,6 +298,23 @@ impl PageOptions {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_noisy_sketch_link_is_too_long_and_falls_back_to_a_short_link_without_the_sketch() {
+        let example = ShareState { source: SourceKind::Sketch, sketch: Some(crate::sketch::code::encode(&crate::sketch::examples::first().1)), relief_m: 1500.0, ..ShareState::default() };
+        assert_eq!(example.share_fragment(), Ok(example.to_fragment()));
+        let mut noisy = crate::sketch::Sketch::filled(0);
+        for p in 0..crate::sketch::SKETCH_PX * crate::sketch::SKETCH_PX {
+            noisy.band[p] = (crate::world::schedule::mix64(p as u64) % 4) as u8;
+        }
+        let s = ShareState { sketch: Some(crate::sketch::code::encode(&noisy)), ..example };
+        let err = s.share_fragment().unwrap_err();
+        assert_eq!(err.chars, s.to_fragment().len());
+        assert!(err.chars > MAX_LINK_CHARS, "{}", err.chars);
+        assert!(err.without_sketch.len() < 400 && !err.without_sketch.contains("sk="), "{}", err.without_sketch);
+        let back = ShareState::from_fragment(&err.without_sketch).unwrap();
+        assert_eq!((back.source, back.sketch, back.relief_m), (SourceKind::Sketch, None, 1500.0));
+    }
 
     #[test]
     fn a_sketch_link_round_trips_its_sketch_and_relief_and_refuses_broken_ones() {

@@ -7,3 +7,30 @@ pub mod resident;
 
 pub use camera::{Camera, CameraController, CameraMode, ControlInput};
 pub use gpu::{FrameParams, RenderStats, TerrainRenderer};
+
+/// Fraction of the screen's resolution (per axis) at which the 3-D view is drawn on a
+/// software adapter (SwiftShader, llvmpipe): those rasterise on the same CPU cores as the
+/// page, and a quarter of the pixels is a quarter of their work. A hardware GPU draws at
+/// full resolution.
+pub const SOFTWARE_VIEW_SCALE: f32 = 0.5;
+
+/// Size (pixels) of the 3-D view's target for a view of `points` (egui points) at
+/// `pixels_per_point`, drawn at [`SOFTWARE_VIEW_SCALE`] on a software adapter; at least 1×1.
+pub fn view_size(points: [f32; 2], pixels_per_point: f32, software_adapter: bool) -> [u32; 2] {
+    let scale = pixels_per_point * if software_adapter { SOFTWARE_VIEW_SCALE } else { 1.0 };
+    points.map(|p| (p * scale).round().max(1.0) as u32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 1280×720-point view at 2 pixels per point is 2560×1440 pixels on a GPU and
+    /// 1280×720 on a software adapter; an empty view is still 1×1.
+    #[test]
+    fn view_size_is_halved_per_axis_on_software_adapters() {
+        assert_eq!(view_size([1280.0, 720.0], 2.0, false), [2560, 1440]);
+        assert_eq!(view_size([1280.0, 720.0], 2.0, true), [1280, 720]);
+        assert_eq!(view_size([0.0, 0.3], 1.0, true), [1, 1]);
+    }
+}

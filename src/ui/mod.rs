@@ -14,6 +14,9 @@ use crate::world::{NoiseKind, SourceKind};
 pub struct Environment {
     /// Graphics backend and adapter, e.g. "WebGPU · SwiftShader".
     pub adapter: String,
+    /// Whether the adapter rasterises on the CPU (the 3-D view is then drawn at
+    /// [`crate::render::SOFTWARE_VIEW_SCALE`]).
+    pub software_adapter: bool,
     /// State of the neural-network backend (burn), e.g. "burn wgpu ready (3.1 ms self-check)".
     pub ml_status: String,
     /// Name of the tile source.
@@ -54,12 +57,14 @@ pub struct Overlay {
     applied: ShareState,
     /// Whether the settings section is open.
     pub show_settings: bool,
+    /// Where "Copy link" was drawn last frame (points), for tests that click it.
+    pub copy_link_rect: Option<egui::Rect>,
 }
 
 impl Overlay {
     /// An overlay editing `s`.
     pub fn new(s: ShareState) -> Self {
-        Self { draft: s.clone(), applied: s, show_settings: false }
+        Self { draft: s.clone(), applied: s, show_settings: false, copy_link_rect: None }
     }
 
     /// Replaces the draft with settings that came from elsewhere (e.g. a link opened in the
@@ -92,6 +97,9 @@ impl Overlay {
             ui.monospace(format!("{} k triangles, {} uploads, CPU {:.1} ms", env.triangles / 1000, env.uploads, env.cpu_ms));
             ui.monospace(format!("eye {:.0}, {:.0}, {:.0} m", stats.eye_m[0], stats.eye_m[1], stats.eye_m[2]));
             ui.label(format!("GPU: {}", env.adapter));
+            if env.software_adapter {
+                ui.label(format!("software GPU: 3-D view at {:.0} % resolution", crate::render::SOFTWARE_VIEW_SCALE * 100.0));
+            }
             ui.label(format!("ML: {}", env.ml_status));
             ui.label(format!("Source: {}", env.source));
             if stats.source == SourceKind::Learned.label() {
@@ -132,7 +140,9 @@ impl Overlay {
             });
             ui.add(egui::Slider::new(speed_mps, 5.0..=20_000.0).logarithmic(true).text("speed m/s"));
             ui.horizontal(|ui| {
-                if ui.button("Copy link").clicked() {
+                let copy = ui.button("Copy link");
+                self.copy_link_rect = Some(copy.rect);
+                if copy.clicked() {
                     act.copy_link = true;
                 }
                 if link_copied {

@@ -183,15 +183,19 @@ impl SketchPanel {
                     });
                 }
             });
-            if self.partner.is_some() {
-                let mut a = self.alpha;
-                let resp = ui.add(egui::Slider::new(&mut a, 0.0..=1.0).text("blend (1 = yours)"));
-                note("blend_slider", &resp);
-                if resp.changed() {
-                    self.alpha = a;
-                    act.blend = Some(a);
-                }
-            }
+            // The blend row is always there (greyed out until ⇄ picks a partner): a row that
+            // appears grows the window a frame late, and a click in that frame is lost.
+            let chosen = self.partner.is_some();
+            ui.add_enabled_ui(chosen, |ui| {
+                ui.horizontal(|ui| {
+                    let resp = blend_bar(ui, &mut self.alpha);
+                    note("blend_slider", &resp);
+                    if resp.changed() {
+                        act.blend = Some(self.alpha);
+                    }
+                    ui.label(if chosen { format!("blend {:.2} (1 = yours)", self.alpha) } else { "blend: ⇄ picks a variant".into() });
+                });
+            });
         });
         self.buttons = rects;
         act
@@ -246,5 +250,88 @@ impl SketchPanel {
                 / SKETCH_PX as f32;
             ui.painter().circle_stroke(p, r.max(2.0), egui::Stroke::new(1.0, egui::Color32::WHITE));
         }
+    }
+}
+
+/// Width (points) of the blend bar.
+const BLEND_BAR_PT: f32 = 180.0;
+
+/// A horizontal bar for α in 0..=1 that takes a click as well as a drag: on a slow page a
+/// quick click's press and release land in one frame, which egui's slider (it senses drags
+/// only) ignores. The response is marked changed when α changes.
+fn blend_bar(ui: &mut egui::Ui, alpha: &mut f32) -> egui::Response {
+    let (rect, mut resp) = ui.allocate_exact_size(egui::vec2(BLEND_BAR_PT, ui.spacing().interact_size.y), egui::Sense::click_and_drag());
+    if let Some(p) = resp.interact_pointer_pos() {
+        let a = ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0);
+        if a != *alpha {
+            *alpha = a;
+            resp.mark_changed();
+        }
+    }
+    let visuals = ui.style().interact(&resp);
+    let rail = egui::Rect::from_center_size(rect.center(), egui::vec2(rect.width(), 4.0));
+    ui.painter().rect_filled(rail, 2.0, ui.visuals().widgets.inactive.bg_fill);
+    ui.painter().circle(egui::pos2(rect.left() + *alpha * rect.width(), rect.center().y), rect.height() / 2.5, visuals.bg_fill, visuals.fg_stroke);
+    resp
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Runs the panel for one frame with `events`, returning its actions.
+    fn frame(ctx: &egui::Context, panel: &mut SketchPanel, canvas: &mut Canvas, events: Vec<egui::Event>, t: f64) -> SketchActions {
+        let input = egui::RawInput { screen_rect: Some(egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1280.0, 900.0))), time: Some(t), events, ..Default::default() };
+        let mut act = SketchActions::default();
+        ctx.run_pass(input, |ctx| act = panel.show(ctx, canvas, 800.0, false, &[])).drop_without_applying_deltas();
+        act
+    }
+
+    fn button(pos: egui::Pos2, pressed: bool) -> egui::Event {
+        egui::Event::PointerButton { pos, button: egui::PointerButton::Primary, pressed, modifiers: Default::default() }
+    }
+
+    /// Before ⇄ the blend slider takes no click; choosing ⇄ beside a variant enables it; a
+    /// click at 10 % of its width in the very next frame (press and release two frames apart) asks for one blend at α 0.1 ± 0.01, and a
+    /// click at 70 % whose move, press and release land in one frame asks for one at α 0.7 ± 0.01.
+    #[test]
+    fn a_click_on_the_blend_slider_asks_for_one_blend_at_that_alpha_even_within_one_frame() {
+        let ctx = egui::Context::default();
+        let mut panel = SketchPanel::default();
+        let mut canvas = Canvas::new(Sketch::filled(1));
+        panel.set_variants(&ctx, vec![(Sketch::filled(2), vec![0.0; SKETCH_PX * SKETCH_PX])]);
+        let mut t = 0.0;
+        let mut run = |panel: &mut SketchPanel, canvas: &mut Canvas, events: Vec<egui::Event>| {
+            t += 0.1;
+            frame(&ctx, panel, canvas, events, t)
+        };
+        for _ in 0..3 {
+            run(&mut panel, &mut canvas, vec![]);
+        }
+        let early = panel.buttons["blend_slider"].center();
+        for events in [vec![egui::Event::PointerMoved(early), button(early, true), button(early, false)], vec![]] {
+            assert_eq!(run(&mut panel, &mut canvas, events).blend, None);
+        }
+        let blend = panel.buttons["blend0"].center();
+        run(&mut panel, &mut canvas, vec![egui::Event::PointerMoved(blend)]);
+        run(&mut panel, &mut canvas, vec![button(blend, true)]);
+        run(&mut panel, &mut canvas, vec![button(blend, false)]);
+        assert!(panel.blend_pair().is_some(), "⇄ did not choose a partner");
+        let slider = panel.buttons["blend_slider"];
+        let at = egui::pos2(slider.left() + 0.1 * slider.width(), slider.center().y);
+        let mut asked = Vec::new();
+        for events in [vec![egui::Event::PointerMoved(at), button(at, true)], vec![], vec![button(at, false)], vec![]] {
+            asked.extend(run(&mut panel, &mut canvas, events).blend);
+        }
+        assert_eq!(asked.len(), 1, "blends asked: {asked:?}");
+        assert!((asked[0] - 0.1).abs() < 0.01, "blends asked: {asked:?}, slider {slider:?}");
+        // A quick click on a slow page: press and release arrive in the same frame.
+        let at = egui::pos2(slider.left() + 0.7 * slider.width(), slider.center().y);
+        let mut asked = Vec::new();
+        for events in [vec![egui::Event::PointerMoved(at), button(at, true), button(at, false)], vec![]] {
+            asked.extend(run(&mut panel, &mut canvas, events).blend);
+        }
+        assert_eq!(asked.len(), 1, "blends asked: {asked:?}");
+        assert!((asked[0] - 0.7).abs() < 0.01, "blends asked: {asked:?}");
     }
 }

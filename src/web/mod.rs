@@ -487,7 +487,7 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
                     overlay: Overlay::new(share),
                     renderer,
                     texture: None,
-                    env: Environment { adapter: adapter_name, ..Default::default() },
+                    env: Environment { adapter: adapter_name, software_adapter: software, ..Default::default() },
                     ml,
                     refine_on: page_opts.tem != TemChoice::Off,
                     last_eye: None,
@@ -498,6 +498,7 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
                     last_hash: hash,
                     last_url_write_ms: 0.0,
                     copied_at_ms: None,
+                    link_too_long: 0,
                     sketch_panel: SketchPanel::default(),
                     examples: crate::sketch::examples::all(),
                     import: Rc::default(),
@@ -532,6 +533,8 @@ struct WebApp {
     last_hash: String,
     last_url_write_ms: f64,
     copied_at_ms: Option<f64>,
+    /// Times "Copy link" found the sketch too detailed for a link and sent it as a file.
+    link_too_long: u32,
     sketch_panel: SketchPanel,
     examples: Vec<(&'static str, Sketch)>,
     /// A sketch PNG the user opened (or why it could not be read), once it is read.
@@ -553,7 +556,11 @@ fn download(name: &str, bytes: &[u8], mime: &str) -> Result<(), String> {
     a.set_href(&url);
     a.set_download(name);
     a.click();
-    let _ = web_sys::Url::revoke_object_url(&url);
+    // The download reads the blob after this returns: revoking the URL now can cancel it.
+    let revoke = Closure::once_into_js(move || {
+        let _ = web_sys::Url::revoke_object_url(&url);
+    });
+    web_sys::window().ok_or("no window")?.set_timeout_with_callback_and_timeout_and_arguments_0(revoke.unchecked_ref(), 60_000).map_err(err)?;
     Ok(())
 }
 
@@ -916,8 +923,7 @@ impl eframe::App for WebApp {
         egui::CentralPanel::no_frame().show(ui, |ui| {
             let rect = ui.max_rect();
             let resp = ui.allocate_rect(rect, egui::Sense::click_and_drag());
-            let ppp = ctx.pixels_per_point();
-            let size = [(rect.width() * ppp).round().max(1.0) as u32, (rect.height() * ppp).round().max(1.0) as u32];
+            let size = crate::render::view_size([rect.width(), rect.height()], ctx.pixels_per_point(), self.env.software_adapter);
             let input = self.control_input(&ctx, &resp);
             let (nodes, params) = self.app.frame(&input, dt_ms / 1000.0, size);
             if self.renderer.ensure_target(&rs.device, size) || self.texture.is_none() {
@@ -981,10 +987,23 @@ impl eframe::App for WebApp {
         if act.copy_link {
             self.last_url_write_ms = 0.0;
             self.write_hash(now);
-            if let Some(href) = web_sys::window().and_then(|w| w.location().href().ok()) {
-                ctx.copy_text(href);
-                self.copied_at_ms = Some(now);
+            let href = web_sys::window().and_then(|w| w.location().href().ok()).unwrap_or_default();
+            let page = href.split('#').next().unwrap_or_default();
+            match self.app.share_state().share_fragment() {
+                Ok(f) => ctx.copy_text(format!("{page}#{f}")),
+                Err(too_long) => {
+                    // The sketch goes as a file; the link copied carries everything else.
+                    let mut png = Vec::new();
+                    let saved = self.app.canvas.sketch().write_png(&mut png).map_err(|e| e.to_string()).and_then(|_| download("sketch.png", &png, "image/png"));
+                    ctx.copy_text(format!("{page}#{}", too_long.without_sketch));
+                    self.link_too_long += 1;
+                    self.message = Some(match saved {
+                        Ok(()) => format!("{too_long}. The link copied has everything but the sketch, which was downloaded as sketch.png: send both; the receiver opens the link, then Import PNG."),
+                        Err(e) => format!("{too_long}, and the sketch could not be downloaded ({e}). Use Export PNG in the sketch panel."),
+                    });
+                }
             }
+            self.copied_at_ms = Some(now);
         }
         self.write_hash(now);
 
@@ -1012,6 +1031,9 @@ impl eframe::App for WebApp {
             "sketch_models": format!("{:?}", self.app.sketch_models()),
             "sketch_variants": self.sketch_panel.variant_count(),
             "sketch_blends": self.ml.borrow().blends,
+            "link_too_long": self.link_too_long,
+            "copy_link_button": self.overlay.copy_link_rect.map(|r| [r.min.x, r.min.y, r.width(), r.height()]),
+            "software_adapter": self.env.software_adapter,
             "sketch_buttons": self.sketch_panel.buttons.iter().map(|(k, r)| (k.clone(), [r.min.x, r.min.y, r.width(), r.height()])).collect::<std::collections::BTreeMap<_, _>>(),
         });
         STATS_JSON.with(|s| *s.borrow_mut() = json.to_string());

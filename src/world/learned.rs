@@ -9,7 +9,9 @@
 //!   ([`super::seam`]). They are kept in a bounded cache, which only saves work;
 //! - the 32 m tile is the ×4 network applied to the 128 m field around it (the tile plus
 //!   [`grow::MARGIN`] samples of its neighbours), with noise drawn at global positions, so
-//!   neighbouring 32 m tiles agree along their edges wherever their 128 m fields do.
+//!   neighbouring 32 m tiles agree along their edges wherever their 128 m fields do;
+//! - its closed depressions are then filled with the border fixed ([`super::drainage`]), so
+//!   every sample drains and the shared edges stay as they were.
 //!
 //! The macro field — the absolute level and the large-scale relief the TCM is conditioned on —
 //! is seeded Perlin fBm over tile coordinates ([`macro_height`]).
@@ -18,6 +20,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use super::coord::{TILE_SAMPLES, TileCoord};
+use super::drainage;
 use super::noise::perlin;
 use super::schedule::{dependencies, tile_seed};
 use super::seam;
@@ -160,12 +163,14 @@ impl TileSource for LearnedSource {
         };
         let base = grow::base(&window);
         let (m, off) = (w * grow::FACTOR, grow::MARGIN * grow::FACTOR);
-        let heights = (0..TILE_SAMPLES * TILE_SAMPLES)
+        let mut heights: Vec<f32> = (0..TILE_SAMPLES * TILE_SAMPLES)
             .map(|p| {
                 let q = (off + p / TILE_SAMPLES) * m + off + p % TILE_SAMPLES;
                 base[q] + residual[q] * grow::HEIGHT_SCALE_M
             })
             .collect();
+        // Real terrain drains: the networks' pits are filled, the tile's border kept.
+        drainage::fill_depressions(&mut heights, TILE_SAMPLES, drainage::FLAT_GRADIENT_M);
         Tile::new(coord, heights)
     }
 }
@@ -205,6 +210,17 @@ mod tests {
         assert!(t.max_m - t.min_m > 1.0, "a flat tile: {} .. {}", t.min_m, t.max_m);
         assert!(t.heights.iter().all(|h| h.is_finite()));
         assert_ne!(src.generate(6, TileCoord::new(0, 0), &Neighbourhood::default()).checksum, t.checksum);
+    }
+
+    /// Every sample of a learned tile drains to its border: no closed depression of any
+    /// depth is left (untrained networks make pits everywhere).
+    #[test]
+    fn learned_tiles_have_no_closed_depressions() {
+        let src = LearnedSource::new(random_models(), 1);
+        for c in [TileCoord::new(0, 0), TileCoord::new(3, -2)] {
+            let t = src.generate(9, c, &Neighbourhood::default());
+            assert_eq!(drainage::depression_fraction(&t.heights, TILE_SAMPLES, 0.0), 0.0, "{c:?}");
+        }
     }
 
     /// The macro field varies between neighbouring 4 km tiles about as much as real terrain's

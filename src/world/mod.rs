@@ -4,6 +4,7 @@
 //! rendering.
 
 pub mod coord;
+pub mod drainage;
 pub mod export;
 pub mod learned;
 pub mod noise;

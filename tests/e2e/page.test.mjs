@@ -567,7 +567,7 @@ async function tileHeights(page, i, j) {
   throw new Error(`tile ${i}, ${j} never arrived`);
 }
 
-test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, clear, export/import, variants; a link reproduces the terrain', async () => {
+test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, clear, export/import, variants, the blend slider; a link reproduces the terrain and a too-long one gives a message and the sketch file', async () => {
   const { page, errors } = await open(SKETCH_VIEW, '', BIG);
   let s = await waitFor(page, (s) => s.sketch_models.startsWith('Ready') && s.stats.sketch_shown > 0 && shownNow(s) && s.sketch_canvas, 'the first sketch terrain');
   const [cx, cy, cw] = s.sketch_canvas;
@@ -618,6 +618,15 @@ test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, cle
   s = await waitFor(page, (q) => q.sketch_variants === 4 && q.sketch_buttons.variant0, 'four variants', 120_000);
   await click(page, s, 'variant0');
   s = await waitFor(page, (q) => sketchCode(q.link) !== codes[8] && shownNow(q), 'the adopted variant');
+  // The blend slider: ⇄ beside the second variant, then a click at 10 % of the slider (α 0.1,
+  // mostly that variant) makes a new sketch from the VAE and its terrain.
+  const adopted = sketchCode(s.link);
+  await click(page, s, 'blend1');
+  s = await waitFor(page, (q) => q.sketch_buttons.blend_slider, 'the blend slider');
+  const [bx, by, bw, bh] = s.sketch_buttons.blend_slider;
+  await page.mouse.click(bx + 0.1 * bw, by + bh / 2);
+  s = await waitFor(page, (q) => q.sketch_blends >= 1 && sketchCode(q.link) !== adopted && shownNow(q), 'the blended sketch', 120_000);
+  report.sketch.blends = s.sketch_blends;
   await page.screenshot({ path: path.join(out, 'sketch.png.screenshot.png') });
   // The link reproduces the same terrain in another page.
   const link = s.link;
@@ -656,6 +665,33 @@ test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, cle
   report.sketch.native_max_dh_m = worstNative;
   assert.equal(worst, 0, 'the link gave different terrain');
   assert.ok(worstNative < (relief / 65535) * 0.5 + 0.05, `page vs native CLI: ${worstNative} m`);
+  // A sketch too detailed for a link (a band per pixel at random): "Copy link" says so and
+  // downloads the sketch as a file instead. (In the second page, which has downloaded nothing:
+  // Chromium asks before a page's second automatic download.)
+  const noisy = new PNG({ width: 256, height: 256 });
+  const noisyBands = [];
+  let r = 12345;
+  for (let p = 0; p < 256 * 256; p++) {
+    r ^= r << 13; r ^= r >>> 17; r ^= r << 5; r >>>= 0; // xorshift32
+    const band = r >>> 30;
+    noisyBands.push(band);
+    noisy.data.set([0, [63, 127, 191, 255][band], 0, 255], 4 * p);
+  }
+  const noisyFile = path.join(out, 'noisy_sketch.png');
+  fs.writeFileSync(noisyFile, PNG.sync.write(noisy));
+  const second = other.page;
+  s = await stats(second);
+  await click(second, s, 'import');
+  await second.setInputFiles('#terrain_sketch_file', noisyFile);
+  s = await waitFor(second, (q) => decodeSketch(sketchCode(q.link)).every((n, p) => n === noisyBands[p]), 'the noisy sketch');
+  const fallback = second.waitForEvent('download', { timeout: 120_000 });
+  await second.mouse.click(...centre(s.copy_link_button));
+  s = await waitFor(second, (q) => q.link_too_long === 1 && q.message, 'the too-long link message');
+  const saved = path.join(out, 'too_long_sketch.png');
+  await (await fallback).saveAs(saved);
+  assert.deepEqual(pngSketch(fs.readFileSync(saved)), decodeSketch(sketchCode(s.link)));
+  assert.match(s.message, /link of \d+ characters, more than the 8000/);
+  report.sketch.noisy_link_chars = s.link.length;
   assert.deepEqual(errors, []);
   assert.deepEqual(other.errors, []);
   await page.close();
