@@ -1,6 +1,7 @@
 //! Speed of the world pipeline on the CPU: one procedural tile, one quadtree node gathered
-//! from tiles, one node mesh (vertices + normals + skirts), TEM inference per quad, and the
-//! learned world's networks per tile.
+//! from tiles, one node mesh (vertices + normals + skirts), TEM inference per quad, the
+//! learned world's networks per tile, and the sketch models (a terrain per sketch, variants,
+//! a blend).
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
@@ -89,5 +90,41 @@ fn learned(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, world, tem, learned);
+/// The sketch models with the shipped weights: one sketch → 256² terrain (the generator), four
+/// variants (the VAE's encoder once, its decoder and the generator four times: what the
+/// page's Variants button and `terrain sketch-variants` do) and one blend of two sketches, on
+/// 1 thread and on every core.
+fn sketch(c: &mut Criterion) {
+    use terrain::models::cpu::default_threads;
+    use terrain::models::sketch::{self as generator, SketchScratch};
+    use terrain::models::sketch_vae::{self as vae, SketchModels};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+    let read = |f: &str| std::fs::read(dir.join(f)).expect("weights/");
+    let m = SketchModels::from_bytes(&read(generator::WEIGHT_FILE), &read(vae::WEIGHT_FILE)).expect("sketch weights");
+    let examples = terrain::sketch::examples::all();
+    let (a, b) = (&examples[0].1, &examples[1].1);
+    let mut g = c.benchmark_group("sketch cpu");
+    g.sample_size(10);
+    let mut threads = vec![1, default_threads()];
+    threads.dedup();
+    for t in threads {
+        let mut s = SketchScratch::default();
+        g.bench_function(format!("generator, one sketch -> 256² terrain, {t} thread(s)"), |bn| bn.iter(|| black_box(m.generator.generate(a, &mut s, t))));
+        g.bench_function(format!("4 variants with their terrains, {t} thread(s)"), |bn| {
+            bn.iter(|| {
+                let v = m.vae.variants(a, 4, 7, &mut Default::default(), t);
+                black_box(v.iter().map(|k| m.generator.generate(k, &mut s, t)).collect::<Vec<_>>())
+            })
+        });
+        g.bench_function(format!("blend of two sketches with its terrain, {t} thread(s)"), |bn| {
+            bn.iter(|| {
+                let k = m.vae.interpolate(a, b, 0.5, &mut Default::default(), t);
+                black_box(m.generator.generate(&k, &mut s, t))
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, world, tem, learned, sketch);
 criterion_main!(benches);

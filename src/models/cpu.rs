@@ -107,6 +107,21 @@ impl Conv3 {
         (w, self.b.clone())
     }
 
+    /// The same layer with zero output channels appended up to a multiple of the vectorised
+    /// kernels' channel block (8): a layer whose outputs are not a multiple of 8 runs on the
+    /// portable kernel, about 7× slower (the sketch VAE's 6-channel output: 48 ms → 7 ms at
+    /// 256²). The first `cout` channels of its output are unchanged.
+    pub fn padded_for_simd(&self) -> Self {
+        let cout = self.cout.next_multiple_of(ROWS8_CH);
+        if cout == self.cout || self.cout == 1 {
+            return self.clone();
+        }
+        let (mut w, mut b) = self.to_oihw();
+        w.resize(cout * self.cin * 9, 0.0);
+        b.resize(cout, 0.0);
+        Self::from_oihw(cout, self.cin, &w, Some(&b)).expect("zero-padded weights are finite and sized")
+    }
+
     /// A layer with every weight and bias uniform in ±`amplitude`, drawn from `seed` with
     /// integer arithmetic (tests: untrained networks that still compute something).
     pub fn random(cout: usize, cin: usize, seed: u64, amplitude: f32) -> Self {
@@ -855,6 +870,32 @@ pub fn default_threads() -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 16 → 6 layer padded to 8 outputs gives the same first 6 channels on every pixel of
+    /// a 40×40 map (bit for bit on the portable kernel, within 1e-5 on AVX2), and zeros in
+    /// the 2 added ones.
+    #[test]
+    fn padding_the_output_channels_keeps_the_outputs() {
+        let layer = Conv3::random(6, 16, 3, 0.3);
+        let padded = layer.padded_for_simd();
+        assert_eq!((padded.cin, padded.cout), (16, 8));
+        let mut src = Map::default();
+        let input: Vec<f32> = (0..16 * 40 * 40).map(|k| ((k * 7919) % 1000) as f32 / 500.0 - 1.0).collect();
+        src.set_chw(&input, 16, 40, 40);
+        for portable in [true, false] {
+            let (mut a, mut b) = (Map::default(), Map::default());
+            conv_impl(&layer, &src, &mut a, Post::None, 1, portable);
+            conv_impl(&padded, &src, &mut b, Post::None, 1, portable);
+            let tol = if portable { 0.0 } else { 1e-5 };
+            for p in 0..40 * 40 {
+                let (x, y) = (a.pixel(p / 40, p % 40), b.pixel(p / 40, p % 40));
+                for c in 0..6 {
+                    assert!((x[c] - y[c]).abs() <= tol, "pixel {p} channel {c}: {} vs {}", x[c], y[c]);
+                }
+                assert_eq!(&y[6..], &[0.0, 0.0]);
+            }
+        }
+    }
 
     use super::unit as lcg;
 

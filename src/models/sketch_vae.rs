@@ -127,20 +127,29 @@ pub struct VaeScratch {
 }
 
 impl SketchVaeCpu {
+    /// The network from its layers in the order of [`conv_layers`]; the 6-channel output
+    /// layer is padded for the vectorised kernels ([`Conv3::padded_for_simd`]).
+    fn from_convs(mut convs: Vec<Conv3>) -> Self {
+        if let Some(out) = convs.last_mut() {
+            *out = out.padded_for_simd();
+        }
+        Self { convs }
+    }
+
     /// Every layer random (uniform ±`amplitude`, from `seed`), for tests.
     pub fn randomized(seed: u64, amplitude: f32) -> Self {
-        Self { convs: cpu::random_convs(&conv_layers(), seed, amplitude) }
+        Self::from_convs(cpu::random_convs(&conv_layers(), seed, amplitude))
     }
 
     /// Reads a VAE weight file (burnpack, as training writes it).
     pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
-        Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
+        Ok(Self::from_convs(cpu::convs_from_burnpack(bytes, &conv_layers())?))
     }
 
     /// Copies a burn VAE's weights.
     pub fn from_model(m: &SketchVae) -> Result<Self, String> {
         let convs = m.enc.iter().chain([&m.head, &m.from_code]).chain(&m.dec).chain([&m.out]);
-        Ok(Self { convs: convs.map(cpu::conv_from_burn).collect::<Result<_, _>>()? })
+        Ok(Self::from_convs(convs.map(cpu::conv_from_burn).collect::<Result<_, _>>()?))
     }
 
     /// (mean, log-variance) of the code of `sketch`.

@@ -529,7 +529,7 @@ struct WebApp {
     last_frame_ms: Option<f64>,
     /// The main thread's work per frame over the last 120 frames: total, tiles, nodes and
     /// drawing milliseconds.
-    frame_work: std::collections::VecDeque<[f64; 4]>,
+    frame_work: std::collections::VecDeque<[f64; 7]>,
     last_hash: String,
     last_url_write_ms: f64,
     copied_at_ms: Option<f64>,
@@ -941,7 +941,7 @@ impl eframe::App for WebApp {
             self.env.triangles = stats.triangles;
             self.env.cpu_ms = now_ms() - cpu_start;
             let s = self.app.stats();
-            self.frame_work.push_back([self.env.cpu_ms, s.world_ms, s.nodes_ms, render_ms]);
+            self.frame_work.push_back([self.env.cpu_ms, s.world_ms, s.nodes_ms, render_ms, stats.upload_ms, stats.submit_ms, stats.uploads as f64]);
             if self.frame_work.len() > 120 {
                 self.frame_work.pop_front();
             }
@@ -1019,7 +1019,7 @@ impl eframe::App for WebApp {
             "triangles": self.env.triangles,
             "cpu_ms": self.env.cpu_ms,
             // The frame with the most main-thread work of the last 120: [total, tiles, nodes,
-            // drawing] ms.
+            // drawing, of which uploads, of which encoding + submit] ms, then meshes uploaded.
             "cpu_ms_worst": self.frame_work.iter().copied().max_by(|a, b| a[0].total_cmp(&b[0])),
             "message": self.message,
             "device_restarts": RESTARTS.get(),
