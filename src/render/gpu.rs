@@ -8,8 +8,8 @@ use glam::Vec3;
 use wgpu::util::DeviceExt;
 
 use super::camera::Camera;
-use super::mesh::{Vertex, node_indices, node_vertices};
-use super::resident::ResidentMeshes;
+use super::mesh::{NODE_VERTICES, Vertex, node_indices, node_vertices};
+use super::resident::{ResidentMeshes, Slots};
 use crate::world::quadtree::NodeData;
 
 /// Colour format of the offscreen target (linear values, stored sRGB).
@@ -98,9 +98,19 @@ pub struct TerrainRenderer {
     index_count: u32,
     instances: wgpu::Buffer,
     instance_capacity: usize,
-    meshes: ResidentMeshes<wgpu::Buffer>,
+    /// Each resident node's slot in `slab`.
+    meshes: ResidentMeshes<u32>,
+    slots: Slots,
+    /// All node meshes, [`NODE_VERTICES`] vertices per slot.
+    slab: wgpu::Buffer,
     target: Option<Target>,
 }
+
+/// Bytes of one node mesh (one slot of the mesh buffer).
+const MESH_BYTES: u64 = (NODE_VERTICES * std::mem::size_of::<Vertex>()) as u64;
+/// Slots the mesh buffer starts with (it doubles when full).
+const FIRST_SLOTS: u32 = 64;
+const _: () = assert!(MESH_BYTES % wgpu::COPY_BUFFER_ALIGNMENT == 0);
 
 impl TerrainRenderer {
     /// Creates pipelines and shared buffers on `device`.
@@ -182,7 +192,19 @@ impl TerrainRenderer {
         });
         let instance_capacity = 256;
         let instances = Self::instance_buffer(device, instance_capacity);
-        Self { globals, bind_group, sky, terrain, water, indices, index_count: idx.len() as u32, instances, instance_capacity, meshes: ResidentMeshes::default(), target: None }
+        let mut slots = Slots::default();
+        slots.grow(FIRST_SLOTS);
+        let slab = Self::slab_buffer(device, FIRST_SLOTS);
+        Self { globals, bind_group, sky, terrain, water, indices, index_count: idx.len() as u32, instances, instance_capacity, meshes: ResidentMeshes::default(), slots, slab, target: None }
+    }
+
+    fn slab_buffer(device: &wgpu::Device, slots: u32) -> wgpu::Buffer {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("node meshes"),
+            size: slots as u64 * MESH_BYTES,
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        })
     }
 
     fn instance_buffer(device: &wgpu::Device, n: usize) -> wgpu::Buffer {
@@ -249,17 +271,27 @@ impl TerrainRenderer {
         queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&g));
 
         let mut inst = Vec::with_capacity(nodes.len());
+        // Room for every node of this frame, should all be new: the mesh buffer doubles (its
+        // contents copied on the GPU) when needed.
+        let capacity = self.slots.capacity_for(nodes.len() as u32, FIRST_SLOTS);
+        if capacity > self.slots.capacity() {
+            let slab = Self::slab_buffer(device, capacity);
+            let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("grow node meshes") });
+            enc.copy_buffer_to_buffer(&self.slab, 0, &slab, 0, self.slots.capacity() as u64 * MESH_BYTES);
+            queue.submit([enc.finish()]);
+            self.slab = slab;
+            self.slots.grow(capacity);
+        }
         self.meshes.begin_frame();
         for n in nodes {
-            let uploaded = self.meshes.use_mesh(n.id, n.version, || {
-                // Not `create_buffer_init`: a buffer mapped at creation costs a round trip to
-                // the browser's GPU process (7–9 ms each on SwiftShader, measured in the page);
-                // a queued write does not wait.
-                let vertices = node_vertices(n);
-                let bytes: &[u8] = bytemuck::cast_slice(&vertices);
-                let buffer = device.create_buffer(&wgpu::BufferDescriptor { label: Some("node mesh"), size: bytes.len() as u64, usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
-                queue.write_buffer(&buffer, 0, bytes);
-                buffer
+            let (slots, slab) = (&mut self.slots, &self.slab);
+            let uploaded = self.meshes.use_mesh(n.id, n.version, |old| {
+                // One buffer for all meshes, written with queued writes: a buffer per mesh
+                // (and worse, one mapped at creation) costs a round trip to the browser's GPU
+                // process each (7–9 ms on SwiftShader, measured in the page).
+                let slot = old.or_else(|| slots.take()).expect("capacity reserved above");
+                queue.write_buffer(slab, slot as u64 * MESH_BYTES, bytemuck::cast_slice(&node_vertices(n)));
+                slot
             });
             stats.uploads += uploaded as usize;
             let (x, z) = n.id.origin_m();
@@ -272,7 +304,9 @@ impl TerrainRenderer {
         if !inst.is_empty() {
             queue.write_buffer(&self.instances, 0, bytemuck::cast_slice(&inst));
         }
-        self.meshes.evict_unused(keep_frames);
+        for slot in self.meshes.evict_unused(keep_frames) {
+            self.slots.give(slot);
+        }
         stats.resident = self.meshes.len();
 
         stats.upload_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -303,10 +337,10 @@ impl TerrainRenderer {
             pass.set_pipeline(&self.terrain);
             pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
             pass.set_vertex_buffer(1, self.instances.slice(..));
+            pass.set_vertex_buffer(0, self.slab.slice(..));
             for (k, n) in nodes.iter().enumerate() {
-                if let Some(m) = self.meshes.get(&n.id) {
-                    pass.set_vertex_buffer(0, m.slice(..));
-                    pass.draw_indexed(0..self.index_count, 0, k as u32..k as u32 + 1);
+                if let Some(&slot) = self.meshes.get(&n.id) {
+                    pass.draw_indexed(0..self.index_count, (slot as usize * NODE_VERTICES) as i32, k as u32..k as u32 + 1);
                     stats.triangles += self.index_count as usize / 3;
                 }
             }
