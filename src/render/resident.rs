@@ -57,8 +57,7 @@ impl<M> ResidentMeshes<M> {
     /// Drops meshes not drawn during the last `keep_frames` frames and returns them.
     pub fn evict_unused(&mut self, keep_frames: u64) -> Vec<M> {
         let frame = self.frame;
-        let old: Vec<NodeId> = self.entries.iter().filter(|(_, e)| frame - e.last_used > keep_frames).map(|(id, _)| *id).collect();
-        old.iter().filter_map(|id| self.entries.remove(id)).map(|e| e.mesh).collect()
+        self.entries.extract_if(|_, e| frame - e.last_used > keep_frames).map(|(_, e)| e.mesh).collect()
     }
 
     /// Meshes resident now.

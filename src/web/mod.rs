@@ -543,6 +543,13 @@ struct WebApp {
     pending_blend: Option<f32>,
 }
 
+/// Offers `sketch` as `sketch.png` in the format's palette.
+fn download_sketch(sketch: &crate::sketch::Sketch) -> Result<(), String> {
+    let mut png = Vec::new();
+    sketch.write_png(&mut png).map_err(|e| e.to_string())?;
+    download("sketch.png", &png, "image/png")
+}
+
 /// Offers `bytes` as a file download named `name`.
 fn download(name: &str, bytes: &[u8], mime: &str) -> Result<(), String> {
     let err = |e: JsValue| format!("{e:?}");
@@ -671,9 +678,7 @@ impl WebApp {
     /// The sketch panel's requests: files, variants, blends, relief.
     fn sketch_actions(&mut self, act: crate::ui::sketch::SketchActions) {
         if act.export {
-            let mut png = Vec::new();
-            let r = self.app.canvas.sketch().write_png(&mut png).map_err(|e| e.to_string()).and_then(|_| download("sketch.png", &png, "image/png"));
-            if let Err(e) = r {
+            if let Err(e) = download_sketch(self.app.canvas.sketch()) {
                 self.message = Some(format!("The sketch could not be exported: {e}"));
             }
         }
@@ -993,8 +998,7 @@ impl eframe::App for WebApp {
                 Ok(f) => ctx.copy_text(format!("{page}#{f}")),
                 Err(too_long) => {
                     // The sketch goes as a file; the link copied carries everything else.
-                    let mut png = Vec::new();
-                    let saved = self.app.canvas.sketch().write_png(&mut png).map_err(|e| e.to_string()).and_then(|_| download("sketch.png", &png, "image/png"));
+                    let saved = download_sketch(self.app.canvas.sketch());
                     ctx.copy_text(format!("{page}#{}", too_long.without_sketch));
                     self.link_too_long += 1;
                     self.message = Some(match saved {
