@@ -69,7 +69,7 @@ fn learned(c: &mut Criterion) {
         for phase in 0..4 {
             let mask = phase_mask(phase);
             let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
-            let x = assemble_input(&tiles, &[500.0; 9], 7);
+            let x = assemble_input(&tiles, &[500.0; 9], &[0.5; 9], 7);
             let mut s = TcmScratch::default();
             g.bench_function(format!("TCM 128 m tile, phase {phase}, {threads} thread(s)"), |b| b.iter(|| black_box(tcm.forward(&x, &mut s, threads))));
         }

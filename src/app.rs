@@ -18,7 +18,7 @@ use crate::models::tem::LEVELS;
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
 use crate::world::refine::{INPUT_SIDE, PatchKey, PatchStore, RefineJob};
 use crate::world::schedule::{mix64, tile_seed};
-use crate::world::{ProceduralSource, SourceKind, TILE_SAMPLES, TILE_SIZE_M, Tile, TileCoord, WorldStream};
+use crate::world::{ProceduralSource, SourceKind, TILE_SAMPLES, TILE_SIZE_M, Tile, TileCoord, TileSource, WorldStream};
 
 /// Milliseconds per frame that tile generation may use at least before it waits for the next
 /// frame. When frames are slow for other reasons (a busy GPU), the budget grows to a quarter of
@@ -128,6 +128,9 @@ pub struct TerrainApp {
     /// new world gets a new epoch, and results of jobs (tiles and TEM batches) made for an
     /// older one are dropped.
     tile_jobs: JobQueue<TileCoord>,
+    /// Whether procedural tiles are made by whoever takes [`TerrainApp::tile_jobs`] (the page's
+    /// CPU worker) instead of here, within each frame's time budget.
+    procedural_elsewhere: bool,
     nodes: NodeCache,
     refine: PatchStore,
     refine_backend: Option<String>,
@@ -168,7 +171,7 @@ impl TerrainApp {
     /// elsewhere); until then it has no tiles.
     pub fn new(s: ShareState) -> Self {
         let learned = LearnedStatus::Loading;
-        let world = Self::make_world(&s, &learned, None);
+        let world = Self::make_world(&s, &learned, None, false);
         let sketch = s.sketch.as_deref().and_then(|c| crate::sketch::code::decode(c).ok()).unwrap_or_else(|| crate::sketch::examples::first().1);
         let canvas = Canvas::new(sketch);
         let code = crate::sketch::code::encode(canvas.sketch());
@@ -177,6 +180,7 @@ impl TerrainApp {
             world,
             learned,
             tile_jobs: JobQueue::new(TILE_JOBS_IN_FLIGHT),
+            procedural_elsewhere: false,
             nodes: NodeCache::new(),
             refine: PatchStore::new(0, 0),
             refine_backend: None,
@@ -196,7 +200,7 @@ impl TerrainApp {
         app
     }
 
-    fn make_world(s: &ShareState, learned: &LearnedStatus, sketch: Option<&Arc<Vec<f32>>>) -> WorldStream {
+    fn make_world(s: &ShareState, learned: &LearnedStatus, sketch: Option<&Arc<Vec<f32>>>, procedural_elsewhere: bool) -> WorldStream {
         match (s.source, learned) {
             (SourceKind::Sketch, _) => match sketch {
                 Some(h) => WorldStream::new(s.seed, Box::new(SketchSource::new(h.clone(), s.relief_m)), s.radius_tiles),
@@ -204,6 +208,7 @@ impl TerrainApp {
             },
             (SourceKind::Learned, LearnedStatus::Ready { hash }) => WorldStream::made_elsewhere(s.seed, format!("learned (TCM {hash})"), s.radius_tiles),
             (SourceKind::Learned, LearnedStatus::Loading) => WorldStream::made_elsewhere(s.seed, "learned (loading its models…)".into(), s.radius_tiles),
+            _ if procedural_elsewhere => WorldStream::made_elsewhere(s.seed, ProceduralSource::new(s.noise).name(), s.radius_tiles),
             _ => WorldStream::new(s.seed, Box::new(ProceduralSource::new(s.noise)), s.radius_tiles),
         }
     }
@@ -244,7 +249,7 @@ impl TerrainApp {
 
     /// Replaces the world with a fresh one for the current settings (new epoch).
     fn new_world(&mut self) {
-        self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1));
+        self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere);
         self.nodes = NodeCache::new();
         let epoch = self.tile_jobs.new_epoch();
         self.refine = PatchStore::new(0, epoch);
@@ -299,19 +304,36 @@ impl TerrainApp {
         ShareState { position_m: self.camera.position_m.to_array(), yaw: self.camera.yaw, pitch: self.camera.pitch, source, weights, link_version: crate::share::LINK_VERSION, sketch, ..self.settings.clone() }
     }
 
-    /// The learned-world tiles to make now (nearest missing first, within
-    /// [`TILE_JOBS_IN_FLIGHT`]): each must come back through [`tile_done`](Self::tile_done)
-    /// or [`tile_failed`](Self::tile_failed). Empty unless the world is learned and its models
-    /// are ready.
+    /// Whether procedural tiles are made elsewhere (`true`: by whoever takes
+    /// [`tile_jobs`](Self::tile_jobs), e.g. the page's CPU worker, so the main thread never
+    /// spends a frame on them) or here within each frame's budget (`false`, the default, and
+    /// the fallback when the worker is gone). A change rebuilds a procedural world.
+    pub fn set_procedural_elsewhere(&mut self, elsewhere: bool) {
+        if elsewhere == self.procedural_elsewhere {
+            return;
+        }
+        self.procedural_elsewhere = elsewhere;
+        if self.source() == SourceKind::Procedural {
+            self.new_world();
+        }
+    }
+
+    /// The tiles to make now (nearest missing first, within [`TILE_JOBS_IN_FLIGHT`]): each
+    /// must come back through [`tile_done`](Self::tile_done) or
+    /// [`tile_failed`](Self::tile_failed). Empty unless the world is learned and its models are
+    /// ready, or procedural and made elsewhere ([`set_procedural_elsewhere`](Self::set_procedural_elsewhere));
+    /// the world's [`settings`](Self::settings) say which generator makes them.
     pub fn tile_jobs(&mut self) -> Vec<Job<TileCoord>> {
-        if self.source() != SourceKind::Learned || !matches!(self.learned, LearnedStatus::Ready { .. }) {
+        let learned_ready = self.source() == SourceKind::Learned && matches!(self.learned, LearnedStatus::Ready { .. });
+        let procedural = self.source() == SourceKind::Procedural && self.procedural_elsewhere;
+        if !learned_ready && !procedural {
             return Vec::new();
         }
         let eye = self.camera.position_m;
         self.tile_jobs.start(self.world.missing(eye.x, eye.z))
     }
 
-    /// A learned tile came back: `heights` (metres, [`TILE_SAMPLES`]² row-major) made in `ms`
+    /// A tile came back: `heights` (metres, [`TILE_SAMPLES`]² row-major) made in `ms`
     /// milliseconds. Kept if it belongs to the world shown now; returns whether it was.
     pub fn tile_done(&mut self, job: &Job<TileCoord>, heights: Vec<f32>, ms: f64) -> bool {
         if heights.len() != TILE_SAMPLES * TILE_SAMPLES || heights.iter().any(|h| !h.is_finite()) {
@@ -325,7 +347,7 @@ impl TerrainApp {
         true
     }
 
-    /// A learned tile could not be made: it may be asked for again.
+    /// A tile could not be made: it may be asked for again.
     pub fn tile_failed(&mut self, job: &Job<TileCoord>) {
         self.tile_jobs.fail(job);
     }
@@ -808,6 +830,41 @@ mod tests {
         assert!(!app.tile_done(&new[1], vec![0.0; 3], 5.0), "a short tile refused");
         assert_eq!(app.tile_jobs.stats().failed, 2);
         assert!(!app.world.contains(new[0].key) && !app.world.contains(old[0].key));
+    }
+
+    /// Procedural tiles made elsewhere (the page's CPU worker): the app asks for them as jobs
+    /// and makes none itself, and the tiles handed back (made by the same generator) give the
+    /// same view checksum as an app that made them itself; without the worker it makes them
+    /// here again.
+    #[test]
+    fn procedural_tiles_made_elsewhere_give_the_same_view() {
+        let mut here = TerrainApp::new(procedural(1.0));
+        let mut there = TerrainApp::new(procedural(1.0));
+        there.set_procedural_elsewhere(true);
+        let src = ProceduralSource::new(there.settings().noise);
+        for _ in 0..200 {
+            here.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+            there.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+            let jobs = there.tile_jobs();
+            for j in &jobs {
+                let t = src.generate(there.settings().seed, j.key, &crate::world::Neighbourhood::default());
+                assert!(there.tile_done(j, t.heights.to_vec(), 1.0));
+            }
+            if jobs.is_empty() && here.stats().tiles_pending == 0 && there.stats().tiles_pending == 0 {
+                break;
+            }
+        }
+        here.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        there.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        let (a, b) = (here.stats().clone(), there.stats().clone());
+        assert_eq!(a.tile_jobs.done, 0, "the app that makes its own tiles takes no jobs");
+        assert_eq!(b.tile_jobs.done, b.tiles_generated, "every tile of the other came as a job: {b:?}");
+        assert!(b.tiles_generated >= 9 && b.nodes_drawn > 0, "{b:?}");
+        assert_eq!(a.view_checksum, b.view_checksum);
+        there.set_procedural_elsewhere(false);
+        assert!(there.tile_jobs().is_empty());
+        there.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        assert!(there.stats().tiles_generated > 0, "made here again: {:?}", there.stats());
     }
 
     /// Models that fail leave the procedural world in place of the learned one: it streams,

@@ -102,6 +102,16 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Write a weight file with its float32 tensors stored as float16 (the learned world's and
+    /// the sketch models' shipped files: half the download).
+    HalfWeights {
+        /// Weight file (burnpack) to read.
+        #[arg(long)]
+        input: PathBuf,
+        /// Weight file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Time TEM inference on the CPU: prints JSON with the median milliseconds per quad
     /// (input 100² incl. margin → 200²).
     TemBench {
@@ -149,10 +159,15 @@ enum Command {
         /// Weight of the adversarial term (0: L1 only; a new run only).
         #[arg(long, default_value_t = 1.0)]
         adversarial: f32,
+        /// Start a new run from the weight files in this folder: the TCM from a generator of
+        /// the first input layout (7 channels; the ruggedness channel starts at zero weight)
+        /// and the ×4 step from its own file.
+        #[arg(long, conflicts_with = "resume")]
+        init: Option<PathBuf>,
     },
     /// Compare the learned and the procedural world with the held-out east third of every DEM
     /// at 32 m or finer: geomorphometric statistics over 128 and 256-sample windows, their
-    /// distance to the real ones, and the seam figure (feature `train`).
+    /// distance to the real ones, the seam and crease figures (feature `train`).
     #[cfg(feature = "train")]
     EvalTcm {
         /// Folder of DEMs (float32 TIFF) with manifest.json.
@@ -384,6 +399,14 @@ fn tem_probe(weights: Option<PathBuf>) -> Result<(), String> {
     Ok(())
 }
 
+fn half_weights(input: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
+    let bytes = std::fs::read(input).map_err(|e| format!("cannot read {}: {e}", input.display()))?;
+    let half = terrain::models::cpu::to_half_burnpack(&bytes).map_err(|e| format!("{}: {e}", input.display()))?;
+    std::fs::write(out, &half).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    eprintln!("{}: {} → {} bytes", out.display(), bytes.len(), half.len());
+    Ok(())
+}
+
 fn tem_export(weights: Option<PathBuf>, out: &std::path::Path) -> Result<(), String> {
     use terrain::models::tem::{Exec, FEATURE_GAIN, LEVELS, PROBE_SIDE, TemSet, level_scale_m, probe_input};
     let tem = TemSet::load_dir(&weights_dir(weights), &Exec::cpu())?;
@@ -453,7 +476,8 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
 }
 
 #[cfg(feature = "train")]
-fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, adversarial: f32) -> Result<(), String> {
+#[allow(clippy::too_many_arguments)]
+fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, adversarial: f32, init: Option<&std::path::Path>) -> Result<(), String> {
     use terrain::train::{grow, pairs, tcm};
     if !adversarial.is_finite() || adversarial < 0.0 {
         return Err(format!("--adversarial must be a finite number ≥ 0, not {adversarial}"));
@@ -469,11 +493,32 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
     let (level, level_sd, step) = tcm::tile_mean_stats(&grids);
     eprintln!("real 4 km tile means: level {level:.0} ± {level_sd:.0} m, rms step between neighbours {step:.0} m");
     eprintln!("×4 data, {} DEMs at 32 m: {}", fine.len(), names(fine.iter().map(|g| g.id.as_str()).collect()));
+    let fine_ids: Vec<&str> = fine.iter().map(|g| g.id.as_str()).collect();
+    let all: Vec<&pairs::Grid> = grids.iter().collect();
+    let (fine_coarse, rest): (Vec<_>, Vec<_>) = grids.iter().partition(|g| fine_ids.contains(&g.id.as_str()));
+    for (what, set) in [("all", &all), ("32 m or finer", &fine_coarse), ("coarser", &rest)] {
+        for split in [pairs::Split::Train, pairs::Split::Validation] {
+            if let Some((m, sd, p95)) = tcm::ruggedness_stats(set, split) {
+                eprintln!("ruggedness of {what} DEMs ({split:?}): {m:.2} ± {sd:.2}, 95th percentile {p95:.2}");
+            }
+        }
+    }
     let device = burn::tensor::Device::flex().autodiff();
     let cfg = tcm::TcmConfig { batch, adversarial, ..Default::default() };
     let from = resume.then_some(checkpoint);
-    let mut run = tcm::start_run(cfg, &device, from)?;
+    let start = match init {
+        Some(dir) => {
+            let file = dir.join(tcm::GEN_FILE);
+            let bytes = std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+            Some(terrain::models::tcm::TcmCpu::widened(&bytes).map_err(|e| format!("{}: {e}", file.display()))?)
+        }
+        None => None,
+    };
+    let mut run = tcm::start_run(cfg, &device, from, start.as_ref())?;
     let mut up = grow::GrowRun::start(batch, adversarial, &device, from)?;
+    if let Some(dir) = init {
+        terrain::train::gan::load_into(&mut up.g, &dir.join(grow::GROW_FILE))?;
+    }
     eprintln!("TCM: {} parameters, ×4: {} parameters; {:?}; from step {}", run.g.parameters(), up.parameters(), run.cfg, run.progress.step);
     let end = run.progress.step + steps;
     while run.progress.step < end {
@@ -546,10 +591,26 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
         .iter()
         .map(|(name, rs, ms)| {
             let (m, p): (Vec<f64>, Vec<f64>) = rs.iter().map(world_eval::seam_ratio).unzip();
-            (name.to_string(), serde_json::json!({ "seam_mean": m.iter().sum::<f64>() / m.len() as f64, "seam_p95": p.iter().cloned().fold(f64::MIN, f64::max), "ms_per_tile": ms }))
+            let (cm, cp): (Vec<f64>, Vec<f64>) = rs.iter().map(world_eval::crease_ratio).unzip();
+            let worst = |v: &[f64]| v.iter().cloned().fold(f64::MIN, f64::max);
+            (name.to_string(), serde_json::json!({ "seam_mean": m.iter().sum::<f64>() / m.len() as f64, "seam_p95": worst(&p), "crease_mean": cm.iter().sum::<f64>() / cm.len() as f64, "crease_p95": worst(&cp), "ms_per_tile": ms }))
         })
         .collect();
-    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "seams_and_speed": seams })).expect("json"));
+    // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.
+    let mean_sd = |v: &[f64]| {
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        serde_json::json!({ "mean": m, "sd": (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt() })
+    };
+    let (mut asked, mut made) = (Vec::new(), Vec::new());
+    for s in 1..=seeds {
+        for k in 0..SIDE_TILES * SIDE_TILES {
+            let c = TileCoord::new(k as i32 % SIDE_TILES as i32 - 3, k as i32 / SIDE_TILES as i32 - 3);
+            asked.push(terrain::world::learned::ruggedness(s, c) as f64);
+            made.push(learned.made_ruggedness(s, c) as f64);
+        }
+    }
+    let ruggedness = serde_json::json!({ "asked": mean_sd(&asked), "made": mean_sd(&made) });
+    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "seams_and_speed": seams, "ruggedness_128m_tiles": ruggedness })).expect("json"));
     Ok(())
 }
 
@@ -800,6 +861,7 @@ fn main() -> ExitCode {
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),
         Command::TemExport { weights, out } => tem_export(weights, &out),
+        Command::HalfWeights { input, out } => half_weights(&input, &out),
         Command::TemBench { level, batch, repeats, threads, weights } => tem_bench(level as usize, batch as usize, repeats as usize, threads, weights),
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
@@ -817,7 +879,7 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
         #[cfg(feature = "train")]
-        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial } => train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, adversarial),
+        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init } => train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, adversarial, init.as_deref()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -9,7 +9,10 @@
 //! 1. predict mask (1 on the centre), 2. available mask, 3. unavailable mask (as the paper),
 //! 4. the macro field (bilinear between the nine tile centres),
 //! 5. fine noise (one value per pixel) and 6. coarse noise (one value per 12² block), both
-//!    drawn from the tile's seed with integer arithmetic only, so every platform draws the same.
+//!    drawn from the tile's seed with integer arithmetic only, so every platform draws the same,
+//! 7. the ruggedness field (bilinear between the nine tiles' ruggedness, [`tile_ruggedness`]):
+//!    how much relief the tiles have below the 1 km scale. In training it is measured on the
+//!    real window; in the world it is seeded, so the world has plains, hills and mountains.
 //!
 //! Network: an encoder of two 3×3 convolutions + ReLU per scale (96², 48², 24², 12², 6²; 2×2
 //! mean pooling between them) and a decoder that upsamples (nearest), concatenates the skip and
@@ -36,7 +39,16 @@ pub const CONTEXT_PX: usize = 3 * TILE_PX;
 /// many metres (the reference's global standard deviation).
 pub const HEIGHT_SCALE_M: f32 = 500.0;
 /// Input channels (see the module documentation).
-pub const IN_CHANNELS: usize = 7;
+pub const IN_CHANNELS: usize = 8;
+/// Input channels of the first weights, made before the ruggedness channel (a training run
+/// can start from them: [`TcmCpu::widened`]).
+pub const IN_CHANNELS_V1: usize = 7;
+/// Reference relief of the ruggedness channel (metres): a tile whose heights differ from their
+/// 1.2 km mean by this much (root mean square) has ruggedness 0; the channel is the natural
+/// logarithm of the ratio.
+pub const RUGGEDNESS_REF_M: f32 = 30.0;
+/// Side (samples at 128 m) of the box whose mean [`tile_ruggedness`] subtracts: 1152 m.
+pub const RUGGEDNESS_BOX_PX: usize = 9;
 /// Side (samples) of the coarse noise blocks.
 pub const COARSE_NOISE_PX: usize = 12;
 /// Channels of the encoder scales 96², 48², 24², 12² and the 6² bottleneck.
@@ -65,9 +77,9 @@ pub fn gauss(bits: u64) -> f32 {
     (s as f32 / 65_536.0 - 2.0) * 1.732_050_8
 }
 
-/// The macro field over the context window ([`CONTEXT_PX`]², metres): bilinear between the
-/// nine tile-centre values `centres` (row-major like [`phase_mask`]), constant beyond the
-/// outer centres.
+/// A field over the context window ([`CONTEXT_PX`]²) bilinear between the nine tile-centre
+/// values `centres` (row-major like [`phase_mask`]), constant beyond the outer centres: the
+/// macro field (metres) and the ruggedness field.
 pub fn macro_field(centres: &[f32; 9]) -> Vec<f32> {
     let half = TILE_PX as f32 / 2.0;
     let axis = |p: usize| -> (usize, f32) {
@@ -90,11 +102,39 @@ pub fn macro_field(centres: &[f32; 9]) -> Vec<f32> {
     out
 }
 
+/// The ruggedness of each of the nine tiles of a context window `h` ([`CONTEXT_PX`]² heights,
+/// metres, row-major): the natural logarithm of the root mean square difference between the
+/// tile's heights and their mean over a [`RUGGEDNESS_BOX_PX`]² box (clamped at the window's
+/// edges), over [`RUGGEDNESS_REF_M`]. Plains are about −2, the Pyrenees about +1.
+pub fn tile_ruggedness(h: &[f32]) -> [f32; 9] {
+    let n = CONTEXT_PX;
+    let r = RUGGEDNESS_BOX_PX / 2;
+    // Summed-area table for the box means.
+    let mut sat = vec![0f64; (n + 1) * (n + 1)];
+    for y in 0..n {
+        for x in 0..n {
+            sat[(y + 1) * (n + 1) + x + 1] = h[y * n + x] as f64 + sat[y * (n + 1) + x + 1] + sat[(y + 1) * (n + 1) + x] - sat[y * (n + 1) + x];
+        }
+    }
+    let mut sq = [0f64; 9];
+    for y in 0..n {
+        let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(n));
+        for x in 0..n {
+            let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(n));
+            let sum = sat[y1 * (n + 1) + x1] - sat[y0 * (n + 1) + x1] - sat[y1 * (n + 1) + x0] + sat[y0 * (n + 1) + x0];
+            let mean = sum / ((y1 - y0) * (x1 - x0)) as f64;
+            sq[(y / TILE_PX) * 3 + x / TILE_PX] += (h[y * n + x] as f64 - mean).powi(2);
+        }
+    }
+    sq.map(|s| ((s / (TILE_PX * TILE_PX) as f64).sqrt().max(0.01) as f32 / RUGGEDNESS_REF_M).ln())
+}
+
 /// The network's input for one tile, channel-first ([`IN_CHANNELS`] × [`CONTEXT_PX`]²):
 /// `tiles` are the 3×3 tiles' heights (metres, [`TILE_PX`]² row-major each) where they are
-/// inputs, `macro_centres` the macro field at the nine tile centres (metres) and `noise_seed`
-/// the centre tile's seed. Heights are taken relative to `macro_centres[4]`.
-pub fn assemble_input(tiles: &[Option<&[f32]>; 9], macro_centres: &[f32; 9], noise_seed: u64) -> Vec<f32> {
+/// inputs, `macro_centres` the macro field at the nine tile centres (metres), `rugged_centres`
+/// the nine tiles' ruggedness ([`tile_ruggedness`]) and `noise_seed` the centre tile's seed.
+/// Heights are taken relative to `macro_centres[4]`.
+pub fn assemble_input(tiles: &[Option<&[f32]>; 9], macro_centres: &[f32; 9], rugged_centres: &[f32; 9], noise_seed: u64) -> Vec<f32> {
     let n = CONTEXT_PX * CONTEXT_PX;
     let level = macro_centres[4];
     let mut x = vec![0f32; IN_CHANNELS * n];
@@ -117,6 +157,7 @@ pub fn assemble_input(tiles: &[Option<&[f32]>; 9], macro_centres: &[f32; 9], noi
     for (p, m) in macro_field(macro_centres).into_iter().enumerate() {
         x[4 * n + p] = (m - level) / HEIGHT_SCALE_M;
     }
+    x[7 * n..].copy_from_slice(&macro_field(rugged_centres));
     let blocks = CONTEXT_PX / COARSE_NOISE_PX;
     for p in 0..n {
         x[5 * n + p] = gauss(mix64(noise_seed ^ (p as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)));
@@ -222,10 +263,15 @@ impl Tcm {
 /// Names and shapes (name, output channels, input channels) of the generator's convolutions
 /// in network order, as burn names them in a weight file.
 pub fn conv_layers() -> Vec<(String, usize, usize)> {
+    conv_layers_with(IN_CHANNELS)
+}
+
+/// [`conv_layers`] of a generator with `in_channels` input channels.
+fn conv_layers_with(in_channels: usize) -> Vec<(String, usize, usize)> {
     let w = WIDTHS;
     let mut v = Vec::new();
     for k in 0..5 {
-        let cin = if k == 0 { IN_CHANNELS } else { w[k - 1] };
+        let cin = if k == 0 { in_channels } else { w[k - 1] };
         v.push((format!("enc.{k}.a"), w[k], cin));
         v.push((format!("enc.{k}.b"), w[k], w[k]));
     }
@@ -266,6 +312,37 @@ impl TcmCpu {
     /// Reads a generator weight file (burnpack, as training writes it).
     pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
         Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
+    }
+
+    /// Reads a weight file of the first generator ([`IN_CHANNELS_V1`] inputs, no ruggedness
+    /// channel) and widens its first layer with zero weights for the channels it lacks: the
+    /// same function of the first seven channels, the starting point of a training run.
+    pub fn widened(bytes: &[u8]) -> Result<Self, String> {
+        let mut convs = cpu::convs_from_burnpack(bytes, &conv_layers_with(IN_CHANNELS_V1))?;
+        let first = &convs[0];
+        let (w, b) = first.to_oihw();
+        let (cout, cin) = (first.cout(), first.cin());
+        let mut wide = vec![0f32; cout * IN_CHANNELS * 9];
+        for o in 0..cout {
+            wide[o * IN_CHANNELS * 9..][..cin * 9].copy_from_slice(&w[o * cin * 9..][..cin * 9]);
+        }
+        convs[0] = Conv3::from_oihw(cout, IN_CHANNELS, &wide, Some(&b)).map_err(|e| e.to_string())?;
+        Ok(Self { convs })
+    }
+
+    /// Writes these weights into a burn generator (the start of a training run).
+    #[cfg(feature = "train")]
+    pub fn into_model(&self, m: Tcm) -> Tcm {
+        let mut m = m;
+        let mut k = 0;
+        for st in m.enc.iter_mut().chain(m.dec.iter_mut()) {
+            for c in [&mut st.a, &mut st.b] {
+                cpu::conv_into_burn(&self.convs[k], c);
+                k += 1;
+            }
+        }
+        cpu::conv_into_burn(&self.convs[k], &mut m.out);
+        m
     }
 
     /// Copies a burn generator's weights.
@@ -357,7 +434,8 @@ mod tests {
         for p in 0..4 {
             let mask = phase_mask(p);
             let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
-            let x = assemble_input(&tiles, &centres, 42);
+            let rugged = [0.5; 9];
+            let x = assemble_input(&tiles, &centres, &rugged, 42);
             let sums: Vec<f32> = (0..4).map(|c| x[c * n..(c + 1) * n].iter().sum()).collect();
             let avail = mask.iter().filter(|&&m| m).count() as f32;
             let per = (TILE_PX * TILE_PX) as f32;
@@ -366,14 +444,54 @@ mod tests {
             assert_eq!(sums[3], (8.0 - avail) * per, "phase {p}: unavailable");
             assert!((sums[0] - avail * per * 1.0).abs() < 1e-2, "phase {p}: heights (600 − 100) / 500 = 1");
             assert!(x[4 * n..5 * n].iter().all(|&v| v == 0.0), "flat macro field at the centre's level");
-            let y = assemble_input(&tiles, &centres, 43);
+            assert!(x[7 * n..].iter().all(|&v| v == 0.5), "the ruggedness field");
+            let y = assemble_input(&tiles, &centres, &rugged, 43);
             assert_eq!(x[..5 * n], y[..5 * n]);
-            assert_ne!(x[5 * n..], y[5 * n..], "the noise follows the seed");
+            assert_ne!(x[5 * n..7 * n], y[5 * n..7 * n], "the noise follows the seed");
+            assert_eq!(x[7 * n..], y[7 * n..]);
         }
         assert_eq!([phase_mask(1)[3], phase_mask(1)[5], phase_mask(1)[1]], [true, true, false]);
     }
 
-    /// The generator maps [2, 7, 96, 96] to [2, 1, 32, 32] with at most 1 M parameters.
+    /// Ruggedness: a flat window is at the floor (ln(0.01 / 30)); a tile of ±60 m
+    /// checkerboard relief at the 2-sample scale measures ln(60 / 30) within 0.05, its flat
+    /// neighbours stay near the floor except where the box reaches across the edge.
+    #[test]
+    fn tile_ruggedness_measures_relief_below_a_kilometre() {
+        let flat = vec![500.0f32; CONTEXT_PX * CONTEXT_PX];
+        let floor = (0.01f32 / RUGGEDNESS_REF_M).ln();
+        assert!(tile_ruggedness(&flat).iter().all(|&r| (r - floor).abs() < 1e-3));
+        let mut h = flat.clone();
+        for y in TILE_PX..2 * TILE_PX {
+            for x in TILE_PX..2 * TILE_PX {
+                h[y * CONTEXT_PX + x] += if (x / 2 + y / 2) % 2 == 0 { 60.0 } else { -60.0 };
+            }
+        }
+        let r = tile_ruggedness(&h);
+        assert!((r[4] - 2f32.ln()).abs() < 0.05, "centre {}", r[4]);
+        assert!(r[0] < -3.0, "corner tile {}", r[0]);
+        assert!(r[1] > r[0] && r[1] < r[4], "edge tile {}", r[1]);
+    }
+
+    /// A generator of the first input layout (7 channels) widened with a zero-weight
+    /// ruggedness channel computes, on the CPU, exactly what it computed before whatever the
+    /// ruggedness says.
+    #[test]
+    fn widened_generator_ignores_the_new_channel() {
+        let old = cpu::random_convs(&conv_layers_with(IN_CHANNELS_V1), 3, 0.1);
+        let bytes = cpu::convs_to_burnpack(&conv_layers_with(IN_CHANNELS_V1), &old);
+        let wide = TcmCpu::widened(&bytes).unwrap();
+        let tile: Vec<f32> = (0..TILE_PX * TILE_PX).map(|p| 300.0 + (p % 17) as f32).collect();
+        let mask = phase_mask(2);
+        let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
+        let mut s = TcmScratch::default();
+        let a = wide.forward(&assemble_input(&tiles, &[280.0; 9], &[0.0; 9], 5), &mut s, 1);
+        let b = wide.forward(&assemble_input(&tiles, &[280.0; 9], &[2.0; 9], 5), &mut s, 1);
+        assert_eq!(a, b);
+        assert!(a.iter().any(|v| v.abs() > 1e-4), "a random network computes something");
+    }
+
+    /// The generator maps [2, 8, 96, 96] to [2, 1, 32, 32] with at most 1 M parameters.
     #[cfg(feature = "train")]
     #[test]
     fn generator_shapes_and_size() {
@@ -399,7 +517,8 @@ mod tests {
         for p in 0..4 {
             let mask = phase_mask(p);
             let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
-            let x = assemble_input(&tiles, &[250.0, 260.0, 270.0, 280.0, 290.0, 300.0, 310.0, 320.0, 330.0], 9 + p as u64);
+            let rugged = [-1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 0.2, 0.3, 0.4];
+            let x = assemble_input(&tiles, &[250.0, 260.0, 270.0, 280.0, 290.0, 300.0, 310.0, 320.0, 330.0], &rugged, 9 + p as u64);
             let burn_out: Vec<f32> = g.forward(Tensor::<4>::from_data(burn::tensor::TensorData::new(x.clone(), [1, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX]), &device)).into_data().try_to_vec::<f32>().unwrap();
             for threads in [1, 2] {
                 let ours = cpu_g.forward(&x, &mut scratch, threads);

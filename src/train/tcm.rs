@@ -12,7 +12,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use super::gan::{self, Disc};
 use super::pairs::{Dem, Grid, Rng, Split, grids_at, random_window};
 use crate::dem::Heightfield;
-use crate::models::tcm::{CONTEXT_PX, COARSE_SPACING_M, HEIGHT_SCALE_M, IN_CHANNELS, TILE_PX, Tcm, assemble_input, centre, phase_mask};
+use crate::models::tcm::{CONTEXT_PX, COARSE_SPACING_M, HEIGHT_SCALE_M, IN_CHANNELS, TILE_PX, Tcm, TcmCpu, assemble_input, centre, phase_mask, tile_ruggedness};
 
 /// Weight of the L1 term against the adversarial term.
 pub const L1_WEIGHT: f32 = 10.0;
@@ -24,6 +24,11 @@ const CENTRE: Option<(usize, usize)> = Some((TILE_PX, TILE_PX));
 pub const MACRO_JITTER_M: f32 = 15.0;
 /// See [`MACRO_JITTER_M`].
 pub const MACRO_JITTER_FRACTION: f32 = 0.15;
+/// Standard deviation of the noise added to each tile's measured ruggedness in training
+/// (natural-log units): the seeded field of the world is a hint of the same kind.
+pub const RUGGEDNESS_JITTER: f32 = 0.2;
+/// Channels the discriminator sees: heights, the macro field and the ruggedness field.
+const DISC_CHANNELS: usize = 3;
 
 /// Every DEM with room for a context window in both splits, area-averaged to 128 m.
 pub fn grids(dems: &[Dem]) -> Vec<Grid> {
@@ -67,6 +72,31 @@ pub fn tile_mean_stats(grids: &[Grid]) -> (f64, f64, f64) {
     (avg, sd, rms)
 }
 
+/// Mean, standard deviation and 95th percentile of the centre tiles' ruggedness
+/// ([`tile_ruggedness`], natural-log units) over every context window on a 32-sample grid
+/// inside `split` of each grid with no missing data; `None` when no window fits.
+pub fn ruggedness_stats(grids: &[&Grid], split: Split) -> Option<(f32, f32, f32)> {
+    let mut v = Vec::new();
+    for g in grids {
+        let (x0, x1) = super::pairs::split_columns(g.hf.width, split);
+        for y in (0..g.hf.height.saturating_sub(CONTEXT_PX - 1)).step_by(TILE_PX) {
+            for x in (x0..x1.saturating_sub(CONTEXT_PX - 1)).step_by(TILE_PX) {
+                let h: Vec<f32> = (0..CONTEXT_PX * CONTEXT_PX).map(|p| g.hf.data[(y + p / CONTEXT_PX) * g.hf.width + x + p % CONTEXT_PX]).collect();
+                if h.iter().all(|v| v.is_finite()) {
+                    v.push(tile_ruggedness(&h)[4] as f64);
+                }
+            }
+        }
+    }
+    if v.is_empty() {
+        return None;
+    }
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    let sd = (v.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
+    v.sort_by(f64::total_cmp);
+    Some((mean as f32, sd as f32, v[v.len() * 95 / 100] as f32))
+}
+
 /// One training example.
 pub struct Sample {
     /// The network's input ([`IN_CHANNELS`] × 96²).
@@ -79,7 +109,8 @@ pub struct Sample {
 }
 
 /// Cuts a sample for phase `phase` from a random window of `hf` in `split`
-/// ([`random_window`]): the macro field from the jittered tile means, noise from `rng`.
+/// ([`random_window`]): the macro field from the jittered tile means, the ruggedness field
+/// from the jittered measured ruggedness, noise from `rng`.
 pub fn sample(hf: &Heightfield, split: Split, phase: usize, rng: &mut Rng) -> Option<Sample> {
     let h = random_window(hf, split, CONTEXT_PX, rng)?;
     let tiles: Vec<Vec<f32>> = (0..9)
@@ -93,9 +124,10 @@ pub fn sample(hf: &Heightfield, split: Split, phase: usize, rng: &mut Rng) -> Op
     let spread = (means.iter().map(|m| (m - avg).powi(2)).sum::<f32>() / 9.0).sqrt();
     let jitter = MACRO_JITTER_M + MACRO_JITTER_FRACTION * spread;
     let centres: [f32; 9] = std::array::from_fn(|t| means[t] + jitter * crate::models::tcm::gauss(rng.next_u64()));
+    let rugged = tile_ruggedness(&h).map(|r| r + RUGGEDNESS_JITTER * crate::models::tcm::gauss(rng.next_u64()));
     let mask = phase_mask(phase);
     let given: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tiles[t].as_slice()));
-    let input = assemble_input(&given, &centres, rng.next_u64());
+    let input = assemble_input(&given, &centres, &rugged, rng.next_u64());
     let real = h.iter().map(|v| (v - centres[4]) / HEIGHT_SCALE_M).collect();
     Some(Sample { input, real, phase })
 }
@@ -175,11 +207,15 @@ fn with_centre(real: Tensor<4>, tile: Tensor<4>) -> Tensor<4> {
     real.slice_assign([0..tile.dims()[0], 0..1, t..2 * t, t..2 * t], tile)
 }
 
-/// Starts a run on `device` (an autodiff device), or resumes the checkpoint in `dir` when it
-/// holds one.
-pub fn start_run(cfg: TcmConfig, device: &Device, resume_from: Option<&Path>) -> Result<TcmRun, String> {
+/// Starts a run on `device` (an autodiff device): resumes the checkpoint in `resume_from`, or
+/// else starts the generator from `init` (weights the CPU kernels read, e.g.
+/// [`TcmCpu::widened`]) or from random weights.
+pub fn start_run(cfg: TcmConfig, device: &Device, resume_from: Option<&Path>, init: Option<&TcmCpu>) -> Result<TcmRun, String> {
     let mut g = Tcm::new(device);
-    let mut d = Disc::new(device);
+    if let Some(w) = init {
+        g = w.into_model(g);
+    }
+    let mut d = Disc::with_inputs(DISC_CHANNELS, device);
     let (mut og, mut od) = (gan::adam(), gan::adam());
     let mut progress = TcmProgress::default();
     let mut cfg = cfg;
@@ -221,21 +257,21 @@ impl TcmRun {
         let dev = &self.device;
         let x = tensor(inputs, [n, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX], dev);
         let real = tensor(reals, [n, 1, CONTEXT_PX, CONTEXT_PX], dev);
-        let macro_ch = x.clone().narrow(1, 4, 1);
+        let cond = Tensor::cat(vec![x.clone().narrow(1, 4, 1), x.clone().narrow(1, 7, 1)], 1);
         let truth = centre(real.clone(), TILE_PX);
         let fake = self.g.forward(x);
         let adv_w = self.cfg.adversarial;
         let (mut adv_v, mut disc_v) = (0.0, 0.0);
         if adv_w > 0.0 {
-            let real_in = Tensor::cat(vec![real.clone(), macro_ch.clone()], 1);
-            let fake_in = Tensor::cat(vec![with_centre(real.clone(), fake.clone().detach()), macro_ch.clone()], 1);
+            let real_in = Tensor::cat(vec![real.clone(), cond.clone()], 1);
+            let fake_in = Tensor::cat(vec![with_centre(real.clone(), fake.clone().detach()), cond.clone()], 1);
             disc_v = gan::disc_step(&mut self.d, &mut self.od, self.cfg.lr * 0.5, real_in, fake_in, CENTRE);
         }
         let l1 = (fake.clone() - truth).abs().mean();
         let l1_v = l1.clone().into_scalar::<f32>() as f64;
         let mut loss = l1 * L1_WEIGHT;
         if adv_w > 0.0 {
-            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![with_centre(real, fake), macro_ch], 1), CENTRE);
+            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![with_centre(real, fake), cond], 1), CENTRE);
             adv_v = adv.clone().into_scalar::<f32>() as f64;
             loss = loss + adv * adv_w;
         }
@@ -277,13 +313,13 @@ mod tests {
         let device = Device::flex().autodiff();
         let cfg = TcmConfig { batch: 1, ..Default::default() };
         let dir = std::env::temp_dir().join(format!("terrain-tcm-smoke-{}", std::process::id()));
-        let mut run = start_run(cfg.clone(), &device, None).unwrap();
+        let mut run = start_run(cfg.clone(), &device, None, None).unwrap();
         let mut up = GrowRun::start(1, 1.0, &device, None).unwrap();
         run.step(&coarse).unwrap();
         up.step(&fine, 1).unwrap();
         run.save(&dir).unwrap();
         up.save(&dir).unwrap();
-        let mut run = start_run(cfg, &device, Some(&dir)).unwrap();
+        let mut run = start_run(cfg, &device, Some(&dir), None).unwrap();
         let mut up = GrowRun::start(1, 1.0, &device, Some(&dir)).unwrap();
         assert_eq!((run.progress.step, up.progress.step), (1, 1));
         run.step(&coarse).unwrap();

@@ -77,6 +77,21 @@ pub fn stats_of(windows: &[Vec<f32>], side: usize) -> Vec<Stats> {
 /// |height step| across the edge divided by the mean |step| between the neighbouring rows
 /// (or columns) inside the two tiles (the 4 on either side); returns (mean, p95) over edges.
 pub fn seam_ratio(hf: &Heightfield) -> (f64, f64) {
+    edge_ratio(hf, |get, c| (get(c) - get(c - 1)).abs(), 1..=4)
+}
+
+/// The crease figure of a region made of whole tiles: as [`seam_ratio`] with the change of
+/// slope (|second difference|, centred between two samples) instead of the step, so a tile
+/// edge whose heights meet but whose slopes do not (a fold, a ridge or a gully along the
+/// edge) counts too. The second differences straddling each edge against those 2–5 samples
+/// inside the two tiles; (mean, p95) over edges; 1 for a field without tile edges.
+pub fn crease_ratio(hf: &Heightfield) -> (f64, f64) {
+    edge_ratio(hf, |get, c| (get(c + 1) - get(c) - get(c - 1) + get(c - 2)).abs(), 2..=5)
+}
+
+/// Mean over the samples along each tile edge of `diff` at the edge (position `e`) over its
+/// mean at `e ± k` for `k` in `inside`; (mean, p95) of that ratio over the edges.
+fn edge_ratio(hf: &Heightfield, diff: impl Fn(&dyn Fn(usize) -> f64, usize) -> f64, inside: std::ops::RangeInclusive<usize>) -> (f64, f64) {
     let n = TILE_SAMPLES;
     let at = |x: usize, y: usize| hf.data[y * hf.width + x] as f64;
     let mut ratios = Vec::new();
@@ -88,9 +103,9 @@ pub fn seam_ratio(hf: &Heightfield) -> (f64, f64) {
                 let (mut edge, mut inner, mut count_inner) = (0.0, 0.0, 0);
                 for a in seg..(seg + n).min(along) {
                     let get = |c: usize| if vertical { at(c, a) } else { at(a, c) };
-                    edge += (get(e) - get(e - 1)).abs();
-                    for k in 1..=4 {
-                        inner += (get(e + k) - get(e + k - 1)).abs() + (get(e - k) - get(e - k - 1)).abs();
+                    edge += diff(&get, e);
+                    for k in inside.clone() {
+                        inner += diff(&get, e + k) + diff(&get, e - k);
                         count_inner += 2;
                     }
                 }
@@ -125,5 +140,22 @@ mod tests {
         let stepped = Heightfield::new(2 * n, 2 * n, 32.0, smooth.data.iter().enumerate().map(|(p, v)| v + if p % (2 * n) >= n { 10.0 } else { 0.0 }).collect());
         let (_, p95) = seam_ratio(&stepped);
         assert!(p95 > 5.0, "{p95}");
+    }
+
+    /// A bowl (constant curvature) has a crease figure of 1; the same bowl folded along a
+    /// tile edge (a V of ±3 m per sample) keeps its seam figure below 1.1 — the heights meet —
+    /// while its crease figure exceeds 100.
+    #[test]
+    fn crease_ratio_is_one_for_a_bowl_and_large_for_a_fold_the_seam_ratio_misses() {
+        let n = TILE_SAMPLES;
+        let bowl = |p: usize| 0.002 * ((p % (2 * n)) as f32).powi(2) + 0.003 * ((p / (2 * n)) as f32).powi(2);
+        let smooth = Heightfield::new(2 * n, 2 * n, 32.0, (0..4 * n * n).map(bowl).collect());
+        let (mean, p95) = crease_ratio(&smooth);
+        assert!((mean - 1.0).abs() < 0.01 && (p95 - 1.0).abs() < 0.01, "{mean} {p95}");
+        let folded = Heightfield::new(2 * n, 2 * n, 32.0, (0..4 * n * n).map(|p| bowl(p) + 3.0 * ((p % (2 * n)) as f32 - n as f32 + 0.5).abs()).collect());
+        let (seam, _) = seam_ratio(&folded);
+        assert!(seam < 1.1, "seam {seam}");
+        let (_, p95) = crease_ratio(&folded);
+        assert!(p95 > 100.0, "crease {p95}");
     }
 }

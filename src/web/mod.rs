@@ -14,7 +14,7 @@ use wasm_bindgen::prelude::*;
 
 use crate::app::{LearnedStatus, MESH_KEEP_FRAMES, REFINE_BATCH, TerrainApp};
 use crate::jobs::Job;
-use crate::world::TileCoord;
+use crate::world::{SourceKind, TileCoord};
 use crate::world::learned::{GROW_FILE, TCM_FILE};
 use crate::models;
 use crate::models::tem::{Exec, LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json, weight_file};
@@ -750,13 +750,17 @@ impl WebApp {
             if matches!(self.app.learned(), LearnedStatus::Ready { .. }) {
                 ml.world = Some(Err(format!("the CPU worker stopped ({why})")));
             }
+            // Procedural tiles are made on this thread again.
+            self.app.set_procedural_elsewhere(false);
             return;
         }
+        self.app.set_procedural_elsewhere(true);
         let seed = self.app.settings().seed;
+        let noise = (self.app.source() == SourceKind::Procedural).then(|| self.app.settings().noise);
         for job in self.app.tile_jobs() {
             let (w, shared) = (w.clone(), self.ml.clone());
             wasm_bindgen_futures::spawn_local(async move {
-                let out = w.tile(seed, job.key).await.map_err(|e| e.to_string());
+                let out = w.tile(seed, job.key, noise).await.map_err(|e| e.to_string());
                 shared.borrow_mut().tiles.push((job, out));
             });
         }

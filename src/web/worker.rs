@@ -18,7 +18,7 @@ use crate::models::sketch_vae::{SketchModels, SketchVaeCpu};
 use crate::models::tem::{Exec, TemSet};
 use crate::sketch::{SKETCH_PX, Sketch, code};
 use crate::world::learned::{LearnedModels, LearnedSource};
-use crate::world::{Neighbourhood, TileCoord, TileSource};
+use crate::world::{Neighbourhood, NoiseParams, ProceduralSource, TileCoord, TileSource};
 
 /// The worker's script: the first message names the page's wasm-bindgen glue and carries the
 /// compiled module; the worker instantiates it and hands every later message to
@@ -166,12 +166,15 @@ impl CpuWorker {
         get(&reply, "hash").as_string().ok_or_else(|| WorkerError::Failed("the CPU worker's reply has no weights hash".into()))
     }
 
-    /// Makes tile `c` of learned world `seed` in the worker: its heights (metres) and the
-    /// worker's milliseconds.
-    pub async fn tile(&self, seed: u64, c: TileCoord) -> Result<(Vec<f32>, f64), WorkerError> {
+    /// Makes tile `c` of world `seed` in the worker — procedural with `noise`, else learned —:
+    /// its heights (metres) and the worker's milliseconds.
+    pub async fn tile(&self, seed: u64, c: TileCoord, noise: Option<NoiseParams>) -> Result<(Vec<f32>, f64), WorkerError> {
         let msg = Object::new();
         set(&msg, "kind", &"tile".into());
         set(&msg, "seed", &seed.to_string().into());
+        if let Some(n) = noise {
+            set(&msg, "noise", &serde_json::to_string(&n).expect("noise parameters serialise").into());
+        }
         set(&msg, "i", &c.i.into());
         set(&msg, "j", &c.j.into());
         let reply = self.request(msg, Array::new()).await?;
@@ -374,7 +377,13 @@ fn handle(msg: &JsValue) -> Result<Answer, String> {
             let coord = |k: &str| get(msg, k).as_f64().filter(|v| v.fract() == 0.0 && v.abs() < 1e9).map(|v| v as i32).ok_or(format!("the request has no tile {k}"));
             let c = TileCoord::new(coord("i")?, coord("j")?);
             let t0 = web_time::Instant::now();
-            let tile = WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.generate(seed, c, &Neighbourhood::default()))).ok_or("the CPU worker has no learned world loaded")?;
+            let tile = match get(msg, "noise").as_string() {
+                Some(json) => {
+                    let noise: NoiseParams = serde_json::from_str(&json).map_err(|e| format!("the request's noise parameters are broken ({e})"))?;
+                    ProceduralSource::new(noise).generate(seed, c, &Neighbourhood::default())
+                }
+                None => WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.generate(seed, c, &Neighbourhood::default()))).ok_or("the CPU worker has no learned world loaded")?,
+            };
             Ok(Answer::Heights(tile.heights, t0.elapsed().as_secs_f64() * 1000.0))
         }
         Some("enhance") => {

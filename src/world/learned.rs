@@ -14,7 +14,8 @@
 //!   every sample drains and the shared edges stay as they were.
 //!
 //! The macro field — the absolute level and the large-scale relief the TCM is conditioned on —
-//! is seeded Perlin fBm over tile coordinates ([`macro_height`]).
+//! is seeded Perlin fBm over tile coordinates ([`macro_height`]), and so is the ruggedness
+//! field that tells the TCM how much relief each tile has ([`ruggedness`]).
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -37,6 +38,22 @@ pub const MACRO_BASE_M: f64 = 1000.0;
 pub const MACRO_AMPLITUDE_M: f64 = 1100.0;
 /// Wavelength of the macro field's first octave (tiles).
 pub const MACRO_WAVELENGTH_TILES: f64 = 4.5;
+/// Mean of the world's ruggedness field: the ruggedness the TCM is asked for
+/// ([`tcm::tile_ruggedness`] units: ln of the relief over 30 m). The training tiles' 95th
+/// percentile (`terrain train-tcm` prints it: 1.27; mean 0.74 ± 0.20 for the 4 DEMs fine
+/// enough for 32 m, 0.39 ± 0.67 for all 20 the TCM trains on), not their mean: the generator makes tiles
+/// smoother than asked (`terrain eval-tcm` prints asked and made: asked 0.76 → made −0.50,
+/// asked 1.29 → made −0.37), so the world asks for the most rugged value it was often trained
+/// on rather than extrapolate beyond it.
+pub const RUGGEDNESS_MEAN: f32 = 1.27;
+/// Standard deviation of the world's ruggedness field (see [`RUGGEDNESS_MEAN`]).
+pub const RUGGEDNESS_SD: f32 = 0.20;
+/// Wavelength of the ruggedness field's first octave (tiles).
+pub const RUGGEDNESS_WAVELENGTH_TILES: f64 = 7.0;
+/// Standard deviation of the two-octave Perlin sum [`ruggedness`] rescales (measured over
+/// 40,000 tiles by a test).
+const RUGGEDNESS_NOISE_SD: f64 = 0.34;
+
 /// 128 m tiles kept in the cache (each 4 KiB).
 pub const COARSE_CACHE_TILES: usize = 4096;
 
@@ -51,6 +68,16 @@ pub fn macro_height(seed: u64, c: TileCoord) -> f32 {
         a *= 0.5;
     }
     (MACRO_BASE_M + MACRO_AMPLITUDE_M * sum) as f32
+}
+
+/// The ruggedness field at tile (i, j) of world `seed` ([`tcm::tile_ruggedness`] units): two
+/// octaves of Perlin noise over tile coordinates, with mean [`RUGGEDNESS_MEAN`] and standard
+/// deviation [`RUGGEDNESS_SD`].
+pub fn ruggedness(seed: u64, c: TileCoord) -> f32 {
+    let f = 1.0 / RUGGEDNESS_WAVELENGTH_TILES;
+    let p = perlin(seed ^ 0x5255_4747_4544, (c.i as f64 + 0.5) * f, (c.j as f64 + 0.5) * f)
+        + 0.5 * perlin(seed ^ 0x5255_4747_4545, (c.i as f64 + 0.5) * 2.0 * f, (c.j as f64 + 0.5) * 2.0 * f);
+    RUGGEDNESS_MEAN + RUGGEDNESS_SD * (p / RUGGEDNESS_NOISE_SD) as f32
 }
 
 /// The two networks of the learned world on the CPU.
@@ -112,7 +139,8 @@ impl LearnedSource {
         let deps: HashMap<TileCoord, Arc<Vec<f32>>> = dependencies(c).map(|d| (d, self.coarse_tile(seed, d))).collect();
         let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| deps.get(&c.offset(t as i32 % 3 - 1, t as i32 / 3 - 1)).map(|v| v.as_slice()));
         let centres: [f32; 9] = std::array::from_fn(|t| macro_height(seed, c.offset(t as i32 % 3 - 1, t as i32 / 3 - 1)));
-        let x = tcm::assemble_input(&tiles, &centres, tile_seed(seed, c));
+        let rugged: [f32; 9] = std::array::from_fn(|t| ruggedness(seed, c.offset(t as i32 % 3 - 1, t as i32 / 3 - 1)));
+        let x = tcm::assemble_input(&tiles, &centres, &rugged, tile_seed(seed, c));
         let out = {
             let mut s = self.scratch.lock().unwrap_or_else(|p| p.into_inner());
             self.models.tcm.forward(&x, &mut s.0, self.threads)
@@ -130,6 +158,27 @@ impl LearnedSource {
         cache.insert((seed, c), tile.clone());
         tile
     }
+
+    /// The 128 m tiles of the 3×3 block centred on `c` of world `seed` as one field
+    /// ([`tcm::CONTEXT_PX`]², metres, row-major).
+    pub fn coarse_context(&self, seed: u64, c: TileCoord) -> Vec<f32> {
+        let n3 = tcm::CONTEXT_PX;
+        let mut field = vec![0f32; n3 * n3];
+        for t in 0..9 {
+            let (di, dj) = (t % 3, t / 3);
+            let tile = self.coarse_tile(seed, c.offset(di as i32 - 1, dj as i32 - 1));
+            for v in 0..TILE_PX {
+                field[(dj * TILE_PX + v) * n3 + di * TILE_PX..][..TILE_PX].copy_from_slice(&tile[v * TILE_PX..(v + 1) * TILE_PX]);
+            }
+        }
+        field
+    }
+
+    /// The ruggedness ([`tcm::tile_ruggedness`]) of the 128 m tile `c` of world `seed` as the
+    /// TCM made it, to compare with the ruggedness the world asked for ([`ruggedness`]).
+    pub fn made_ruggedness(&self, seed: u64, c: TileCoord) -> f32 {
+        tcm::tile_ruggedness(&self.coarse_context(seed, c))[4]
+    }
 }
 
 impl TileSource for LearnedSource {
@@ -143,15 +192,8 @@ impl TileSource for LearnedSource {
 
     fn generate(&self, seed: u64, coord: TileCoord, _: &Neighbourhood<'_>) -> Tile {
         // The 128 m field of the 3×3 tiles, then the window of the tile plus the margin.
-        let n3 = 3 * TILE_PX;
-        let mut field = vec![0f32; n3 * n3];
-        for t in 0..9 {
-            let (di, dj) = (t % 3, t / 3);
-            let tile = self.coarse_tile(seed, coord.offset(di as i32 - 1, dj as i32 - 1));
-            for v in 0..TILE_PX {
-                field[(dj * TILE_PX + v) * n3 + di * TILE_PX..][..TILE_PX].copy_from_slice(&tile[v * TILE_PX..(v + 1) * TILE_PX]);
-            }
-        }
+        let n3 = tcm::CONTEXT_PX;
+        let field = self.coarse_context(seed, coord);
         let w = grow::WINDOW;
         let o = TILE_PX - grow::MARGIN;
         let window: Vec<f32> = (0..w * w).map(|p| field[(o + p / w) * n3 + o + p % w]).collect();
@@ -221,6 +263,21 @@ mod tests {
             let t = src.generate(9, c, &Neighbourhood::default());
             assert_eq!(drainage::depression_fraction(&t.heights, TILE_SAMPLES, 0.0), 0.0, "{c:?}");
         }
+    }
+
+    /// The ruggedness field over 200×200 tiles of two seeds has the mean and standard
+    /// deviation it claims (within 0.1 × the deviation and 10 %), and changes with the seed.
+    #[test]
+    fn ruggedness_field_has_its_stated_mean_and_deviation() {
+        for seed in [1, 77] {
+            let v: Vec<f64> = (-100..100).flat_map(|j| (-100..100).map(move |i| ruggedness(seed, TileCoord::new(i, j)) as f64)).collect();
+            let mean = v.iter().sum::<f64>() / v.len() as f64;
+            let sd = (v.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
+            println!("seed {seed}: ruggedness {mean:.3} ± {sd:.3}");
+            assert!((mean - RUGGEDNESS_MEAN as f64).abs() < 0.1 * RUGGEDNESS_SD as f64, "seed {seed}: mean {mean}");
+            assert!((sd / RUGGEDNESS_SD as f64 - 1.0).abs() < 0.1, "seed {seed}: deviation {sd}");
+        }
+        assert_ne!(ruggedness(1, TileCoord::new(3, 4)), ruggedness(2, TileCoord::new(3, 4)));
     }
 
     /// The macro field varies between neighbouring 4 km tiles about as much as real terrain's
