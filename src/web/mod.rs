@@ -528,7 +528,8 @@ struct WebApp {
     message: Option<String>,
     last_frame_ms: Option<f64>,
     /// The main thread's work per frame over the last 120 frames: total, tiles, nodes and
-    /// drawing milliseconds.
+    /// drawing milliseconds, the upload and submit parts of the drawing (ms), and the meshes
+    /// uploaded.
     frame_work: std::collections::VecDeque<[f64; 7]>,
     last_hash: String,
     last_url_write_ms: f64,

@@ -284,7 +284,8 @@ test('a 60-second autopilot flight with a full tile cache streams new tiles with
     frame_ms_p95: frames[Math.floor(frames.length * 0.95)],
     frame_ms_worst: frames[frames.length - 1],
     cpu_ms_samples: cpu,
-    // Per 2 s sample, the frame with the most main-thread work: [total, tiles, nodes, drawing] ms.
+    // Per 2 s sample, the frame with the most main-thread work: [total, tiles, nodes, drawing,
+    // its upload, its submit] ms and the meshes uploaded.
     cpu_ms_worst_samples: cpuWorst.map((w) => w && w.map((v) => +v.toFixed(1))),
     moved_m: moved,
     tiles_generated: s1.stats.tiles_generated - s0.stats.tiles_generated,
