@@ -164,6 +164,13 @@ enum Command {
         /// and the ×4 step from its own file.
         #[arg(long, conflicts_with = "resume")]
         init: Option<PathBuf>,
+        /// Weight of the ruggedness term: |ln relief of the made tile − ln relief of the real
+        /// one| (a new run only; 0: none).
+        #[arg(long, default_value_t = 0.0)]
+        ruggedness: f32,
+        /// Train only the TCM; the ×4 step's checkpoint stays as it is.
+        #[arg(long)]
+        tcm_only: bool,
     },
     /// Compare the learned and the procedural world with the held-out east third of every DEM
     /// at 32 m or finer: geomorphometric statistics over 128 and 256-sample windows, their
@@ -477,10 +484,12 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, adversarial: f32, init: Option<&std::path::Path>) -> Result<(), String> {
+fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness]: [f32; 2], init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
     use terrain::train::{grow, pairs, tcm};
-    if !adversarial.is_finite() || adversarial < 0.0 {
-        return Err(format!("--adversarial must be a finite number ≥ 0, not {adversarial}"));
+    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness)] {
+        if !w.is_finite() || w < 0.0 {
+            return Err(format!("{flag} must be a finite number ≥ 0, not {w}"));
+        }
     }
     let dems = pairs::load_dems(dem_dir)?;
     let grids = tcm::grids(&dems);
@@ -504,7 +513,7 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
         }
     }
     let device = burn::tensor::Device::flex().autodiff();
-    let cfg = tcm::TcmConfig { batch, adversarial, ..Default::default() };
+    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, ..Default::default() };
     let from = resume.then_some(checkpoint);
     let start = match init {
         Some(dir) => {
@@ -523,14 +532,18 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
     let end = run.progress.step + steps;
     while run.progress.step < end {
         run.step(&grids)?;
-        up.step(&fine, run.cfg.seed)?;
+        if !tcm_only {
+            up.step(&fine, run.cfg.seed)?;
+        }
         let (p, q) = (&run.progress, &up.progress);
         if p.step % 10 == 0 || p.step == end {
             eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", p.step, p.l1, p.adv, p.disc, p.seconds / p.step as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
         }
         if p.step % every == 0 || p.step == end {
             run.save(checkpoint)?;
-            up.save(checkpoint)?;
+            if !tcm_only {
+                up.save(checkpoint)?;
+            }
         }
     }
     let summary = |p: &tcm::TcmProgress| serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc });
@@ -879,7 +892,9 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
         #[cfg(feature = "train")]
-        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init } => train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, adversarial, init.as_deref()),
+        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, tcm_only } => {
+            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness], init.as_deref(), tcm_only)
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

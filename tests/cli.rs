@@ -101,7 +101,7 @@ fn help_and_version_describe_the_tool() {
         ("tem-bench", &["--level", "--batch", "--repeats", "--weights"][..]),
         ("train-tem", &["--dem-dir", "--steps", "--finetune", "--checkpoint-every", "--batch", "--chain", "--lr", "--seed", "--out"][..]),
         ("eval-tem", &["--dem-dir", "--weights", "--windows"][..]),
-        ("train-tcm", &["--dem-dir", "--steps", "--resume", "--checkpoint", "--checkpoint-every", "--batch", "--adversarial"][..]),
+        ("train-tcm", &["--dem-dir", "--steps", "--resume", "--checkpoint", "--checkpoint-every", "--batch", "--adversarial", "--init", "--ruggedness", "--tcm-only"][..]),
         ("eval-tcm", &["--dem-dir", "--weights", "--seeds"][..]),
     ] {
         let o = run(&[sub, "--help"]);

@@ -12,7 +12,9 @@ use burn::tensor::{Device, Tensor, TensorData};
 use super::gan::{self, Disc};
 use super::pairs::{Dem, Grid, Rng, Split, grids_at, random_window};
 use crate::dem::Heightfield;
-use crate::models::tcm::{CONTEXT_PX, COARSE_SPACING_M, HEIGHT_SCALE_M, IN_CHANNELS, TILE_PX, Tcm, TcmCpu, assemble_input, centre, phase_mask, tile_ruggedness};
+use crate::models::tcm::{CONTEXT_PX, COARSE_SPACING_M, HEIGHT_SCALE_M, IN_CHANNELS, RUGGEDNESS_BOX_PX, TILE_PX, Tcm, TcmCpu, assemble_input, centre, phase_mask, tile_ruggedness};
+use burn::tensor::module::avg_pool2d;
+use burn::tensor::ops::AvgPoolOptions;
 
 /// Weight of the L1 term against the adversarial term.
 pub const L1_WEIGHT: f32 = 10.0;
@@ -143,12 +145,36 @@ pub struct TcmConfig {
     pub adversarial: f32,
     /// Seed of the sampler.
     pub seed: u64,
+    /// Weight of the ruggedness term ([`log_relief_gap`]; 0: none). Runs saved before it
+    /// existed read 0.
+    #[serde(default)]
+    pub ruggedness: f32,
 }
 
 impl Default for TcmConfig {
     fn default() -> Self {
-        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1 }
+        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0 }
     }
+}
+
+/// Per window of a batch [B, 1, 96, 96] (heights in units of [`HEIGHT_SCALE_M`]): the natural
+/// log of the rms difference between the centre tile and its [`RUGGEDNESS_BOX_PX`]² box mean
+/// — the centre value of [`tile_ruggedness`] up to the constant ln([`HEIGHT_SCALE_M`] /
+/// [`RUGGEDNESS_REF_M`](crate::models::tcm::RUGGEDNESS_REF_M)). [B].
+fn centre_log_relief(window: Tensor<4>) -> Tensor<1> {
+    let b = window.dims()[0];
+    let (t, r) = (TILE_PX, RUGGEDNESS_BOX_PX / 2);
+    let around = window.clone().slice([0..b, 0..1, t - r..2 * t + r, t - r..2 * t + r]);
+    let boxed = avg_pool2d(around, AvgPoolOptions::new([RUGGEDNESS_BOX_PX, RUGGEDNESS_BOX_PX]).with_stride([1, 1]));
+    let square = (centre(window, t) - boxed).powf_scalar(2.0).mean_dim(3).mean_dim(2);
+    (square + 1e-8).sqrt().log().reshape([b])
+}
+
+/// The ruggedness term: the mean over the batch of |ln relief of the made centre − ln relief
+/// of the real one| ([`centre_log_relief`]), so a generator that makes tiles smoother (or
+/// rougher) than the real ones it stands for pays for it whatever the phase of their detail.
+pub fn log_relief_gap(made: Tensor<4>, real: Tensor<4>) -> Tensor<1> {
+    (centre_log_relief(made) - centre_log_relief(real)).abs().mean()
 }
 
 /// Running losses and progress of a run (saved with every checkpoint).
@@ -270,6 +296,9 @@ impl TcmRun {
         let l1 = (fake.clone() - truth).abs().mean();
         let l1_v = l1.clone().into_scalar::<f32>() as f64;
         let mut loss = l1 * L1_WEIGHT;
+        if self.cfg.ruggedness > 0.0 {
+            loss = loss + log_relief_gap(with_centre(real.clone(), fake.clone()), real.clone()) * self.cfg.ruggedness;
+        }
         if adv_w > 0.0 {
             let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![with_centre(real, fake), cond], 1), CENTRE);
             adv_v = adv.clone().into_scalar::<f32>() as f64;
@@ -332,5 +361,24 @@ mod tests {
         assert!(TcmCpu::from_burnpack(&std::fs::read(dir.join(GEN_FILE)).unwrap()).is_ok());
         assert!(GrowCpu::from_burnpack(&std::fs::read(dir.join(grow::GROW_FILE)).unwrap()).is_ok());
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The training's ruggedness term measures what the world's ruggedness field means: on a
+    /// random window, ln relief of the centre equals [`tile_ruggedness`]'s centre value minus
+    /// ln(HEIGHT_SCALE_M / RUGGEDNESS_REF_M) to 1e-4; the gap between a window and itself is 0,
+    /// and between a window and the same window twice as high is ln 2 (to 1e-4).
+    #[test]
+    fn ruggedness_term_is_the_log_relief_gap_of_the_centre_tiles() {
+        let device = Device::flex();
+        let mut rng = Rng(5);
+        let metres: Vec<f32> = (0..CONTEXT_PX * CONTEXT_PX).map(|p| 40.0 * ((p % 7) as f32 * 0.9).sin() + (p / CONTEXT_PX) as f32 * 3.0 + (rng.next_u64() % 1000) as f32 * 0.05).collect();
+        let units: Vec<f32> = metres.iter().map(|h| h / HEIGHT_SCALE_M).collect();
+        let w = tensor(units.clone(), [1, 1, CONTEXT_PX, CONTEXT_PX], &device);
+        let ours = centre_log_relief(w.clone()).into_scalar::<f32>();
+        let want = tile_ruggedness(&metres)[4] - (HEIGHT_SCALE_M / crate::models::tcm::RUGGEDNESS_REF_M).ln();
+        assert!((ours - want).abs() < 1e-4, "{ours} vs {want}");
+        assert!(log_relief_gap(w.clone(), w.clone()).into_scalar::<f32>().abs() < 1e-6);
+        let gap = log_relief_gap(w.clone() * 2.0, w).into_scalar::<f32>();
+        assert!((gap - 2f32.ln()).abs() < 1e-4, "{gap}");
     }
 }
