@@ -102,8 +102,8 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Write a weight file with its float32 tensors stored as float16 (the learned world's and
-    /// the sketch models' shipped files: half the download).
+    /// Write a weight file with its float32 tensors stored as float16 (every shipped weight
+    /// file: half the download).
     HalfWeights {
         /// Weight file (burnpack) to read.
         #[arg(long)]
@@ -563,6 +563,8 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
     let learned = LearnedSource::new(models.clone(), terrain::models::cpu::default_threads());
     let procedural = ProceduralSource::new(NoiseParams::default());
     const SIDE_TILES: usize = 6;
+    // The regions' north-west tile: SIDE_TILES² tiles around the origin.
+    let origin = TileCoord::new(-(SIDE_TILES as i32) / 2, -(SIDE_TILES as i32) / 2);
     // Each statistic's median over a set of windows, to see which way a world is off.
     let medians = |st: &[geomorph::Stats]| -> serde_json::Map<String, serde_json::Value> {
         STAT_NAMES
@@ -578,7 +580,7 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
     let mut regions: Vec<(&str, Vec<terrain::dem::Heightfield>, f64)> = Vec::new();
     for (name, src) in [("tcm", &learned as &dyn TileSource), ("procedural", &procedural as &dyn TileSource)] {
         let t0 = std::time::Instant::now();
-        let r: Vec<_> = (1..=seeds).map(|s| world_eval::region(src, s, TileCoord::new(-3, -3), SIDE_TILES, SIDE_TILES)).collect();
+        let r: Vec<_> = (1..=seeds).map(|s| world_eval::region(src, s, origin, SIDE_TILES, SIDE_TILES)).collect();
         let ms = t0.elapsed().as_secs_f64() * 1e3 / (seeds as usize * SIDE_TILES * SIDE_TILES) as f64;
         regions.push((name, r, ms));
     }
@@ -617,7 +619,7 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
     let (mut asked, mut made) = (Vec::new(), Vec::new());
     for s in 1..=seeds {
         for k in 0..SIDE_TILES * SIDE_TILES {
-            let c = TileCoord::new(k as i32 % SIDE_TILES as i32 - 3, k as i32 / SIDE_TILES as i32 - 3);
+            let c = origin.offset(k as i32 % SIDE_TILES as i32, k as i32 / SIDE_TILES as i32);
             asked.push(terrain::world::learned::ruggedness(s, c) as f64);
             made.push(learned.made_ruggedness(s, c) as f64);
         }

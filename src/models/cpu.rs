@@ -854,19 +854,16 @@ pub fn convs_from_burnpack(bytes: &[u8], layers: &[(String, usize, usize)]) -> R
     }
     let mut get = |name: &str| -> Result<(Vec<usize>, Vec<f32>), String> {
         let (dtype, shape, data) = by_name.remove(name).ok_or_else(|| format!("missing tensor {name}"))?;
-        let size = match dtype {
-            burn_pack::DType::F32 => 4,
-            burn_pack::DType::F16 => 2,
+        let (size, decode): (usize, fn(&[u8]) -> f32) = match dtype {
+            burn_pack::DType::F32 => (4, |c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+            burn_pack::DType::F16 => (2, |c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()),
             _ => return Err(format!("tensor {name} is {dtype:?}, float32 or float16 expected")),
         };
         let dims = shape.to_vec();
         if data.len() != dims.iter().product::<usize>() * size {
             return Err(format!("tensor {name} has {} bytes for shape {dims:?}", data.len()));
         }
-        let values = match size {
-            4 => data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
-            _ => data.chunks_exact(2).map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()).collect(),
-        };
+        let values = data.chunks_exact(size).map(decode).collect();
         Ok((dims, values))
     };
     let mut convs = Vec::new();
@@ -897,9 +894,9 @@ pub fn convs_to_burnpack(layers: &[(String, usize, usize)], convs: &[Conv3]) -> 
 }
 
 /// The weight file `bytes` (burnpack) with every float32 tensor stored as float16 (IEEE half,
-/// rounded to nearest): half the download for the networks only the CPU kernels read (learned
-/// world, sketch models), whose outputs move by about 1e-3 of their range. Other tensors are
-/// kept as they are.
+/// rounded to nearest): half the download of every shipped network, whose outputs move by
+/// about 1e-3 of their range. [`convs_from_burnpack`] reads it back to float32, and so does
+/// burn with a float-cast adapter (the TEM on WebGPU). Other tensors are kept as they are.
 pub fn to_half_burnpack(bytes: &[u8]) -> Result<Vec<u8>, String> {
     let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.to_vec())).map_err(|e| format!("not a weight file ({e})"))?;
     let mut out = Vec::new();

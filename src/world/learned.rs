@@ -42,8 +42,8 @@ pub const MACRO_WAVELENGTH_TILES: f64 = 4.5;
 /// ([`tcm::tile_ruggedness`] units: ln of the relief over 30 m). The training tiles' 95th
 /// percentile (`terrain train-tcm` prints it: 1.27; mean 0.74 ± 0.20 for the 4 DEMs fine
 /// enough for 32 m, 0.39 ± 0.67 for all 20 the TCM trains on), not their mean: the generator makes tiles
-/// smoother than asked (`terrain eval-tcm` prints asked and made: asked 0.76 → made −0.50,
-/// asked 1.29 → made −0.37), so the world asks for the most rugged value it was often trained
+/// smoother than asked (`terrain eval-tcm` prints asked and made: asked 0.76 → made −0.50 on
+/// an earlier checkpoint, asked 1.29 → made −0.27 with the shipped weights), so the world asks for the most rugged value it was often trained
 /// on rather than extrapolate beyond it.
 pub const RUGGEDNESS_MEAN: f32 = 1.27;
 /// Standard deviation of the world's ruggedness field (see [`RUGGEDNESS_MEAN`]).
@@ -137,9 +137,11 @@ impl LearnedSource {
             return t.clone();
         }
         let deps: HashMap<TileCoord, Arc<Vec<f32>>> = dependencies(c).map(|d| (d, self.coarse_tile(seed, d))).collect();
-        let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| deps.get(&c.offset(t as i32 % 3 - 1, t as i32 / 3 - 1)).map(|v| v.as_slice()));
-        let centres: [f32; 9] = std::array::from_fn(|t| macro_height(seed, c.offset(t as i32 % 3 - 1, t as i32 / 3 - 1)));
-        let rugged: [f32; 9] = std::array::from_fn(|t| ruggedness(seed, c.offset(t as i32 % 3 - 1, t as i32 / 3 - 1)));
+        // The 3×3 block around c, row-major like tcm::phase_mask.
+        let block: [TileCoord; 9] = std::array::from_fn(|t| c.offset(t as i32 % 3 - 1, t as i32 / 3 - 1));
+        let tiles: [Option<&[f32]>; 9] = block.map(|b| deps.get(&b).map(|v| v.as_slice()));
+        let centres: [f32; 9] = block.map(|b| macro_height(seed, b));
+        let rugged: [f32; 9] = block.map(|b| ruggedness(seed, b));
         let x = tcm::assemble_input(&tiles, &centres, &rugged, tile_seed(seed, c));
         let out = {
             let mut s = self.scratch.lock().unwrap_or_else(|p| p.into_inner());

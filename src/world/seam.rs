@@ -89,13 +89,20 @@ pub fn join_edges(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4]) {
     for nb in neighbours.iter().flatten() {
         assert_eq!(nb.len(), n * n);
     }
-    join_heights(tile, n, &neighbours);
-    join_slopes(tile, n, &neighbours);
+    // The neighbours do not change, so their continuations serve both stages.
+    let sides: Vec<Continuation> = continuations(n, &neighbours).collect();
+    join_heights(tile, n, &sides);
+    join_slopes(tile, n, &sides, &neighbours);
 }
+
+/// One joined side (index into [`SIDES`]) and, along its edge (k = 0..n), where the
+/// neighbour's surface continues onto the tile's edge sample and the neighbour's last slope
+/// across the edge (metres per sample).
+type Continuation = (usize, Vec<f32>, Vec<f32>);
 
 /// Per joined side, along its edge (k = 0..n): the neighbour's facing sample plus its last
 /// slope across the edge (where its surface continues), and that slope (metres per sample).
-fn continuations<'a>(n: usize, neighbours: &'a [Option<&[f32]>; 4]) -> impl Iterator<Item = (usize, Vec<f32>, Vec<f32>)> + 'a {
+fn continuations<'a>(n: usize, neighbours: &'a [Option<&[f32]>; 4]) -> impl Iterator<Item = Continuation> + 'a {
     neighbours.iter().enumerate().filter_map(move |(side, nb)| {
         let nb = (*nb)?;
         // The neighbour's own side that faces this one.
@@ -113,12 +120,12 @@ fn continuations<'a>(n: usize, neighbours: &'a [Option<&[f32]>; 4]) -> impl Iter
 
 /// Stage 1: the joined edges' samples onto the neighbours' continuations, the correction
 /// spread as a membrane.
-fn join_heights(tile: &mut [f32], n: usize, neighbours: &[Option<&[f32]>; 4]) {
+fn join_heights(tile: &mut [f32], n: usize, sides: &[Continuation]) {
     // The correction each side asks for at each edge sample (corners: the mean of two).
     let mut fixed: Vec<Option<(f32, u32)>> = vec![None; n * n];
-    for (side, target, _) in continuations(n, neighbours) {
+    for (side, target, _) in sides {
         for k in 0..n {
-            let (u, v) = at_side(side, n, 0, k);
+            let (u, v) = at_side(*side, n, 0, k);
             let (sum, count) = fixed[v * n + u].unwrap_or((0.0, 0));
             fixed[v * n + u] = Some((sum + target[k] - tile[v * n + u], count + 1));
         }
@@ -167,9 +174,9 @@ fn smooth_along_edge(values: &[f32]) -> Vec<f32> {
 
 /// Stage 2: the tile's first step inside each joined edge bent towards the neighbour's slope
 /// (the mismatch smoothed along the edge), by a field that is zero on the edges.
-fn join_slopes(tile: &mut [f32], n: usize, neighbours: &[Option<&[f32]>; 4]) {
+fn join_slopes(tile: &mut [f32], n: usize, sides: &[Continuation], neighbours: &[Option<&[f32]>; 4]) {
     let (mut x_sides, mut z_sides) = (Vec::new(), Vec::new());
-    for (side, _, slope) in continuations(n, neighbours) {
+    for &(side, _, ref slope) in sides {
         let mismatch: Vec<f32> = (0..n)
             .map(|k| {
                 let (ou, ov) = at_side(side, n, 0, k);
@@ -299,7 +306,8 @@ mod tests {
             worst
         };
         let mut membrane = tilted.clone();
-        join_heights(&mut membrane, n, &[Some(&left), None, Some(&top), None]);
+        let neighbours = [Some(left.as_slice()), None, Some(top.as_slice()), None];
+        join_heights(&mut membrane, n, &continuations(n, &neighbours).collect::<Vec<_>>());
         let mut joined = tilted.clone();
         join_edges(&mut joined, n, [Some(&left), None, Some(&top), None]);
         let (before, after) = (worst_fold(&membrane), worst_fold(&joined));
