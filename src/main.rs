@@ -160,14 +160,18 @@ enum Command {
         #[arg(long, default_value_t = 1.0)]
         adversarial: f32,
         /// Start a new run from the weight files in this folder: the TCM from a generator of
-        /// the first input layout (7 channels; the ruggedness channel starts at zero weight)
-        /// and the ×4 step from its own file.
+        /// today's input layout, or of the first one (7 channels; the ruggedness channel then
+        /// starts at zero weight), and the ×4 step from its own file.
         #[arg(long, conflicts_with = "resume")]
         init: Option<PathBuf>,
         /// Weight of the ruggedness term: |ln relief of the made tile − ln relief of the real
         /// one| (a new run only; 0: none).
         #[arg(long, default_value_t = 0.0)]
         ruggedness: f32,
+        /// Weight of the drainage term: the mean depth of the made tile's closed depressions
+        /// below their fill level (a new run only; 0: none).
+        #[arg(long, default_value_t = 0.0)]
+        drainage: f32,
         /// Train only the TCM; the ×4 step's checkpoint stays as it is.
         #[arg(long)]
         tcm_only: bool,
@@ -484,9 +488,9 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness]: [f32; 2], init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
+fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage]: [f32; 3], init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
     use terrain::train::{grow, pairs, tcm};
-    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness)] {
+    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage)] {
         if !w.is_finite() || w < 0.0 {
             return Err(format!("{flag} must be a finite number ≥ 0, not {w}"));
         }
@@ -513,19 +517,22 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
         }
     }
     let device = burn::tensor::Device::flex().autodiff();
-    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, ..Default::default() };
+    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, ..Default::default() };
     let from = resume.then_some(checkpoint);
     let start = match init {
         Some(dir) => {
             let file = dir.join(tcm::GEN_FILE);
             let bytes = std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))?;
-            Some(terrain::models::tcm::TcmCpu::widened(&bytes).map_err(|e| format!("{}: {e}", file.display()))?)
+            // Weights of today's layout as they are, else of the first layout widened.
+            let g = terrain::models::tcm::TcmCpu::from_burnpack(&bytes).or_else(|_| terrain::models::tcm::TcmCpu::widened(&bytes));
+            Some(g.map_err(|e| format!("{}: {e}", file.display()))?)
         }
         None => None,
     };
     let mut run = tcm::start_run(cfg, &device, from, start.as_ref())?;
-    let mut up = grow::GrowRun::start(batch, adversarial, &device, from)?;
-    if let Some(dir) = init {
+    // With --tcm-only the ×4 step is not trained, so its checkpoint need not exist.
+    let mut up = grow::GrowRun::start(batch, adversarial, &device, if tcm_only { None } else { from })?;
+    if let Some(dir) = init.filter(|_| !tcm_only) {
         terrain::train::gan::load_into(&mut up.g, &dir.join(grow::GROW_FILE))?;
     }
     eprintln!("TCM: {} parameters, ×4: {} parameters; {:?}; from step {}", run.g.parameters(), up.parameters(), run.cfg, run.progress.step);
@@ -537,7 +544,7 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
         }
         let (p, q) = (&run.progress, &up.progress);
         if p.step % 10 == 0 || p.step == end {
-            eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", p.step, p.l1, p.adv, p.disc, p.seconds / p.step as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
+            eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} pits {:.5} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", p.step, p.l1, p.adv, p.disc, p.depression, p.seconds / p.step as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
         }
         if p.step % every == 0 || p.step == end {
             run.save(checkpoint)?;
@@ -894,8 +901,8 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
         #[cfg(feature = "train")]
-        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, tcm_only } => {
-            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness], init.as_deref(), tcm_only)
+        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, tcm_only } => {
+            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage], init.as_deref(), tcm_only)
         }
     };
     match result {

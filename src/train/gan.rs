@@ -98,11 +98,20 @@ pub fn save_run<G: ModuleSnapshot>(dir: &Path, prefix: &str, gen_file: &str, g: 
     std::fs::write(dir.join(&file), serde_json::to_string_pretty(state).expect("json")).map_err(|e| format!("{file}: {e}"))
 }
 
-/// Loads what [`save_run`] saved into `g` and `d`; returns both optimisers and the state.
+/// Loads what [`save_run`] saved into `g` and `d`; returns both optimisers (fresh where a
+/// checkpoint was kept without its optimiser files) and the state.
 pub fn load_run<G: ModuleSnapshot>(dir: &Path, prefix: &str, gen_file: &str, g: &mut G, d: &mut Disc) -> Result<(ModuleOptimizer, ModuleOptimizer, serde_json::Value), String> {
     load_into(g, &dir.join(gen_file))?;
     load_into(d, &dir.join(format!("{prefix}_disc.bpk")))?;
-    let load = |file: String| adam().load(dir.join(&file)).map_err(|e| format!("{file}: {e:?}"));
+    // A checkpoint kept without its optimiser state (e.g. committed between sessions: the
+    // moments are twice the weights' size) resumes with fresh moments.
+    let load = |file: String| match dir.join(&file) {
+        p if !p.exists() => {
+            eprintln!("{}: not there, that optimiser starts afresh", p.display());
+            Ok(adam())
+        }
+        p => adam().load(p).map_err(|e| format!("{file}: {e:?}")),
+    };
     let (og, od) = (load(format!("{prefix}_adam.bin"))?, load(format!("{prefix}_disc_adam.bin"))?);
     let file = format!("{prefix}_state.json");
     let text = std::fs::read_to_string(dir.join(&file)).map_err(|e| format!("{}: {e}", dir.join(&file).display()))?;

@@ -149,11 +149,15 @@ pub struct TcmConfig {
     /// existed read 0.
     #[serde(default)]
     pub ruggedness: f32,
+    /// Weight of the drainage term ([`depression_depth`]; 0: none). Runs saved before it
+    /// existed read 0.
+    #[serde(default)]
+    pub drainage: f32,
 }
 
 impl Default for TcmConfig {
     fn default() -> Self {
-        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0 }
+        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0, drainage: 0.0 }
     }
 }
 
@@ -177,6 +181,26 @@ pub fn log_relief_gap(made: Tensor<4>, real: Tensor<4>) -> Tensor<1> {
     (centre_log_relief(made) - centre_log_relief(real)).abs().mean()
 }
 
+/// The drainage term: for windows [B, 1, 96, 96] (heights in units of [`HEIGHT_SCALE_M`]),
+/// the mean over the centre tiles' samples of how far each lies below the level that a
+/// depression fill of its window ([`crate::world::drainage::fill_depressions`], the window's
+/// border the outlet, level lakes) raises it to. The fill levels are held fixed, so the
+/// gradient lifts the floors of the made tile's closed depressions and nothing else: real
+/// terrain drains, and a generator whose tiles are full of basins makes a world of lakes
+/// once they are filled.
+pub fn depression_depth(window: Tensor<4>) -> Tensor<1> {
+    let [b, _, n, _] = window.dims();
+    let device = window.device();
+    let heights: Vec<f32> = window.clone().detach().into_data().try_to_vec::<f32>().expect("f32 heights");
+    let mut filled = heights.clone();
+    for w in filled.chunks_mut(n * n) {
+        crate::world::drainage::fill_depressions(w, n, 0.0);
+    }
+    let mask: Vec<f32> = filled.iter().zip(&heights).map(|(f, h)| if f > h { 1.0 } else { 0.0 }).collect();
+    let (filled, mask) = (tensor(filled, [b, 1, n, n], &device), tensor(mask, [b, 1, n, n], &device));
+    centre((filled - window) * mask, TILE_PX).mean()
+}
+
 /// Running losses and progress of a run (saved with every checkpoint).
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct TcmProgress {
@@ -192,6 +216,10 @@ pub struct TcmProgress {
     pub disc: f64,
     /// (step, l1, adv, disc, seconds) every 50 steps: the training curve.
     pub curve: Vec<(usize, f64, f64, f64, f64)>,
+    /// Running mean of the drainage term ([`depression_depth`] of the made tiles, units of
+    /// [`HEIGHT_SCALE_M`]), measured whatever its weight.
+    #[serde(default)]
+    pub depression: f64,
 }
 
 impl TcmProgress {
@@ -299,6 +327,11 @@ impl TcmRun {
         if self.cfg.ruggedness > 0.0 {
             loss = loss + log_relief_gap(with_centre(real.clone(), fake.clone()), real.clone()) * self.cfg.ruggedness;
         }
+        let depression = depression_depth(with_centre(real.clone(), fake.clone()));
+        let depression_v = depression.clone().into_scalar::<f32>() as f64;
+        if self.cfg.drainage > 0.0 {
+            loss = loss + depression * self.cfg.drainage;
+        }
         if adv_w > 0.0 {
             let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![with_centre(real, fake), cond], 1), CENTRE);
             adv_v = adv.clone().into_scalar::<f32>() as f64;
@@ -307,6 +340,8 @@ impl TcmRun {
         let grads = loss.backward();
         let gp = GradientsParams::from_grads(grads, &self.g);
         self.g = self.og.step(self.cfg.lr, self.g.clone(), gp);
+        let first = self.progress.step == 0;
+        self.progress.depression = if first { depression_v } else { 0.98 * self.progress.depression + 0.02 * depression_v };
         self.progress.record(l1_v, adv_v, disc_v, t0.elapsed().as_secs_f64());
         Ok(())
     }
@@ -332,8 +367,8 @@ mod tests {
     }
 
     /// One step of both networks on synthetic DEMs, a checkpoint, a resumed second step:
-    /// finite losses, the step count carried over, and the saved weight files read by the CPU
-    /// kernels.
+    /// finite losses, the step count carried over (also from a checkpoint without its
+    /// optimiser files), and the saved weight files read by the CPU kernels.
     #[test]
     fn smoke_training_resumes_from_its_checkpoint() {
         let dems = vec![synthetic(500, 200, 100.0), synthetic(720, 230, 32.0)];
@@ -358,6 +393,12 @@ mod tests {
             assert!(p.l1.is_finite() && p.adv.is_finite() && p.disc.is_finite(), "{p:?}");
             assert!(p.l1 > 0.0 && p.disc > 0.0);
         }
+        // Kept without its optimiser files (as between sessions), the run still resumes.
+        run.save(&dir).unwrap();
+        for f in ["tcm_adam.bin", "tcm_disc_adam.bin"] {
+            std::fs::remove_file(dir.join(f)).unwrap();
+        }
+        assert_eq!(start_run(TcmConfig::default(), &device, Some(&dir), None).unwrap().progress.step, 2);
         assert!(TcmCpu::from_burnpack(&std::fs::read(dir.join(GEN_FILE)).unwrap()).is_ok());
         assert!(GrowCpu::from_burnpack(&std::fs::read(dir.join(grow::GROW_FILE)).unwrap()).is_ok());
         let _ = std::fs::remove_dir_all(&dir);
@@ -380,5 +421,37 @@ mod tests {
         assert!(log_relief_gap(w.clone(), w.clone()).into_scalar::<f32>().abs() < 1e-6);
         let gap = log_relief_gap(w.clone() * 2.0, w).into_scalar::<f32>();
         assert!((gap - 2f32.ln()).abs() < 1e-4, "{gap}");
+    }
+
+    /// The drainage term of a window whose centre tile holds a cone-shaped pit 0.2 deep on a
+    /// tilted plane is the pit's mean depth below its spill level over the centre (counted
+    /// here sample by sample from the known spill height, to 1e-6); its gradient lifts the
+    /// pit's samples (−1/1024 each) and is zero everywhere else; a tilted plane scores 0.
+    #[test]
+    fn drainage_term_is_the_mean_depth_of_the_centre_tiles_pits() {
+        let device = Device::flex().autodiff();
+        let n = CONTEXT_PX;
+        let plane = |p: usize| (p % n) as f32 * 0.01;
+        let (cx, cy) = (n / 2, n / 2);
+        let pit = |p: usize| {
+            let r = (((p % n) as f32 - cx as f32).powi(2) + ((p / n) as f32 - cy as f32).powi(2)).sqrt();
+            (0.2 - 0.05 * r).max(0.0)
+        };
+        let h: Vec<f32> = (0..n * n).map(|p| plane(p) - pit(p)).collect();
+        let flat = tensor((0..n * n).map(plane).collect(), [1, 1, n, n], &Device::flex());
+        assert_eq!(depression_depth(flat).into_scalar::<f32>(), 0.0);
+        // The pit spills over its rim on its low (west) side: at the first sample west of
+        // the centre that the pit does not lower; the plane beyond drains.
+        let spill = (0..cx).rev().map(|x| cy * n + x).find(|&p| pit(p) == 0.0).map(|p| h[p]).unwrap();
+        let want: f64 = (0..n * n).filter(|&p| (TILE_PX..2 * TILE_PX).contains(&(p % n)) && (TILE_PX..2 * TILE_PX).contains(&(p / n))).filter(|&p| pit(p) > 0.0).map(|p| (spill - h[p]).max(0.0) as f64).sum::<f64>() / (TILE_PX * TILE_PX) as f64;
+        let w = tensor(h.clone(), [1, 1, n, n], &device).require_grad();
+        let d = depression_depth(w.clone());
+        assert!((d.clone().into_scalar::<f32>() as f64 - want).abs() < 1e-6, "{} vs {want}", d.clone().into_scalar::<f32>());
+        let grads = d.backward();
+        let g: Vec<f32> = w.grad(&grads).unwrap().into_data().try_to_vec::<f32>().unwrap();
+        for p in 0..n * n {
+            let lifted = pit(p) > 0.0 && spill > h[p] && (TILE_PX..2 * TILE_PX).contains(&(p % n)) && (TILE_PX..2 * TILE_PX).contains(&(p / n));
+            assert_eq!(g[p], if lifted { -1.0 / (TILE_PX * TILE_PX) as f32 } else { 0.0 }, "sample {p}");
+        }
     }
 }
