@@ -10,8 +10,13 @@
 //! - the 32 m tile is the ×4 network applied to the 128 m field around it (the tile plus
 //!   [`grow::MARGIN`] samples of its neighbours), with noise drawn at global positions, so
 //!   neighbouring 32 m tiles agree along their edges wherever their 128 m fields do;
-//! - its closed depressions are then filled with the border fixed ([`super::drainage`]), so
-//!   every sample drains and the shared edges stay as they were.
+//! - its closed depressions are then filled ([`super::drainage`]) over the block of 2×2 tiles
+//!   (corner tile at even i and j) it belongs to, the block's border fixed: a basin cut by a
+//!   tile edge inside the block is filled as one (a fill per tile leaves it as a pit along the
+//!   edge), every sample drains to the block's border, and a tile is a pure function of the
+//!   block's four tiles. Filled blocks are kept in a bounded cache. (A second stage of blocks
+//!   offset by one tile, so that no tile edge is left unfilled, was tried: it turned basins
+//!   into wide flat lakes, whose slope distribution is further from real terrain's.)
 //!
 //! The macro field — the absolute level and the large-scale relief the TCM is conditioned on —
 //! is seeded Perlin fBm over tile coordinates ([`macro_height`]), and so is the ruggedness
@@ -56,6 +61,18 @@ const RUGGEDNESS_NOISE_SD: f64 = 0.34;
 
 /// 128 m tiles kept in the cache (each 4 KiB).
 pub const COARSE_CACHE_TILES: usize = 4096;
+
+/// Side (tiles) of the blocks whose closed depressions are filled together.
+pub const FILL_BLOCK_TILES: i32 = 2;
+
+/// Filled blocks kept in the cache (each 256 KiB).
+pub const FILL_CACHE_BLOCKS: usize = 64;
+
+/// The corner tile (even i and j) of the fill block that holds tile `c`.
+pub fn fill_block_corner(c: TileCoord) -> TileCoord {
+    let corner = |v: i32| v.div_euclid(FILL_BLOCK_TILES) * FILL_BLOCK_TILES;
+    TileCoord::new(corner(c.i), corner(c.j))
+}
 
 /// The macro field at the centre of tile (i, j) of world `seed` (metres): three octaves of
 /// Perlin noise over tile coordinates.
@@ -120,6 +137,7 @@ pub const GROW_FILE: &str = "grow_32m.bpk";
 pub struct LearnedSource {
     models: Arc<LearnedModels>,
     coarse: Mutex<HashMap<(u64, TileCoord), Arc<Vec<f32>>>>,
+    filled: Mutex<BlockCache>,
     scratch: Mutex<(TcmScratch, GrowScratch)>,
     threads: usize,
 }
@@ -127,7 +145,13 @@ pub struct LearnedSource {
 impl LearnedSource {
     /// A source running `models` on `threads` threads.
     pub fn new(models: Arc<LearnedModels>, threads: usize) -> Self {
-        Self { models, coarse: Mutex::default(), scratch: Mutex::default(), threads: threads.max(1) }
+        Self { models, coarse: Mutex::default(), filled: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), scratch: Mutex::default(), threads: threads.max(1) }
+    }
+
+    /// The same source keeping at most `blocks` filled blocks (tests of eviction).
+    pub fn with_fill_cache(mut self, blocks: usize) -> Self {
+        self.filled = Mutex::new(BlockCache::new(blocks));
+        self
     }
 
     /// The 128 m tile `c` of world `seed` ([`TILE_PX`]², metres), made (with its schedule
@@ -193,6 +217,39 @@ impl TileSource for LearnedSource {
     }
 
     fn generate(&self, seed: u64, coord: TileCoord, _: &Neighbourhood<'_>) -> Tile {
+        let corner = fill_block_corner(coord);
+        let block = self.filled_block(seed, corner);
+        Tile::new(coord, quadrant(&block, coord, corner))
+    }
+}
+
+impl LearnedSource {
+    /// The 2×2-tile block with corner tile `corner` of world `seed`, its closed depressions
+    /// filled with its border fixed ([`TILE_SAMPLES`]·2 samples square, metres).
+    fn filled_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
+        let key = (seed, corner);
+        if let Some(b) = self.filled.lock().unwrap_or_else(|p| p.into_inner()).get(&key) {
+            return b;
+        }
+        let (n, k) = (TILE_SAMPLES, FILL_BLOCK_TILES as usize);
+        let m = n * k;
+        let mut h = vec![0f32; m * m];
+        for t in 0..k * k {
+            let c = corner.offset((t % k) as i32, (t / k) as i32);
+            let tile = self.raw_tile(seed, c);
+            for v in 0..n {
+                h[((t / k) * n + v) * m + (t % k) * n..][..n].copy_from_slice(&tile[v * n..(v + 1) * n]);
+            }
+        }
+        // Real terrain drains: the networks' pits are filled, the block's border kept.
+        drainage::fill_depressions(&mut h, m, drainage::FLAT_GRADIENT_M);
+        let h = Arc::new(h);
+        self.filled.lock().unwrap_or_else(|p| p.into_inner()).insert(key, h.clone());
+        h
+    }
+
+    /// The 32 m tile `coord` of world `seed` as the networks make it, before the fill.
+    fn raw_tile(&self, seed: u64, coord: TileCoord) -> Vec<f32> {
         // The 128 m field of the 3×3 tiles, then the window of the tile plus the margin.
         let n3 = tcm::CONTEXT_PX;
         let field = self.coarse_context(seed, coord);
@@ -207,15 +264,46 @@ impl TileSource for LearnedSource {
         };
         let base = grow::base(&window);
         let (m, off) = (w * grow::FACTOR, grow::MARGIN * grow::FACTOR);
-        let mut heights: Vec<f32> = (0..TILE_SAMPLES * TILE_SAMPLES)
+        (0..TILE_SAMPLES * TILE_SAMPLES)
             .map(|p| {
                 let q = (off + p / TILE_SAMPLES) * m + off + p % TILE_SAMPLES;
                 base[q] + residual[q] * grow::HEIGHT_SCALE_M
             })
-            .collect();
-        // Real terrain drains: the networks' pits are filled, the tile's border kept.
-        drainage::fill_depressions(&mut heights, TILE_SAMPLES, drainage::FLAT_GRADIENT_M);
-        Tile::new(coord, heights)
+            .collect()
+    }
+}
+
+/// Tile `c`'s samples cut from the block with corner tile `corner`.
+fn quadrant(block: &[f32], c: TileCoord, corner: TileCoord) -> Vec<f32> {
+    let (n, k) = (TILE_SAMPLES, FILL_BLOCK_TILES as usize);
+    let (bi, bj) = ((c.i - corner.i) as usize, (c.j - corner.j) as usize);
+    (0..n).flat_map(|v| block[(bj * n + v) * n * k + bi * n..][..n].iter().copied()).collect()
+}
+
+/// A bounded map of filled blocks that forgets the oldest first.
+struct BlockCache {
+    map: HashMap<(u64, TileCoord), Arc<Vec<f32>>>,
+    order: std::collections::VecDeque<(u64, TileCoord)>,
+    capacity: usize,
+}
+
+impl BlockCache {
+    fn new(capacity: usize) -> Self {
+        Self { map: HashMap::new(), order: Default::default(), capacity: capacity.max(1) }
+    }
+
+    fn get(&self, key: &(u64, TileCoord)) -> Option<Arc<Vec<f32>>> {
+        self.map.get(key).cloned()
+    }
+
+    fn insert(&mut self, key: (u64, TileCoord), block: Arc<Vec<f32>>) {
+        if self.map.insert(key, block).is_none() {
+            self.order.push_back(key);
+        }
+        while self.map.len() > self.capacity {
+            let Some(old) = self.order.pop_front() else { break };
+            self.map.remove(&old);
+        }
     }
 }
 
@@ -242,7 +330,8 @@ mod tests {
                 let r = (mix64(order * 1000 + k as u64) % (k as u64 + 1)) as usize;
                 cs.swap(k, r);
             }
-            let src = LearnedSource::new(models.clone(), 1 + order as usize % 2);
+            // The third order keeps only 3 filled blocks: evicted blocks are remade the same.
+            let src = LearnedSource::new(models.clone(), 1 + order as usize % 2).with_fill_cache(if order == 2 { 3 } else { FILL_CACHE_BLOCKS });
             let sums: HashMap<TileCoord, u64> = cs.iter().map(|&c| (c, src.generate(5, c, &Neighbourhood::default()).checksum)).collect();
             match &reference {
                 None => reference = Some(sums),
@@ -265,6 +354,30 @@ mod tests {
             let t = src.generate(9, c, &Neighbourhood::default());
             assert_eq!(drainage::depression_fraction(&t.heights, TILE_SAMPLES, 0.0), 0.0, "{c:?}");
         }
+    }
+
+    /// A basin cut by tile edges inside a fill block is filled as one: the 2×2 tiles of the
+    /// block with corner (−2, 0), put together, have no closed depression of any depth.
+    #[test]
+    fn tiles_of_a_fill_block_drain_together() {
+        let src = LearnedSource::new(random_models(), 1);
+        let (n, m) = (TILE_SAMPLES, 2 * TILE_SAMPLES);
+        let mut h = vec![0f32; m * m];
+        for t in 0..4 {
+            let tile = src.generate(9, TileCoord::new(-2 + t % 2, t / 2), &Neighbourhood::default());
+            for v in 0..n {
+                h[((t as usize / 2) * n + v) * m + (t as usize % 2) * n..][..n].copy_from_slice(&tile.heights[v * n..(v + 1) * n]);
+            }
+        }
+        assert_eq!(drainage::depression_fraction(&h, m, 0.0), 0.0);
+    }
+
+    /// Fill blocks start at even tile coordinates, for negative coordinates too.
+    #[test]
+    fn fill_blocks_start_at_even_tiles() {
+        assert_eq!(fill_block_corner(TileCoord::new(0, 1)), TileCoord::new(0, 0));
+        assert_eq!(fill_block_corner(TileCoord::new(-1, -2)), TileCoord::new(-2, -2));
+        assert_eq!(fill_block_corner(TileCoord::new(3, -3)), TileCoord::new(2, -4));
     }
 
     /// The ruggedness field over 200×200 tiles of two seeds has the mean and standard
