@@ -172,6 +172,10 @@ enum Command {
         /// below their fill level (a new run only; 0: none).
         #[arg(long, default_value_t = 0.0)]
         drainage: f32,
+        /// Weight of the coarse term: the mean |difference| between the 8×8-sample block means
+        /// of the made tile and of the real one (a new run only; 0: none).
+        #[arg(long, default_value_t = 0.0)]
+        coarse: f32,
         /// Train only the TCM; the ×4 step's checkpoint stays as it is.
         #[arg(long)]
         tcm_only: bool,
@@ -488,9 +492,9 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage]: [f32; 3], init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
+fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse]: [f32; 4], init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
     use terrain::train::{grow, pairs, tcm};
-    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage)] {
+    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage), ("--coarse", coarse)] {
         if !w.is_finite() || w < 0.0 {
             return Err(format!("{flag} must be a finite number ≥ 0, not {w}"));
         }
@@ -517,7 +521,7 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
         }
     }
     let device = burn::tensor::Device::flex().autodiff();
-    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, ..Default::default() };
+    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, ..Default::default() };
     let from = resume.then_some(checkpoint);
     let start = match init {
         Some(dir) => {
@@ -901,8 +905,8 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
         #[cfg(feature = "train")]
-        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, tcm_only } => {
-            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage], init.as_deref(), tcm_only)
+        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, tcm_only } => {
+            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse], init.as_deref(), tcm_only)
         }
     };
     match result {
