@@ -636,7 +636,11 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
         }
     }
     let ruggedness = serde_json::json!({ "asked": mean_sd(&asked), "made": mean_sd(&made) });
-    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "seams_and_speed": seams, "ruggedness_128m_tiles": ruggedness })).expect("json"));
+    // Does the TCM give its tiles a shape of their own by phase (the quilt in hillshades)?
+    let grids = terrain::train::tcm::grids(&dems);
+    let domes = terrain::train::tcm::phase_dome_bias(&models.tcm, &grids, 400, terrain::models::cpu::default_threads());
+    let domes: Vec<serde_json::Value> = domes.iter().enumerate().map(|(p, (m, e))| serde_json::json!({ "phase": p, "made_minus_real_m": m, "standard_error_m": e })).collect();
+    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "seams_and_speed": seams, "ruggedness_128m_tiles": ruggedness, "tile_dome_bias_by_phase_128m_validation": domes })).expect("json"));
     Ok(())
 }
 

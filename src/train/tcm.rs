@@ -220,6 +220,67 @@ pub fn coarse_gap(made: Tensor<4>, real: Tensor<4>) -> Tensor<1> {
     (pool(made) - pool(real)).abs().mean()
 }
 
+/// The dome height of a tile (`TILE_PX`², any unit): after removing its best-fit plane, the
+/// mean of the samples at least [`COARSE_BLOCK_PX`] from every edge minus the mean of the
+/// edge samples — positive for a dome, negative for a bowl, 0 for a plane.
+pub fn dome_height(t: &[f32]) -> f64 {
+    let n = TILE_PX;
+    let c = (n as f64 - 1.0) / 2.0;
+    let mean = t.iter().map(|&v| v as f64).sum::<f64>() / (n * n) as f64;
+    // The grid is symmetric, so the plane's slopes are independent least-squares fits.
+    let (mut sx, mut sy, mut ss) = (0.0, 0.0, 0.0);
+    for p in 0..n * n {
+        let (x, y) = ((p % n) as f64 - c, (p / n) as f64 - c);
+        sx += x * t[p] as f64;
+        sy += y * t[p] as f64;
+        ss += x * x;
+    }
+    let (bx, by) = (sx / ss, sy / ss);
+    let (mut inner, mut ni, mut edge, mut ne) = (0.0, 0.0, 0.0, 0.0);
+    for p in 0..n * n {
+        let (x, y) = (p % n, p / n);
+        let r = t[p] as f64 - mean - bx * (x as f64 - c) - by * (y as f64 - c);
+        let d = x.min(n - 1 - x).min(y).min(n - 1 - y);
+        if d == 0 {
+            edge += r;
+            ne += 1.0;
+        } else if d >= COARSE_BLOCK_PX {
+            inner += r;
+            ni += 1.0;
+        }
+    }
+    inner / ni - edge / ne
+}
+
+/// Per phase, over `windows` windows of the validation split of `grids`: the mean
+/// [`dome_height`] (metres) of the tiles `g` makes minus that of the real centre tiles of the
+/// same windows, and its standard error. A generator that continues its neighbours without
+/// bias scores 0 within the error.
+pub fn phase_dome_bias(g: &TcmCpu, grids: &[Grid], windows: usize, threads: usize) -> [(f64, f64); 4] {
+    let mut rng = Rng(0x444F_4D45);
+    let mut s = crate::models::tcm::TcmScratch::default();
+    std::array::from_fn(|phase| {
+        let mut gaps = Vec::new();
+        for t in 0..windows * 4 {
+            if gaps.len() == windows || grids.is_empty() {
+                break;
+            }
+            let Some(smp) = sample(&grids[t % grids.len()].hf, Split::Validation, phase, &mut rng) else { continue };
+            let made = dome_height(&g.forward(&smp.input, &mut s, threads));
+            gaps.push((made - dome_height(&centre_of(&smp.real))) * HEIGHT_SCALE_M as f64);
+        }
+        let k = gaps.len().max(2) as f64;
+        let mean = gaps.iter().sum::<f64>() / k;
+        let sd = (gaps.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (k - 1.0)).sqrt();
+        (mean, sd / k.sqrt())
+    })
+}
+
+/// The centre tile (`TILE_PX`²) of a context window (`CONTEXT_PX`², row-major).
+fn centre_of(window: &[f32]) -> Vec<f32> {
+    (0..TILE_PX * TILE_PX).map(|p| window[(TILE_PX + p / TILE_PX) * CONTEXT_PX + TILE_PX + p % TILE_PX]).collect()
+}
+
 /// Running losses and progress of a run (saved with every checkpoint).
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct TcmProgress {
@@ -461,6 +522,29 @@ mod tests {
         assert!((gap - 0.25).abs() < 1e-6, "{gap}");
         let checker: Vec<f32> = (0..t * t).map(|p| base[p] + if (p % t + p / t) % 2 == 0 { 0.5 } else { -0.5 }).collect();
         assert!(coarse_gap(tensor(checker, [1, 1, t, t], &device), a).into_scalar::<f32>() < 1e-6);
+    }
+
+    /// A tilted plane has a dome height of 0 (to 1e-9); the paraboloid 100 − r² (r in
+    /// samples from the centre) has the interior-minus-edge mean of its plane residual,
+    /// counted here sample by sample (to 1e-6), positive; its negative is a bowl.
+    #[test]
+    fn dome_height_is_zero_for_a_plane_and_signs_domes_and_bowls() {
+        let n = TILE_PX;
+        let c = (n as f64 - 1.0) / 2.0;
+        let plane: Vec<f32> = (0..n * n).map(|p| 3.0 + 0.5 * (p % n) as f32 - 0.25 * (p / n) as f32).collect();
+        assert!(dome_height(&plane).abs() < 1e-9);
+        let r2 = |p: usize| ((p % n) as f64 - c).powi(2) + ((p / n) as f64 - c).powi(2);
+        let dome: Vec<f32> = (0..n * n).map(|p| (100.0 - r2(p)) as f32).collect();
+        let d = |p: usize| (p % n).min(n - 1 - p % n).min(p / n).min(n - 1 - p / n);
+        let mean_of = |f: &dyn Fn(usize) -> bool| {
+            let v: Vec<f64> = (0..n * n).filter(|&p| f(p)).map(|p| -r2(p)).collect();
+            v.iter().sum::<f64>() / v.len() as f64
+        };
+        let want = mean_of(&|p| d(p) >= COARSE_BLOCK_PX) - mean_of(&|p| d(p) == 0);
+        assert!(want > 100.0);
+        assert!((dome_height(&dome) - want).abs() < 1e-6 * want, "{} vs {want}", dome_height(&dome));
+        let bowl: Vec<f32> = dome.iter().map(|v| -v).collect();
+        assert!((dome_height(&bowl) + want).abs() < 1e-6 * want);
     }
 
     /// The drainage term of a window whose centre tile holds a cone-shaped pit 0.2 deep on a
