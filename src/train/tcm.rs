@@ -115,12 +115,7 @@ pub struct Sample {
 /// from the jittered measured ruggedness, noise from `rng`.
 pub fn sample(hf: &Heightfield, split: Split, phase: usize, rng: &mut Rng) -> Option<Sample> {
     let h = random_window(hf, split, CONTEXT_PX, rng)?;
-    let tiles: Vec<Vec<f32>> = (0..9)
-        .map(|t| {
-            let (ti, tj) = (t % 3, t / 3);
-            (0..TILE_PX * TILE_PX).map(|p| h[(tj * TILE_PX + p / TILE_PX) * CONTEXT_PX + ti * TILE_PX + p % TILE_PX]).collect()
-        })
-        .collect();
+    let tiles: Vec<Vec<f32>> = (0..9).map(|t| tile_of(&h, t)).collect();
     let means: Vec<f32> = tiles.iter().map(|t| t.iter().sum::<f32>() / t.len() as f32).collect();
     let avg = means.iter().sum::<f32>() / 9.0;
     let spread = (means.iter().map(|m| (m - avg).powi(2)).sum::<f32>() / 9.0).sqrt();
@@ -267,7 +262,7 @@ pub fn phase_dome_bias(g: &TcmCpu, grids: &[Grid], windows: usize, threads: usiz
             }
             let Some(smp) = sample(&grids[t % grids.len()].hf, Split::Validation, phase, &mut rng) else { continue };
             let made = dome_height(&g.forward(&smp.input, &mut s, threads));
-            gaps.push((made - dome_height(&centre_of(&smp.real))) * HEIGHT_SCALE_M as f64);
+            gaps.push((made - dome_height(&tile_of(&smp.real, 4))) * HEIGHT_SCALE_M as f64);
         }
         let k = gaps.len().max(2) as f64;
         let mean = gaps.iter().sum::<f64>() / k;
@@ -276,9 +271,10 @@ pub fn phase_dome_bias(g: &TcmCpu, grids: &[Grid], windows: usize, threads: usiz
     })
 }
 
-/// The centre tile (`TILE_PX`²) of a context window (`CONTEXT_PX`², row-major).
-fn centre_of(window: &[f32]) -> Vec<f32> {
-    (0..TILE_PX * TILE_PX).map(|p| window[(TILE_PX + p / TILE_PX) * CONTEXT_PX + TILE_PX + p % TILE_PX]).collect()
+/// Tile `t` (row-major over the 3×3; 4 is the centre) of a context window (`CONTEXT_PX`²,
+/// row-major): `TILE_PX`² samples.
+fn tile_of(window: &[f32], t: usize) -> Vec<f32> {
+    crate::world::tile::cut(window, CONTEXT_PX, TILE_PX, (t % 3) * TILE_PX, (t / 3) * TILE_PX)
 }
 
 /// Running losses and progress of a run (saved with every checkpoint).
@@ -303,10 +299,15 @@ pub struct TcmProgress {
 }
 
 impl TcmProgress {
+    /// The running mean `old` updated with this step's value `new`: the first step's value as
+    /// it is, then 2 % of each new one.
+    fn running(&self, old: f64, new: f64) -> f64 {
+        if self.step == 0 { new } else { 0.98 * old + 0.02 * new }
+    }
+
     /// Records one step's losses and seconds.
     pub fn record(&mut self, l1: f64, adv: f64, disc: f64, seconds: f64) {
-        let first = self.step == 0;
-        let mix = |old: f64, new: f64| if first { new } else { 0.98 * old + 0.02 * new };
+        let mix = |old: f64, new: f64| self.running(old, new);
         (self.l1, self.adv, self.disc) = (mix(self.l1, l1), mix(self.adv, adv), mix(self.disc, disc));
         self.step += 1;
         self.seconds += seconds;
@@ -423,8 +424,7 @@ impl TcmRun {
         let grads = loss.backward();
         let gp = GradientsParams::from_grads(grads, &self.g);
         self.g = self.og.step(self.cfg.lr, self.g.clone(), gp);
-        let first = self.progress.step == 0;
-        self.progress.depression = if first { depression_v } else { 0.98 * self.progress.depression + 0.02 * depression_v };
+        self.progress.depression = self.progress.running(self.progress.depression, depression_v);
         self.progress.record(l1_v, adv_v, disc_v, t0.elapsed().as_secs_f64());
         Ok(())
     }

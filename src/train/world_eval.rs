@@ -5,7 +5,7 @@
 use crate::dem::Heightfield;
 use crate::geomorph::{self, Stats};
 use crate::world::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
-use crate::world::tile::{Neighbourhood, TileSource};
+use crate::world::tile::{Neighbourhood, TileSource, paste};
 
 use super::pairs::{Dem, Split, split_columns};
 
@@ -44,9 +44,7 @@ pub fn region(source: &dyn TileSource, seed: u64, origin: TileCoord, w: usize, h
     for tj in 0..h {
         for ti in 0..w {
             let t = source.generate(seed, origin.offset(ti as i32, tj as i32), &Neighbourhood::default());
-            for v in 0..n {
-                data[(tj * n + v) * w * n + ti * n..][..n].copy_from_slice(&t.heights[v * n..(v + 1) * n]);
-            }
+            paste(&mut data, w * n, &t.heights, n, ti * n, tj * n);
         }
     }
     Heightfield::new(w * n, h * n, BASE_SPACING_M, data)

@@ -30,7 +30,7 @@ use super::drainage;
 use super::noise::perlin;
 use super::schedule::{dependencies, tile_seed};
 use super::seam;
-use super::tile::{Neighbourhood, Tile, TileSource};
+use super::tile::{Neighbourhood, Tile, TileSource, cut, paste};
 use crate::models::grow::{self, GrowCpu, GrowScratch};
 use crate::models::tcm::{self, HEIGHT_SCALE_M, TILE_PX, TcmCpu, TcmScratch};
 
@@ -193,9 +193,7 @@ impl LearnedSource {
         for t in 0..9 {
             let (di, dj) = (t % 3, t / 3);
             let tile = self.coarse_tile(seed, c.offset(di as i32 - 1, dj as i32 - 1));
-            for v in 0..TILE_PX {
-                field[(dj * TILE_PX + v) * n3 + di * TILE_PX..][..TILE_PX].copy_from_slice(&tile[v * TILE_PX..(v + 1) * TILE_PX]);
-            }
+            paste(&mut field, n3, &tile, TILE_PX, di * TILE_PX, dj * TILE_PX);
         }
         field
     }
@@ -236,10 +234,7 @@ impl LearnedSource {
         let mut h = vec![0f32; m * m];
         for t in 0..k * k {
             let c = corner.offset((t % k) as i32, (t / k) as i32);
-            let tile = self.raw_tile(seed, c);
-            for v in 0..n {
-                h[((t / k) * n + v) * m + (t % k) * n..][..n].copy_from_slice(&tile[v * n..(v + 1) * n]);
-            }
+            paste(&mut h, m, &self.raw_tile(seed, c), n, (t % k) * n, (t / k) * n);
         }
         // Real terrain drains: the networks' pits are filled, the block's border kept.
         drainage::fill_depressions(&mut h, m, drainage::FLAT_GRADIENT_M);
@@ -255,7 +250,7 @@ impl LearnedSource {
         let field = self.coarse_context(seed, coord);
         let w = grow::WINDOW;
         let o = TILE_PX - grow::MARGIN;
-        let window: Vec<f32> = (0..w * w).map(|p| field[(o + p / w) * n3 + o + p % w]).collect();
+        let window = cut(&field, n3, w, o, o);
         let (gx0, gy0) = (coord.i as i64 * TILE_PX as i64 - grow::MARGIN as i64, coord.j as i64 * TILE_PX as i64 - grow::MARGIN as i64);
         let (x, n64, n32) = grow::assemble(&window, seed, gx0, gy0);
         let residual = {
@@ -277,7 +272,7 @@ impl LearnedSource {
 fn quadrant(block: &[f32], c: TileCoord, corner: TileCoord) -> Vec<f32> {
     let (n, k) = (TILE_SAMPLES, FILL_BLOCK_TILES as usize);
     let (bi, bj) = ((c.i - corner.i) as usize, (c.j - corner.j) as usize);
-    (0..n).flat_map(|v| block[(bj * n + v) * n * k + bi * n..][..n].iter().copied()).collect()
+    cut(block, n * k, n, bi * n, bj * n)
 }
 
 /// A bounded map of filled blocks that forgets the oldest first.
@@ -365,9 +360,7 @@ mod tests {
         let mut h = vec![0f32; m * m];
         for t in 0..4 {
             let tile = src.generate(9, TileCoord::new(-2 + t % 2, t / 2), &Neighbourhood::default());
-            for v in 0..n {
-                h[((t as usize / 2) * n + v) * m + (t as usize % 2) * n..][..n].copy_from_slice(&tile.heights[v * n..(v + 1) * n]);
-            }
+            paste(&mut h, m, &tile.heights, n, (t as usize % 2) * n, (t as usize / 2) * n);
         }
         assert_eq!(drainage::depression_fraction(&h, m, 0.0), 0.0);
     }

@@ -3,6 +3,20 @@
 
 use super::coord::{TILE_SAMPLES, TileCoord};
 
+/// Copies the `n`×`n` field `piece` (row-major) into `field` (row-major, `width` samples per
+/// row) with its first sample at column `x0`, row `y0`: how tiles are put side by side.
+pub fn paste(field: &mut [f32], width: usize, piece: &[f32], n: usize, x0: usize, y0: usize) {
+    for v in 0..n {
+        field[(y0 + v) * width + x0..][..n].copy_from_slice(&piece[v * n..(v + 1) * n]);
+    }
+}
+
+/// The `n`×`n` field (row-major) whose first sample is at column `x0`, row `y0` of `field`
+/// (row-major, `width` samples per row): the inverse of [`paste`].
+pub fn cut(field: &[f32], width: usize, n: usize, x0: usize, y0: usize) -> Vec<f32> {
+    (0..n).flat_map(|v| field[(y0 + v) * width + x0..][..n].iter().copied()).collect()
+}
+
 /// One tile of the world at the coarsest scale: `TILE_SAMPLES`² heights in metres, row-major
 /// with rows along +z (index `v * TILE_SAMPLES + u`, u along +x).
 #[derive(Clone, Debug, PartialEq)]
@@ -102,5 +116,21 @@ impl SourceKind {
             SourceKind::Procedural => "procedural",
             SourceKind::Sketch => "sketch",
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 2×2 piece pasted at column 1, row 2 of a 4-wide field lands on samples 9, 10, 13 and
+    /// 14 and nowhere else, and cutting the same place gives it back.
+    #[test]
+    fn paste_puts_a_piece_where_cut_takes_it_from() {
+        let mut field = vec![0f32; 16];
+        paste(&mut field, 4, &[1.0, 2.0, 3.0, 4.0], 2, 1, 2);
+        let want: Vec<f32> = (0..16).map(|p| match p { 9 => 1.0, 10 => 2.0, 13 => 3.0, 14 => 4.0, _ => 0.0 }).collect();
+        assert_eq!(field, want);
+        assert_eq!(cut(&field, 4, 2, 1, 2), vec![1.0, 2.0, 3.0, 4.0]);
     }
 }
