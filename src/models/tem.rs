@@ -283,11 +283,12 @@ impl TemSet {
         let per = n.div_ceil(groups);
         let mut parts: Vec<Vec<f32>> = vec![Vec::new(); groups];
         #[cfg(not(target_arch = "wasm32"))]
-        std::thread::scope(|s| {
-            for ((part, scratch), xs) in parts.iter_mut().zip(pool.iter_mut()).zip(inputs.chunks(per * side * side)) {
-                s.spawn(move || *part = xs.chunks_exact(side * side).flat_map(|x| model.forward(x, side, scale, scratch, 1)).collect());
-            }
-        });
+        {
+            use rayon::prelude::*;
+            parts.par_iter_mut().zip(pool.par_iter_mut()).zip(inputs.par_chunks(per * side * side)).for_each(|((part, scratch), xs)| {
+                *part = xs.chunks_exact(side * side).flat_map(|x| model.forward(x, side, scale, scratch, 1)).collect()
+            });
+        }
         #[cfg(target_arch = "wasm32")]
         for ((part, scratch), xs) in parts.iter_mut().zip(pool.iter_mut()).zip(inputs.chunks(per * side * side)) {
             *part = xs.chunks_exact(side * side).flat_map(|x| model.forward(x, side, scale, scratch, 1)).collect();
@@ -400,17 +401,24 @@ impl TemCpu {
     /// One window: `x` is `side`² heights in metres (row-major), `scale_m` the level's height
     /// scale; returns (2·side)² heights in metres. `threads` splits each layer's rows.
     pub fn forward(&self, x: &[f32], side: usize, scale_m: f32, s: &mut Scratch, threads: usize) -> Vec<f32> {
-        features_into(x, side, scale_m, &mut s.feat);
-        cpu::conv(&self.head, &s.feat, &mut s.head, Post::None, threads);
-        cpu::conv(&self.body[0], &s.head, &mut s.a, Post::Relu, threads);
-        for c in &self.body[1..] {
-            cpu::conv(c, &s.a, &mut s.b, Post::Relu, threads);
-            std::mem::swap(&mut s.a, &mut s.b);
-        }
-        cpu::conv(&self.merge, &s.a, &mut s.b, Post::Add(&s.head), threads);
-        cpu::pixel_shuffle2(&s.b, &mut s.shuffled);
-        cpu::conv(&self.tail, &s.shuffled, &mut s.tail, Post::None, threads);
-        let base = crate::dem::Heightfield::new(side, side, 1.0, x.to_vec()).upsample_bicubic2();
+        // The bicubic base is computed beside the network (on a second thread when there is
+        // one): it needs only the input.
+        let ((), base) = cpu::join(
+            threads > 1,
+            || {
+                features_into(x, side, scale_m, &mut s.feat);
+                cpu::conv(&self.head, &s.feat, &mut s.head, Post::None, threads);
+                cpu::conv(&self.body[0], &s.head, &mut s.a, Post::Relu, threads);
+                for c in &self.body[1..] {
+                    cpu::conv(c, &s.a, &mut s.b, Post::Relu, threads);
+                    std::mem::swap(&mut s.a, &mut s.b);
+                }
+                cpu::conv(&self.merge, &s.a, &mut s.b, Post::Add(&s.head), threads);
+                cpu::pixel_shuffle2(&s.b, &mut s.shuffled);
+                cpu::conv(&self.tail, &s.shuffled, &mut s.tail, Post::None, threads);
+            },
+            || crate::dem::Heightfield::new(side, side, 1.0, x.to_vec()).upsample_bicubic2(),
+        );
         let o = 2 * side;
         let mut out = base.data;
         for y in 0..o {
@@ -471,11 +479,13 @@ pub fn probe_input(level: usize) -> Vec<f32> {
         .collect()
 }
 
-/// The probe output of every level as JSON: `{"backend": …, "levels": [[h, …] per level]}`,
-/// every one of the (2·PROBE_SIDE)² heights (metres) of each level, so two backends are
-/// compared on whole outputs.
-pub fn probe_json(backend: &str, levels: &[Vec<f32>]) -> String {
-    serde_json::json!({ "backend": backend, "levels": levels }).to_string()
+/// The probe output of every level as JSON: `{"backend": …, "levels": [[h, …] per level],
+/// "compute_ms": …}`, every one of the (2·PROBE_SIDE)² heights (metres) of each level, so two
+/// backends are compared on whole outputs. `compute_ms` is the time (milliseconds, all levels)
+/// the backend itself measured computing them, where it reports one (the page's CPU worker,
+/// on its own clock: without the messages to and from it); `null` otherwise.
+pub fn probe_json(backend: &str, levels: &[Vec<f32>], compute_ms: Option<f64>) -> String {
+    serde_json::json!({ "backend": backend, "levels": levels, "compute_ms": compute_ms }).to_string()
 }
 
 impl Tem {
