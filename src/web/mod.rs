@@ -382,9 +382,23 @@ pub fn terrain_stats() -> String {
     STATS_JSON.with(|s| s.borrow().clone())
 }
 
-/// Page entry point.
+unsafe extern "C" {
+    /// The module's static constructors (the `inventory` registrations of burn's GPU
+    /// compiler), synthesised by the linker.
+    fn __wasm_call_ctors();
+}
+
+/// Page (and CPU worker) entry point: the first call into the module after it is
+/// instantiated.
 #[wasm_bindgen(start)]
 pub fn start() {
+    // The static constructors run once, here. Without this explicit call the linker wraps
+    // every export in a call to them (a "command" module): every call from JavaScript into
+    // the module, down to each JS value handed over, ran them all again — over a third of
+    // the page's main-thread time.
+    // SAFETY: called once, first thing after instantiation, before any code that reads what
+    // the constructors register.
+    unsafe { __wasm_call_ctors() };
     console_error_panic_hook::set_once();
     // The same module also runs in the CPU inference worker, which has no page to start.
     if web_sys::window().is_none() {
