@@ -14,13 +14,6 @@ pub use gpu::{FrameParams, RenderStats, TerrainRenderer};
 /// full resolution.
 pub const SOFTWARE_VIEW_SCALE: f32 = 0.5;
 
-/// Longest wait (milliseconds) for the GPU to finish a frame before the next one is started
-/// anyway. The page starts a frame only when the GPU has finished the previous one (one frame
-/// in flight), so the main thread never queues work behind a slow GPU (a software rasteriser
-/// takes the same cores) and never blocks waiting for a free swap-chain image; this bound
-/// keeps frames coming if the GPU's notice is late or lost (a lost device).
-pub const GPU_FRAME_WAIT_MS: u64 = 250;
-
 /// Size (pixels) of the 3-D view's target for a view of `points` (egui points) at
 /// `pixels_per_point`, drawn at [`SOFTWARE_VIEW_SCALE`] on a software adapter; at least 1×1.
 pub fn view_size(points: [f32; 2], pixels_per_point: f32, software_adapter: bool) -> [u32; 2] {

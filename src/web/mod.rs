@@ -382,6 +382,26 @@ pub fn terrain_stats() -> String {
     STATS_JSON.with(|s| s.borrow().clone())
 }
 
+/// How many times this module's static constructors have run (see [`terrain_constructor_runs`]).
+static CONSTRUCTOR_RUNS: AtomicU32 = AtomicU32::new(0);
+
+/// A static constructor of our own, beside burn's: it counts its runs.
+#[used]
+#[unsafe(link_section = ".init_array")]
+static COUNT_CONSTRUCTOR_RUNS: extern "C" fn() = {
+    extern "C" fn count() {
+        CONSTRUCTOR_RUNS.fetch_add(1, SeqCst);
+    }
+    count
+};
+
+/// How many times the module's static constructors have run: 1 however often JavaScript has
+/// called into the module (the end-to-end test checks it after a flight).
+#[wasm_bindgen]
+pub fn terrain_constructor_runs() -> u32 {
+    CONSTRUCTOR_RUNS.load(SeqCst)
+}
+
 unsafe extern "C" {
     /// The module's static constructors (the `inventory` registrations of burn's GPU
     /// compiler), synthesised by the linker.
@@ -1070,13 +1090,7 @@ impl eframe::App for WebApp {
             "sketch_buttons": self.sketch_panel.buttons.iter().map(|(k, r)| (k.clone(), [r.min.x, r.min.y, r.width(), r.height()])).collect::<std::collections::BTreeMap<_, _>>(),
         });
         STATS_JSON.with(|s| *s.borrow_mut() = json.to_string());
-        // The next frame starts when the GPU has finished this one (egui's pass included: the
-        // notice is asked for after this animation frame's paint), or after
-        // GPU_FRAME_WAIT_MS at the latest.
-        let queue = rs.queue.clone();
-        let wake = ctx.clone();
-        wasm_bindgen_futures::spawn_local(async move { queue.on_submitted_work_done(move || wake.request_repaint()) });
-        ctx.request_repaint_after(std::time::Duration::from_millis(crate::render::GPU_FRAME_WAIT_MS));
+        ctx.request_repaint();
     }
 }
 
