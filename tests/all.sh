@@ -37,6 +37,10 @@ step "native build"
 cargo test --all-targets
 step "native tests"
 
+# Coverage-guided fuzzing (libFuzzer) of the DEM readers, a bounded number of inputs.
+bash fuzz/run.sh 300000
+step "fuzz"
+
 if ! wait "$page_pid"; then cat "$page_log"; echo "building the page failed" >&2; exit 1; fi
 tail -1 "$page_log"
 wasm=$(ls dist/*.wasm); js=$(ls dist/*.js)

@@ -169,6 +169,18 @@ fn wrong_sample_formats_are_clear_errors() {
     assert!(matches!(inf, DemError::Invalid(_)) && inf.to_string().contains("inf"), "{inf}");
 }
 
+/// The coverage-guided fuzzer's (fuzz/) first finding: a TIFF whose SampleFormat tag holds no
+/// values made the tiff decoder (0.10) index an empty list and panic. It is an error now.
+#[test]
+fn a_tiff_with_an_empty_sample_format_tag_is_an_error_not_a_panic() {
+    use base64::Engine;
+    let bytes = base64::engine::general_purpose::STANDARD
+        .decode("SUkqAAgAAAANAAABBAABAAAAEAAAAAEBBAABAAAAEAAAAAIBAwABAAAAIAAAAAMBAwABAAAAAQAAAAYBAwABAAAAAQAAABEBBAABAAAAEgEAABYBEAAAAAEABAAAABcBBAABAAAAAAQAABwBAwABAAAAAQAAAFMBAwAAAAAAAwAAAA6DDAAD+638KyYlRBrT2HNEje93RE+Te0Q8XX5Euv5/ROokgERHMH9EZ+J8RMyPeUQcnHVEtXZxRHGUbUTCYmpErjtoRN9bZ0T422dE")
+        .unwrap();
+    let e = std::panic::catch_unwind(|| Heightfield::read_tiff(Cursor::new(bytes), 1.0)).expect("the reader panicked").unwrap_err();
+    assert!(!e.to_string().is_empty());
+}
+
 /// Runs every reader on `bytes`: each must return (Ok or a non-empty error) without panicking
 /// and hold at most `limit` bytes.
 fn read_all_ways(bytes: &[u8], limit: usize) -> Result<(), TestCaseError> {
