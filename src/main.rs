@@ -410,7 +410,7 @@ fn tem_probe(weights: Option<PathBuf>) -> Result<(), String> {
     use terrain::models::tem::{Exec, LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json};
     let tem = TemSet::load_dir(&weights_dir(weights), &Exec::cpu())?;
     let levels = (0..LEVELS).map(|k| tem.enhance_blocking(k, probe_input(k), 1, PROBE_SIDE)).collect::<Result<Vec<_>, _>>()?;
-    println!("{}", probe_json("cpu", &levels, None));
+    println!("{}", probe_json("cpu", &levels, Default::default()));
     Ok(())
 }
 

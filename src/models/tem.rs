@@ -479,13 +479,22 @@ pub fn probe_input(level: usize) -> Vec<f32> {
         .collect()
 }
 
+/// How long a probe run took (milliseconds, all levels), where the runner measured it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ProbeTimes {
+    /// From the first request to the last result, as the caller waited for them (the page:
+    /// messages to and from its CPU worker included, the JSON of the result not).
+    pub round_trip_ms: Option<f64>,
+    /// What the backend itself measured computing (the page's CPU worker, on its own clock).
+    pub compute_ms: Option<f64>,
+}
+
 /// The probe output of every level as JSON: `{"backend": …, "levels": [[h, …] per level],
-/// "compute_ms": …}`, every one of the (2·PROBE_SIDE)² heights (metres) of each level, so two
-/// backends are compared on whole outputs. `compute_ms` is the time (milliseconds, all levels)
-/// the backend itself measured computing them, where it reports one (the page's CPU worker,
-/// on its own clock: without the messages to and from it); `null` otherwise.
-pub fn probe_json(backend: &str, levels: &[Vec<f32>], compute_ms: Option<f64>) -> String {
-    serde_json::json!({ "backend": backend, "levels": levels, "compute_ms": compute_ms }).to_string()
+/// "round_trip_ms": …, "compute_ms": …}`, every one of the (2·PROBE_SIDE)² heights (metres) of
+/// each level, so two backends are compared on whole outputs; the times are `null` where not
+/// measured ([`ProbeTimes`]).
+pub fn probe_json(backend: &str, levels: &[Vec<f32>], times: ProbeTimes) -> String {
+    serde_json::json!({ "backend": backend, "levels": levels, "round_trip_ms": times.round_trip_ms, "compute_ms": times.compute_ms }).to_string()
 }
 
 impl Tem {

@@ -17,7 +17,7 @@ use crate::jobs::Job;
 use crate::world::{SourceKind, TileCoord};
 use crate::world::learned::{GROW_FILE, TCM_FILE};
 use crate::models;
-use crate::models::tem::{Exec, LEVELS, PROBE_SIDE, TemSet, probe_input, probe_json, weight_file};
+use crate::models::tem::{Exec, LEVELS, PROBE_SIDE, ProbeTimes, TemSet, probe_input, probe_json, weight_file};
 use crate::world::PatchKey;
 use crate::world::refine::INPUT_SIDE;
 use crate::render::camera::ControlInput;
@@ -198,7 +198,7 @@ where
 }
 
 /// Runs the fixed TEM probe on the page's models (whichever backend they run on) and returns
-/// JSON `{backend, levels: [[every height…] per level], compute_ms}` (see [`probe_json`]) for the
+/// JSON `{backend, levels: [[every height…] per level], round_trip_ms, compute_ms}` (see [`probe_json`]) for the
 /// end-to-end test.
 #[wasm_bindgen]
 pub async fn terrain_tem_probe() -> Result<String, JsValue> {
@@ -207,6 +207,7 @@ pub async fn terrain_tem_probe() -> Result<String, JsValue> {
     };
     let mut levels = Vec::new();
     let mut compute_ms = None;
+    let t0 = web_time::Instant::now();
     for k in 0..LEVELS {
         let raw = match &*tem {
             // The worker's own clock too: the kernels' time without the round trip.
@@ -219,7 +220,8 @@ pub async fn terrain_tem_probe() -> Result<String, JsValue> {
         };
         levels.push(raw);
     }
-    Ok(probe_json(&backend, &levels, compute_ms))
+    let round_trip_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
+    Ok(probe_json(&backend, &levels, ProbeTimes { round_trip_ms, compute_ms }))
 }
 
 /// The TEM probe's input window of level `level` (JSON array of heights), so the end-to-end
