@@ -16,10 +16,8 @@ use dem::{Heightfield, PngScale};
 
 fuzz_target!(|data: &[u8]| {
     // read_png takes 16-bit grey and terrain-RGB (by the file's colour type).
-    for hf in [Heightfield::read_tiff(Cursor::new(data), 1.0), Heightfield::read_png(Cursor::new(data), PngScale::default(), 1.0)]
-    .into_iter()
-    .flatten()
-    {
+    let read = [Heightfield::read_tiff(Cursor::new(data), 1.0), Heightfield::read_png(Cursor::new(data), PngScale::default(), 1.0)];
+    for hf in read.into_iter().flatten() {
         // What a reader returns is whole: every sample of the size it claims.
         assert_eq!(hf.data.len(), hf.width * hf.height);
     }

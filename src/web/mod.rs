@@ -102,11 +102,13 @@ enum TemEngine {
 }
 
 impl TemEngine {
-    /// Runs level `level` on `n` windows of side `side` (see [`TemSet::enhance_async`]).
-    async fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<Vec<f32>, String> {
+    /// Runs level `level` on `n` windows of side `side` (see [`TemSet::enhance_async`]);
+    /// returns the heights and, where the backend measures it (the CPU worker, on its own
+    /// clock), its compute time in milliseconds.
+    async fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<(Vec<f32>, Option<f64>), String> {
         match self {
-            TemEngine::Gpu(tem) | TemEngine::MainThread(tem) => tem.enhance_async(level, inputs, n, side).await,
-            TemEngine::Worker(w) => w.enhance(level, inputs, n, side).await.map(|(out, _ms)| out).map_err(|e| e.to_string()),
+            TemEngine::Gpu(tem) | TemEngine::MainThread(tem) => tem.enhance_async(level, inputs, n, side).await.map(|out| (out, None)),
+            TemEngine::Worker(w) => w.enhance(level, inputs, n, side).await.map(|(out, ms)| (out, Some(ms))).map_err(|e| e.to_string()),
         }
     }
 }
@@ -209,15 +211,11 @@ pub async fn terrain_tem_probe() -> Result<String, JsValue> {
     let mut compute_ms = None;
     let t0 = web_time::Instant::now();
     for k in 0..LEVELS {
-        let raw = match &*tem {
-            // The worker's own clock too: the kernels' time without the round trip.
-            TemEngine::Worker(w) => {
-                let (raw, ms) = w.enhance(k, probe_input(k), 1, PROBE_SIDE).await.map_err(|e| JsValue::from_str(&e.to_string()))?;
-                compute_ms = Some(compute_ms.unwrap_or(0.0) + ms);
-                raw
-            }
-            _ => tem.enhance(k, probe_input(k), 1, PROBE_SIDE).await.map_err(|e| JsValue::from_str(&e))?,
-        };
+        let (raw, ms) = tem.enhance(k, probe_input(k), 1, PROBE_SIDE).await.map_err(|e| JsValue::from_str(&e))?;
+        // The worker's own clock too: the kernels' time without the round trip.
+        if let Some(ms) = ms {
+            compute_ms = Some(compute_ms.unwrap_or(0.0) + ms);
+        }
         levels.push(raw);
     }
     let round_trip_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
@@ -870,7 +868,7 @@ impl WebApp {
             let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
             let (level, epoch) = (keys[0].level as usize, jobs[0].epoch);
             let t0 = now_ms();
-            let out = tem.enhance(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE).await;
+            let out = tem.enhance(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE).await.map(|(out, _ms)| out);
             let ms = now_ms() - t0;
             let mut m = shared.borrow_mut();
             m.results.push((epoch, keys, out, ms));
