@@ -246,6 +246,14 @@ enum Command {
         /// Which network to train.
         #[arg(long, value_enum, default_value_t = SketchModel::Generator)]
         model: SketchModel,
+        /// Start the generator from the weights in this folder (e.g. `weights`) instead of
+        /// random ones (a new run only).
+        #[arg(long)]
+        init: Option<PathBuf>,
+        /// Train (and validate) only on windows whose ground extent is at most this many metres
+        /// (the format's tiles are 512 m; a new run only).
+        #[arg(long)]
+        max_extent_m: Option<f64>,
     },
     /// Propose variants of a sketch: sketches with codes near its own in the sketch VAE, each
     /// turned into terrain. Writes variant_K_sketch.png and variant_K_dem.png (16-bit) per
@@ -717,19 +725,30 @@ fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBu
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch::SketchConfig, validation: usize, model: SketchModel) -> Result<(), String> {
+fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch::SketchConfig, validation: usize, model: SketchModel, init: Option<&std::path::Path>) -> Result<(), String> {
     use terrain::train::{pairs, sketch};
     if !cfg.adversarial.is_finite() || cfg.adversarial < 0.0 {
         return Err(format!("--adversarial must be a finite number ≥ 0, not {}", cfg.adversarial));
     }
+    if cfg.max_extent_m.is_some_and(|m| !(m.is_finite() && m > 0.0)) {
+        return Err(format!("--max-extent-m must be a positive number of metres, not {:?}", cfg.max_extent_m));
+    }
+    let init = match init {
+        Some(dir) => {
+            let p = dir.join(terrain::models::sketch::WEIGHT_FILE);
+            let bytes = std::fs::read(&p).map_err(|e| format!("{}: {e}", p.display()))?;
+            Some(terrain::models::sketch::SketchGenCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", p.display()))?)
+        }
+        None => None,
+    };
     let dems = pairs::load_dems(dem_dir)?;
     let device = burn::tensor::Device::flex().autodiff();
     let t = std::time::Instant::now();
     if let SketchModel::Vae = model {
         return train_sketch_vae(&dems, steps, resume, checkpoint, every, terrain::train::sketch_vae::VaeConfig { batch: cfg.batch, pool: cfg.pool, crop: cfg.crop, ..Default::default() }, validation, &device);
     }
-    let mut run = sketch::SketchRun::start(cfg, &dems, &device, resume.then_some(checkpoint))?;
-    let val = sketch::pairs(&dems, pairs::Split::Validation, validation, 0x5EED);
+    let mut run = sketch::SketchRun::start(cfg, &dems, &device, resume.then_some(checkpoint), init.as_ref())?;
+    let val = sketch::pairs(&dems, pairs::Split::Validation, validation, run.cfg.max_extent_m, 0x5EED);
     eprintln!("sketch generator: {} parameters; {:?}; from step {}; pool and {} validation pairs made in {:.1} s", run.g.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
     let end = run.progress.step + steps;
     let mut last = None;
@@ -784,7 +803,7 @@ fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: b
     use terrain::train::{pairs, sketch, sketch_vae};
     let t = std::time::Instant::now();
     let mut run = sketch_vae::VaeRun::start(cfg, dems, device, resume.then_some(checkpoint))?;
-    let val = sketch::pairs(dems, pairs::Split::Validation, validation, 0x5EED);
+    let val = sketch::pairs(dems, pairs::Split::Validation, validation, None, 0x5EED);
     eprintln!("sketch VAE: {} parameters; {:?}; from step {}; pool and {} validation sketches made in {:.1} s", run.m.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
     let end = run.progress.step + steps;
     let mut last = None;
@@ -899,9 +918,9 @@ fn main() -> ExitCode {
         Command::Sketch { input, out, weights } => sketch(&input, &out, weights),
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
-        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model } => {
-            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, ..Default::default() };
-            train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model)
+        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m } => {
+            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, max_extent_m, ..Default::default() };
+            train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
         }
         Command::SketchVariants { input, n, out_dir, seed, weights } => sketch_variants(&input, n as usize, &out_dir, seed, weights),
         #[cfg(feature = "train")]

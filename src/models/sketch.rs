@@ -126,6 +126,21 @@ impl SketchGenCpu {
         Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
     }
 
+    /// Writes these weights into a burn generator (training starts from shipped weights).
+    #[cfg(feature = "train")]
+    pub fn into_model(&self, m: SketchGen) -> SketchGen {
+        let mut m = m;
+        let mut k = 0;
+        for st in m.enc.iter_mut().chain(m.dec.iter_mut()) {
+            for c in st.convs_mut() {
+                cpu::conv_into_burn(&self.convs[k], c);
+                k += 1;
+            }
+        }
+        cpu::conv_into_burn(&self.convs[k], &mut m.out);
+        m
+    }
+
     /// Copies a burn generator's weights.
     pub fn from_model(m: &SketchGen) -> Result<Self, String> {
         let convs = m.enc.iter().chain(&m.dec).flat_map(|st| st.convs()).chain([&m.out]);

@@ -191,6 +191,12 @@ impl Stage {
     pub fn convs(&self) -> [&Conv2d; 2] {
         [&self.a, &self.b]
     }
+
+    /// The two convolutions, to write weights into.
+    #[cfg(feature = "train")]
+    pub(crate) fn convs_mut(&mut self) -> [&mut Conv2d; 2] {
+        [&mut self.a, &mut self.b]
+    }
 }
 
 /// 2×2 mean pooling of [B, C, H, W] (H, W even).
@@ -336,7 +342,7 @@ impl TcmCpu {
         let mut m = m;
         let mut k = 0;
         for st in m.enc.iter_mut().chain(m.dec.iter_mut()) {
-            for c in [&mut st.a, &mut st.b] {
+            for c in st.convs_mut() {
                 cpu::conv_into_burn(&self.convs[k], c);
                 k += 1;
             }

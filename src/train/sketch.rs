@@ -1,7 +1,8 @@
 //! Training the sketch generator ([`crate::models::sketch`]) on the CPU: sketch/terrain pairs
 //! made by the project's extractor ([`crate::sketch::extract`]) from windows of real DEMs at
-//! several scales (64 to 512 samples, brought to 256² by bicubic upsampling or area
-//! averaging), the 8 rotations/flips, random crops; loss L1 + a small PatchGAN (least squares)
+//! several scales (32 to 512 samples, brought to 256² by bicubic upsampling or area
+//! averaging; optionally only windows up to a ground extent, e.g. near the sketch format's
+//! 512 m tiles), the 8 rotations/flips, random crops; loss L1 + a small PatchGAN (least squares)
 //! that sees the heights beside the sketch, as pix2pix. Checkpoints let a run resume in a later
 //! session; the validation set is the held-out east third of every DEM.
 
@@ -18,7 +19,7 @@ use crate::models::sketch::{IN_CHANNELS, SketchGen, SketchGenCpu, SketchScratch,
 use crate::sketch::{SKETCH_PX, baseline, extract, score};
 
 /// Source window sides (samples) a pair is cut at, before they are brought to [`SKETCH_PX`].
-pub const WINDOW_SIDES: [usize; 4] = [64, 128, 256, 512];
+pub const WINDOW_SIDES: [usize; 5] = [32, 64, 128, 256, 512];
 /// Least height range (metres) of a window to make a pair from (flatter ones are mostly
 /// quantisation steps once stretched to 0–255).
 pub const MIN_RELIEF_M: f32 = 20.0;
@@ -32,11 +33,13 @@ pub struct Pair {
     pub target: Vec<f32>,
 }
 
-/// A pair cut from a random window of one of `dems` in `split` (`None` if the drawn window
-/// did not fit, had no-data or was too flat).
-pub fn random_pair(dems: &[Dem], split: Split, rng: &mut Rng) -> Option<Pair> {
+/// A pair cut from a random window of one of `dems` in `split` whose ground extent is at most
+/// `max_extent_m` metres (any extent if `None`); `None` if the drawn window did not fit, had
+/// no-data or was too flat, or the DEM has no window that small.
+pub fn random_pair(dems: &[Dem], split: Split, max_extent_m: Option<f64>, rng: &mut Rng) -> Option<Pair> {
     let hf = &dems[rng.below(dems.len())].hf;
-    let sides: Vec<usize> = WINDOW_SIDES.iter().copied().filter(|&s| fits_square(hf, split, s)).collect();
+    let small_enough = |s: usize| max_extent_m.is_none_or(|m| s as f64 * hf.spacing_m <= m);
+    let sides: Vec<usize> = WINDOW_SIDES.iter().copied().filter(|&s| small_enough(s) && fits_square(hf, split, s)).collect();
     if sides.is_empty() {
         return None;
     }
@@ -57,8 +60,9 @@ pub fn random_pair(dems: &[Dem], split: Split, rng: &mut Rng) -> Option<Pair> {
     Some(Pair { input, target: e.target.iter().map(|v| v / 255.0).collect() })
 }
 
-/// `n` pairs from `split`, drawn with a sampler seeded by `seed`, made on every core.
-pub fn pairs(dems: &[Dem], split: Split, n: usize, seed: u64) -> Vec<Pair> {
+/// `n` pairs from `split` (windows up to `max_extent_m`, see [`random_pair`]), drawn with a
+/// sampler seeded by `seed`, made on every core.
+pub fn pairs(dems: &[Dem], split: Split, n: usize, max_extent_m: Option<f64>, seed: u64) -> Vec<Pair> {
     let threads = crate::models::cpu::default_threads().max(1);
     let per = n.div_ceil(threads);
     let mut out: Vec<Pair> = std::thread::scope(|s| {
@@ -70,7 +74,7 @@ pub fn pairs(dems: &[Dem], split: Split, n: usize, seed: u64) -> Vec<Pair> {
                     let mut tries = 0;
                     while v.len() < per && tries < per * 50 {
                         tries += 1;
-                        if let Some(p) = random_pair(dems, split, &mut rng) {
+                        if let Some(p) = random_pair(dems, split, max_extent_m, &mut rng) {
                             v.push(p);
                         }
                     }
@@ -99,11 +103,14 @@ pub struct SketchConfig {
     pub adversarial: f32,
     /// Seed of the sampler.
     pub seed: u64,
+    /// Largest ground extent (metres) of a training window; `None`: every window side.
+    #[serde(default)]
+    pub max_extent_m: Option<f64>,
 }
 
 impl Default for SketchConfig {
     fn default() -> Self {
-        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1 }
+        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1, max_extent_m: None }
     }
 }
 
@@ -131,12 +138,16 @@ fn tensor(data: Vec<f32>, shape: [usize; 4], device: &Device) -> Tensor<4> {
 
 impl SketchRun {
     /// Starts a run on `device` (an autodiff device) with a pool of pairs from the training
-    /// split of `dems`, or resumes the checkpoint in `resume_from`.
-    pub fn start(cfg: SketchConfig, dems: &[Dem], device: &Device, resume_from: Option<&Path>) -> Result<Self, String> {
+    /// split of `dems`: resumes the checkpoint in `resume_from`, or else starts the generator
+    /// from `init` (e.g. the shipped weights) or from random weights.
+    pub fn start(cfg: SketchConfig, dems: &[Dem], device: &Device, resume_from: Option<&Path>, init: Option<&SketchGenCpu>) -> Result<Self, String> {
         if cfg.crop == 0 || cfg.crop % 16 != 0 || cfg.crop > SKETCH_PX {
             return Err(format!("the crop side must be a multiple of 16 up to {SKETCH_PX}, not {}", cfg.crop));
         }
         let mut g = SketchGen::new(device);
+        if let Some(w) = init {
+            g = w.into_model(g);
+        }
         let mut d = Disc::with_inputs(1 + crate::sketch::INPUT_CHANNELS, device);
         let (mut og, mut od) = (gan::adam(), gan::adam());
         let mut progress = Progress::default();
@@ -147,7 +158,7 @@ impl SketchRun {
             progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("sketch_state.json: {e}"))?;
             cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("sketch_state.json: {e}"))?;
         }
-        let pool = pairs(dems, Split::Train, cfg.pool, cfg.seed ^ progress.step as u64);
+        let pool = pairs(dems, Split::Train, cfg.pool, cfg.max_extent_m, cfg.seed ^ progress.step as u64);
         if pool.is_empty() {
             return Err("no DEM gives a NaN-free training window with relief".into());
         }
@@ -196,7 +207,7 @@ impl SketchRun {
         let gp = GradientsParams::from_grads(loss.backward(), &self.g);
         self.g = self.og.step(self.cfg.lr, self.g.clone(), gp);
         for k in 0..REFRESH_PER_STEP {
-            if let Some(p) = random_pair(dems, Split::Train, &mut rng) {
+            if let Some(p) = random_pair(dems, Split::Train, self.cfg.max_extent_m, &mut rng) {
                 let slot = (self.progress.step * REFRESH_PER_STEP + k) % self.pool.len();
                 self.pool[slot] = p;
             }
@@ -266,21 +277,46 @@ mod tests {
         let device = Device::flex().autodiff();
         let cfg = SketchConfig { batch: 1, crop: 32, pool: 2, ..Default::default() };
         let dir = std::env::temp_dir().join(format!("terrain-sketch-smoke-{}", std::process::id()));
-        let mut run = SketchRun::start(cfg.clone(), &dems, &device, None).unwrap();
+        let mut run = SketchRun::start(cfg.clone(), &dems, &device, None, None).unwrap();
         run.step(&dems).unwrap();
         run.step(&dems).unwrap();
         run.save(&dir, None).unwrap();
-        let mut run = SketchRun::start(cfg, &dems, &device, Some(&dir)).unwrap();
+        let mut run = SketchRun::start(cfg, &dems, &device, Some(&dir), None).unwrap();
         assert_eq!(run.progress.step, 2);
         run.step(&dems).unwrap();
         let p = &run.progress;
         assert_eq!(p.step, 3);
         assert!(p.l1.is_finite() && p.l1 > 0.0 && p.disc > 0.0 && p.adv.is_finite(), "{p:?}");
         let generator = SketchGenCpu::from_burnpack(&std::fs::read(dir.join(WEIGHT_FILE)).unwrap()).unwrap();
-        let val = pairs(&dems, Split::Validation, 1, 5);
+        let val = pairs(&dems, Split::Validation, 1, None, 5);
         assert_eq!(val.len(), 1);
         let v = validate(&generator, &val);
         assert!(v.rmse.is_finite() && v.rmse_baseline.is_finite() && v.rmse_baseline > 0.0, "{v:?}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// On a 30 m DEM the smallest window (32 samples) spans 960 m: a 900 m limit leaves no
+    /// window to cut, a 1,000 m limit leaves the 32-sample one.
+    #[test]
+    fn no_pair_is_cut_from_a_window_wider_than_the_extent_limit() {
+        let dems = vec![synthetic(420, 200, 30.0)];
+        assert_eq!(pairs(&dems, Split::Train, 4, Some(900.0), 3).len(), 0);
+        assert_eq!(pairs(&dems, Split::Train, 4, Some(1000.0), 3).len(), 4);
+    }
+
+    /// A run started from given weights generates what those weights generate on the CPU
+    /// kernels (largest difference below 1e-5 of the 0–1 height scale).
+    #[test]
+    fn a_run_started_from_weights_generates_what_they_generate() {
+        let dems = vec![synthetic(420, 200, 30.0)];
+        let init = SketchGenCpu::randomized(11, 0.05);
+        let cfg = SketchConfig { batch: 1, crop: 32, pool: 1, ..Default::default() };
+        let run = SketchRun::start(cfg, &dems, &Device::flex().autodiff(), None, Some(&init)).unwrap();
+        let x = &pairs(&dems, Split::Validation, 1, None, 5)[0].input;
+        let mut s = SketchScratch::default();
+        let (a, b) = (init.forward(x, SKETCH_PX, &mut s, 1), run.cpu().unwrap().forward(x, SKETCH_PX, &mut s, 1));
+        let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
+        assert!(worst < 1e-5, "largest difference {worst}");
+        assert!(a.iter().any(|v| (v - a[0]).abs() > 1e-4), "the random generator's output is flat");
     }
 }
