@@ -254,6 +254,17 @@ enum Command {
         /// (the format's tiles are 512 m; a new run only).
         #[arg(long)]
         max_extent_m: Option<f64>,
+        /// Also train on the pairs in this folder (the format's 512×256 files, e.g. the sketch
+        /// authors' pairs), in their 8 rotations/flips (a new run only).
+        #[arg(long)]
+        format_pairs: Option<PathBuf>,
+        /// Hold out the files of --format-pairs whose name contains this (repeatable, e.g. an
+        /// area): they are scored at every checkpoint instead of trained on.
+        #[arg(long)]
+        format_exclude: Vec<String>,
+        /// Share (0–1) of each batch's crops taken from --format-pairs.
+        #[arg(long, default_value_t = 0.5)]
+        format_share: f32,
     },
     /// Propose variants of a sketch: sketches with codes near its own in the sketch VAE, each
     /// turned into terrain. Writes variant_K_sketch.png and variant_K_dem.png (16-bit) per
@@ -730,6 +741,9 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
     if !cfg.adversarial.is_finite() || cfg.adversarial < 0.0 {
         return Err(format!("--adversarial must be a finite number ≥ 0, not {}", cfg.adversarial));
     }
+    if !(0.0..=1.0).contains(&cfg.format_share) {
+        return Err(format!("--format-share must be between 0 and 1, not {}", cfg.format_share));
+    }
     if cfg.max_extent_m.is_some_and(|m| !(m.is_finite() && m > 0.0)) {
         return Err(format!("--max-extent-m must be a positive number of metres, not {:?}", cfg.max_extent_m));
     }
@@ -749,6 +763,15 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
     }
     let mut run = sketch::SketchRun::start(cfg, &dems, &device, resume.then_some(checkpoint), init.as_ref())?;
     let val = sketch::pairs(&dems, pairs::Split::Validation, validation, run.cfg.max_extent_m, 0x5EED);
+    // The held-out files of the format's own pairs, scored beside the extracted validation pairs.
+    let held_out = match &run.cfg.format_pairs {
+        Some(dir) if !run.cfg.format_exclude.is_empty() => {
+            let (all, names) = sketch::format_pairs(dir, &[], false)?;
+            let ex = &run.cfg.format_exclude;
+            all.into_iter().zip(names).filter(|(_, n)| ex.iter().any(|x| n.contains(x.as_str()))).map(|(p, _)| p).collect()
+        }
+        _ => Vec::new(),
+    };
     eprintln!("sketch generator: {} parameters; {:?}; from step {}; pool and {} validation pairs made in {:.1} s", run.g.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
     let end = run.progress.step + steps;
     let mut last = None;
@@ -761,6 +784,10 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
         if p.step % every == 0 || p.step == end {
             let v = sketch::validate(&run.cpu()?, &val);
             eprintln!("validation ({} held-out pairs): RMSE {:.3} PSNR {:.2} dB; baseline {:.3} / {:.2} dB", v.pairs, v.rmse, v.psnr, v.rmse_baseline, v.psnr_baseline);
+            if !held_out.is_empty() {
+                let h = sketch::validate(&run.cpu()?, &held_out);
+                eprintln!("held-out format pairs ({}): RMSE {:.3} PSNR {:.2} dB; baseline {:.3} / {:.2} dB", h.pairs, h.rmse, h.psnr, h.rmse_baseline, h.psnr_baseline);
+            }
             run.save(checkpoint, Some(&v))?;
             last = Some(v);
         }
@@ -918,8 +945,9 @@ fn main() -> ExitCode {
         Command::Sketch { input, out, weights } => sketch(&input, &out, weights),
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
-        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m } => {
-            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, max_extent_m, ..Default::default() };
+        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, format_pairs, format_exclude, format_share } => {
+            let format_share = if format_pairs.is_some() { format_share } else { 0.0 };
+            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, max_extent_m, format_pairs, format_exclude, format_share, ..Default::default() };
             train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
         }
         Command::SketchVariants { input, n, out_dir, seed, weights } => sketch_variants(&input, n as usize, &out_dir, seed, weights),

@@ -12,7 +12,7 @@ use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::gan::{self, Disc};
-use super::pairs::{Dem, Rng, Split, fits_square, random_window};
+use super::pairs::{Dem, Rng, Split, dihedral, fits_square, random_window};
 use super::tcm::TcmProgress as Progress;
 use crate::dem::Heightfield;
 use crate::models::sketch::{IN_CHANNELS, SketchGen, SketchGenCpu, SketchScratch, WEIGHT_FILE, assemble_input};
@@ -58,6 +58,37 @@ pub fn random_pair(dems: &[Dem], split: Split, max_extent_m: Option<f64>, rng: &
     let e = extract::extract(&heights)?;
     let (input, _) = assemble_input(&e.sketch);
     Some(Pair { input, target: e.target.iter().map(|v| v / 255.0).collect() })
+}
+
+/// Pairs in the sketch format's own files (512×256 PNG: sketch | 8-bit DEM, e.g. the sketch
+/// authors' pairs) in `dir`, skipping files whose name contains any of `exclude` (a held-out
+/// area); each in all 8 rotations/flips when `augment`. Returns the pairs and the file names
+/// read.
+pub fn format_pairs(dir: &Path, exclude: &[String], augment: bool) -> Result<(Vec<Pair>, Vec<String>), String> {
+    let mut files: Vec<std::path::PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| format!("{}: {e}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
+        .collect();
+    files.sort();
+    let (mut out, mut names) = (Vec::new(), Vec::new());
+    let n = SKETCH_PX;
+    for f in files {
+        let name = f.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+        if exclude.iter().any(|x| name.contains(x.as_str())) {
+            continue;
+        }
+        let file = std::fs::File::open(&f).map_err(|e| format!("{}: {e}", f.display()))?;
+        let (sketch, dem) = crate::sketch::read_pair(std::io::BufReader::new(file)).map_err(|e| format!("{}: {e}", f.display()))?;
+        let (input, _) = assemble_input(&sketch);
+        let target: Vec<f32> = dem.iter().map(|v| v / 255.0).collect();
+        for t in 0..if augment { 8 } else { 1 } {
+            let input = (0..IN_CHANNELS).flat_map(|c| dihedral(&input[c * n * n..(c + 1) * n * n], n, t)).collect();
+            out.push(Pair { input, target: dihedral(&target, n, t) });
+        }
+        names.push(name);
+    }
+    Ok((out, names))
 }
 
 /// `n` pairs from `split` (windows up to `max_extent_m`, see [`random_pair`]), drawn with a
@@ -106,11 +137,21 @@ pub struct SketchConfig {
     /// Largest ground extent (metres) of a training window; `None`: every window side.
     #[serde(default)]
     pub max_extent_m: Option<f64>,
+    /// Folder of pairs in the format's own files trained on beside the extracted ones (see
+    /// [`format_pairs`]); `None`: extracted pairs only.
+    #[serde(default)]
+    pub format_pairs: Option<std::path::PathBuf>,
+    /// Files of [`Self::format_pairs`] whose name contains one of these are held out.
+    #[serde(default)]
+    pub format_exclude: Vec<String>,
+    /// Share (0–1) of each batch's crops taken from [`Self::format_pairs`].
+    #[serde(default)]
+    pub format_share: f32,
 }
 
 impl Default for SketchConfig {
     fn default() -> Self {
-        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1, max_extent_m: None }
+        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1, max_extent_m: None, format_pairs: None, format_exclude: Vec::new(), format_share: 0.0 }
     }
 }
 
@@ -129,6 +170,8 @@ pub struct SketchRun {
     /// Progress so far.
     pub progress: Progress,
     pool: Vec<Pair>,
+    /// Pairs of the format's own files (see [`SketchConfig::format_pairs`]).
+    format: Vec<Pair>,
     device: Device,
 }
 
@@ -162,7 +205,14 @@ impl SketchRun {
         if pool.is_empty() {
             return Err("no DEM gives a NaN-free training window with relief".into());
         }
-        Ok(Self { g, d, og, od, cfg, progress, pool, device: device.clone() })
+        let format = match &cfg.format_pairs {
+            Some(dir) => format_pairs(dir, &cfg.format_exclude, true)?.0,
+            None => Vec::new(),
+        };
+        if cfg.format_share > 0.0 && format.is_empty() {
+            return Err("a share of format pairs was asked for, but no such pair is left to train on".into());
+        }
+        Ok(Self { g, d, og, od, cfg, progress, pool, format, device: device.clone() })
     }
 
     /// One optimiser step of both networks on random crops of the pool; then a few pool pairs
@@ -172,8 +222,13 @@ impl SketchRun {
         let mut rng = Rng(self.cfg.seed.wrapping_mul(0x1_0000_0001) ^ self.progress.step as u64);
         let (b, c, n) = (self.cfg.batch, self.cfg.crop, SKETCH_PX);
         let (mut xs, mut ys) = (Vec::with_capacity(b * IN_CHANNELS * c * c), Vec::with_capacity(b * c * c));
+        let format_per_mille = (self.cfg.format_share.clamp(0.0, 1.0) * 1000.0).round() as usize;
         for _ in 0..b {
-            let p = &self.pool[rng.below(self.pool.len())];
+            let p = if !self.format.is_empty() && rng.below(1000) < format_per_mille {
+                &self.format[rng.below(self.format.len())]
+            } else {
+                &self.pool[rng.below(self.pool.len())]
+            };
             let (x0, y0) = (rng.below(n - c + 1), rng.below(n - c + 1));
             for ch in 0..IN_CHANNELS {
                 for y in y0..y0 + c {
@@ -292,6 +347,37 @@ mod tests {
         assert_eq!(val.len(), 1);
         let v = validate(&generator, &val);
         assert!(v.rmse.is_finite() && v.rmse_baseline.is_finite() && v.rmse_baseline > 0.0, "{v:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A pair file of the format read with augmentation gives its 8 rotations/flips (the first
+    /// one the file itself, heights / 255), and none when its name is excluded.
+    #[test]
+    fn format_pairs_come_in_eight_orientations_and_excluded_names_are_skipped() {
+        let n = SKETCH_PX;
+        let mut sketch = crate::sketch::Sketch::filled(0);
+        let mut rgb = vec![0u8; 2 * n * n * 3];
+        for y in 0..n {
+            for x in 0..n {
+                let band = (x * 4 / n) as u8;
+                sketch.band[y * n + x] = band;
+                let px = crate::sketch::Sketch::encode_pixel(band, false, false);
+                rgb[(y * 2 * n + x) * 3..][..3].copy_from_slice(&px);
+                let h = (x * 255 / (n - 1)) as u8;
+                rgb[(y * 2 * n + n + x) * 3..][..3].copy_from_slice(&[h, h, h]);
+            }
+        }
+        let dir = std::env::temp_dir().join(format!("terrain-format-pairs-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        crate::sketch::write_rgb_png(std::fs::File::create(dir.join("area_000_001.png")).unwrap(), 2 * n as u32, n as u32, &rgb).unwrap();
+        let (pairs, names) = format_pairs(&dir, &[], true).unwrap();
+        assert_eq!((pairs.len(), names.len()), (8, 1));
+        assert_eq!(pairs[0].target[n - 1], 1.0);
+        assert_eq!(pairs[0].target[0], 0.0);
+        assert_eq!(pairs[0].input, assemble_input(&sketch).0);
+        // Flipped left-right (t = 4): the high side is on the left.
+        assert_eq!(pairs[4].target[0], 1.0);
+        assert_eq!(format_pairs(&dir, &["area_000".to_string()], true).unwrap().0.len(), 0);
         let _ = std::fs::remove_dir_all(&dir);
     }
 
