@@ -178,9 +178,52 @@ impl SketchGenCpu {
     /// targets), [`SKETCH_PX`]² row-major.
     pub fn generate(&self, sketch: &Sketch, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
         let (x, _) = assemble_input(sketch);
-        let mut h: Vec<f32> = self.forward(&x, SKETCH_PX, s, threads).into_iter().map(|v| v * 255.0).collect();
-        baseline::stretch(&mut h);
-        h
+        to_format_scale(self.forward(&x, SKETCH_PX, s, threads))
+    }
+}
+
+/// The network's output (heights / 255) on the format's 0–255 scale, stretched to span it like
+/// the targets.
+fn to_format_scale(out: Vec<f32>) -> Vec<f32> {
+    let mut h: Vec<f32> = out.into_iter().map(|v| v * 255.0).collect();
+    baseline::stretch(&mut h);
+    h
+}
+
+/// The sketch generator on burn's wgpu backend (WebGPU in the page on a hardware adapter,
+/// Vulkan natively): the same network and weight file as [`SketchGenCpu`], for the page's
+/// strokes when it has a GPU.
+#[derive(Debug)]
+pub struct SketchGenGpu {
+    model: SketchGen,
+    device: Device,
+}
+
+impl SketchGenGpu {
+    /// Reads a generator weight file (burnpack, float32 or float16) onto `device`.
+    pub fn from_burnpack(bytes: &[u8], device: &Device) -> Result<Self, String> {
+        let model = crate::models::load_burnpack(SketchGen::new(device), bytes).map_err(|e| format!("{WEIGHT_FILE}: {e}"))?;
+        Ok(Self { model, device: device.clone() })
+    }
+
+    /// The queued computation for `sketch` (read back by the callers).
+    fn launch(&self, sketch: &Sketch) -> Tensor<4> {
+        let (x, _) = assemble_input(sketch);
+        let x = Tensor::<4>::from_data(burn::tensor::TensorData::new(x, [1, IN_CHANNELS, SKETCH_PX, SKETCH_PX]), &self.device);
+        self.model.forward(x)
+    }
+
+    /// [`SketchGenCpu::generate`] on the GPU, with an asynchronous readback (as browsers
+    /// require for GPU buffers).
+    pub async fn generate_async(&self, sketch: &Sketch) -> Result<Vec<f32>, String> {
+        let data = self.launch(sketch).into_data_async().await.map_err(|e| format!("GPU readback failed: {e:?}"))?;
+        Ok(to_format_scale(data.try_to_vec::<f32>().map_err(|e| format!("unexpected result type: {e:?}"))?))
+    }
+
+    /// [`Self::generate_async`] with a blocking readback (native).
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn generate_blocking(&self, sketch: &Sketch) -> Result<Vec<f32>, String> {
+        Ok(to_format_scale(self.launch(sketch).into_data().try_to_vec::<f32>().map_err(|e| format!("unexpected result type: {e:?}"))?))
     }
 }
 

@@ -121,17 +121,7 @@ fn read_weight_file(dir: &std::path::Path, k: usize) -> Result<Vec<u8>, String> 
 
 /// One burn model from burnpack bytes (level `k`, for the error message).
 fn load_model(bytes: &[u8], k: usize, device: &Device) -> Result<Tem, String> {
-    use burn::store::{BurnpackStore, FloatCastAdapter, ModuleSnapshot};
-    let mut m = Tem::new(device);
-    // The shipped files store float16 (half the download), training writes float32: every
-    // float tensor becomes the model's float32 on load.
-    let mut store = BurnpackStore::from_bytes(Some(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec())))
-        .with_from_adapter(FloatCastAdapter::to(burn::tensor::DType::F32));
-    let r = m.load_from(&mut store).map_err(|e| format!("{}: {e:?}", weight_file(k)))?;
-    if !r.missing.is_empty() {
-        return Err(format!("{}: missing tensors {:?}", weight_file(k), r.missing));
-    }
-    Ok(m)
+    super::load_burnpack(Tem::new(device), bytes).map_err(|e| format!("{}: {e}", weight_file(k)))
 }
 
 /// Where a [`TemSet`] runs.

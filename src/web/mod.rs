@@ -148,14 +148,35 @@ struct Ml {
     sketch_busy: bool,
     /// Blends that came back and were drawn.
     blends: u32,
+    /// The shared GPU device when the models run on it (a hardware adapter, or `?tem=gpu`).
+    gpu: Option<burn::tensor::Device>,
+    /// The sketch generator on that device (strokes are made there; variants and blends, and
+    /// strokes without it, in the CPU worker).
+    sketch_gpu: Option<Rc<crate::models::sketch::SketchGenGpu>>,
 }
 
-/// Loads the sketch models (generator and VAE, fetched at once) into the CPU worker and
-/// records their hash, or why they are not available, in `ml`.
+/// Loads the sketch models (generator and VAE, fetched at once) into the CPU worker, and the
+/// generator onto the GPU when the models run there, and records their hash, or why they are
+/// not available, in `ml`. A generator that fails on the GPU leaves the strokes to the worker.
 async fn start_sketch(worker: Result<Rc<worker::CpuWorker>, String>, ml: Rc<RefCell<Ml>>) {
     let files = [crate::models::sketch::WEIGHT_FILE, crate::models::sketch_vae::WEIGHT_FILE];
-    let result = load_pair(files, worker, |w, a, b| async move { w.load_sketch(&a, &b).await }).await;
-    ml.borrow_mut().sketch = Some(Some(result));
+    let gpu = ml.borrow().gpu.clone();
+    let on_gpu = Rc::new(RefCell::new(None));
+    let slot = on_gpu.clone();
+    let result = load_pair(files, worker, |w, a, b| async move {
+        if let Some(device) = gpu {
+            *slot.borrow_mut() = Some(crate::models::sketch::SketchGenGpu::from_burnpack(&a, &device));
+        }
+        w.load_sketch(&a, &b).await
+    })
+    .await;
+    let mut ml = ml.borrow_mut();
+    match on_gpu.take() {
+        Some(Ok(g)) if result.is_ok() => ml.sketch_gpu = Some(Rc::new(g)),
+        Some(Err(e)) => web_sys::console::warn_1(&format!("the sketch generator could not run on the GPU ({e}); strokes go to the CPU worker").into()),
+        _ => {}
+    }
+    ml.sketch = Some(Some(result));
 }
 
 /// The page's CPU inference worker, started once (and kept when a lost device restarts the
@@ -290,6 +311,9 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, cho
         Err(e) => Err(e),
     };
     let chosen = runtime::choose(choice, gpu.as_ref().map(|_| ()).map_err(Clone::clone), software);
+    if let (Ok(device), true) = (&gpu, chosen.is_gpu()) {
+        ml.borrow_mut().gpu = Some(device.clone());
+    }
     if let Backend::Cpu(CpuReason::NoGpuCompute(e)) = &chosen {
         ml.borrow_mut().status = format!("{e}; the TEM runs on the CPU");
     }
@@ -710,11 +734,27 @@ impl WebApp {
                 ml.sketch_busy = false;
             });
         }
+        let on_gpu = ml.sketch_gpu.clone();
         drop(ml);
         for (job, sketch) in self.app.sketch_jobs() {
-            let (w, shared) = (w.clone(), self.ml.clone());
+            let (w, shared, on_gpu) = (w.clone(), self.ml.clone(), on_gpu.clone());
             wasm_bindgen_futures::spawn_local(async move {
-                let out = w.sketch(&sketch).await.map_err(|e| e.to_string());
+                let t0 = now_ms();
+                let on_gpu = match on_gpu {
+                    Some(g) => Some(g.generate_async(&sketch).await),
+                    None => None,
+                };
+                let out = match on_gpu {
+                    Some(Ok(h)) => Ok((h, now_ms() - t0)),
+                    gpu_failed => {
+                        if let Some(Err(e)) = gpu_failed {
+                            // The GPU failed: this stroke and the next ones go to the worker.
+                            web_sys::console::warn_1(&format!("the sketch generator failed on the GPU ({e}); strokes go to the CPU worker").into());
+                            shared.borrow_mut().sketch_gpu = None;
+                        }
+                        w.sketch(&sketch).await.map_err(|e| e.to_string())
+                    }
+                };
                 shared.borrow_mut().sketches.push((job, out));
             });
         }
@@ -1082,6 +1122,7 @@ impl eframe::App for WebApp {
             // draw on it.
             "sketch_canvas": self.sketch_panel.canvas_rect.filter(|_| self.app.source() == crate::world::SourceKind::Sketch).map(|r| [r.min.x, r.min.y, r.width(), r.height()]),
             "sketch_models": format!("{:?}", self.app.sketch_models()),
+            "sketch_backend": if self.ml.borrow().sketch_gpu.is_some() { "WebGPU" } else { "CPU worker" },
             "sketch_variants": self.sketch_panel.variant_count(),
             "sketch_blends": self.ml.borrow().blends,
             "link_too_long": self.link_too_long,

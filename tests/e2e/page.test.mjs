@@ -582,9 +582,35 @@ async function tileHeights(page, i, j) {
   throw new Error(`tile ${i}, ${j} never arrived`);
 }
 
+/** Largest |Δh| (m) between the page's four sketch tiles and the native CLI's `terrain sketch`
+ * on the sketch of `link` (its 16-bit output scaled by the link's relief). */
+async function nativeSketchDh(page, link, name) {
+  const linked = path.join(out, `${name}_sketch.png`);
+  const sk = decodeSketch(sketchCode(link));
+  const img = new PNG({ width: 256, height: 256 });
+  sk.forEach((n, p) => { img.data.set([n & 4 ? 255 : 0, [63, 127, 191, 255][n & 3], n & 8 ? 255 : 0, 255], 4 * p); });
+  fs.writeFileSync(linked, PNG.sync.write(img));
+  const dem = path.join(out, `${name}_dem.png`);
+  execFileSync(nativeBin, ['sketch', '--input', linked, '--out', dem, '--weights', path.join(repo, 'weights')]);
+  const native = PNG.sync.read(fs.readFileSync(dem), { skipRescale: true });
+  const relief = Number(new URLSearchParams(link).get('relief'));
+  let worst = 0;
+  for (const [i, j] of [[-1, -1], [0, -1], [-1, 0], [0, 0]]) {
+    const a = await tileHeights(page, i, j);
+    for (let k = 0; k < a.length; k++) {
+      const u = (i + 1) * 128 + (k % 128), v = (j + 1) * 128 + Math.floor(k / 128);
+      const n = native.data[4 * (v * 256 + u)]; // pngjs keeps 16 bits as RGBA Uint16
+      worst = Math.max(worst, Math.abs(a[k] - (n / 65535) * relief));
+    }
+  }
+  return worst;
+}
+
 test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, clear, export/import, variants, the blend slider; a link reproduces the terrain and a too-long one gives a message and the sketch file', async () => {
   const { page, errors } = await open(SKETCH_VIEW, '', BIG);
   let s = await waitFor(page, (s) => s.sketch_models.startsWith('Ready') && s.stats.sketch_shown > 0 && shownNow(s) && s.sketch_canvas, 'the first sketch terrain');
+  // A software adapter (SwiftShader): strokes are made by the CPU worker.
+  assert.equal(s.sketch_backend, 'CPU worker');
   const [cx, cy, cw] = s.sketch_canvas;
   const at = (u, v) => [cx + (u / 256) * cw, cy + (v / 256) * cw];
   // A scripted drawing: 8 strokes of the default tool (band 2, 12 px); for each, the time from
@@ -654,26 +680,9 @@ test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, cle
     assert.equal(a.length, 128 * 128);
     for (let k = 0; k < a.length; k++) worst = Math.max(worst, Math.abs(a[k] - b[k]));
   }
-  // And the native CLI on the same sketch: the page's sketch tiles vs `terrain sketch` (its
-  // 16-bit output scaled by the relief).
-  const linked = path.join(out, 'linked_sketch.png');
-  const sk = decodeSketch(sketchCode(link));
-  const img = new PNG({ width: 256, height: 256 });
-  sk.forEach((n, p) => { img.data.set([n & 4 ? 255 : 0, [63, 127, 191, 255][n & 3], n & 8 ? 255 : 0, 255], 4 * p); });
-  fs.writeFileSync(linked, PNG.sync.write(img));
-  const dem = path.join(out, 'linked_dem.png');
-  execFileSync(nativeBin, ['sketch', '--input', linked, '--out', dem, '--weights', path.join(repo, 'weights')]);
-  const native = PNG.sync.read(fs.readFileSync(dem), { skipRescale: true });
+  // And the native CLI on the same sketch.
+  const worstNative = await nativeSketchDh(page, link, 'linked');
   const relief = Number(new URLSearchParams(link).get('relief'));
-  let worstNative = 0;
-  for (const [i, j] of [[-1, -1], [0, -1], [-1, 0], [0, 0]]) {
-    const a = await tileHeights(page, i, j);
-    for (let k = 0; k < a.length; k++) {
-      const u = (i + 1) * 128 + (k % 128), v = (j + 1) * 128 + Math.floor(k / 128);
-      const n = native.data[4 * (v * 256 + u)]; // pngjs keeps 16 bits as RGBA Uint16
-      worstNative = Math.max(worstNative, Math.abs(a[k] - (n / 65535) * relief));
-    }
-  }
   report.sketch.link_chars = link.length;
   report.sketch.sketch_code_chars = sketchCode(link).length;
   report.sketch.link_max_dh_m = worst;
@@ -711,4 +720,28 @@ test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, cle
   assert.deepEqual(other.errors, []);
   await page.close();
   await other.page.close();
+});
+
+test('sketch to terrain on WebGPU (?tem=gpu): a stroke is made on the GPU and matches the native CLI', async () => {
+  const { page, errors } = await open(SKETCH_VIEW, '?tem=gpu', BIG);
+  let s = await waitFor(page, (q) => q.sketch_models.startsWith('Ready') && q.sketch_backend === 'WebGPU' && q.stats.sketch_shown > 0 && shownNow(q) && q.sketch_canvas, 'the first sketch terrain on WebGPU', 300_000);
+  const first = s.stats.sketch_ms;
+  // One stroke of the default tool: its terrain comes from the GPU too.
+  const [cx, cy, cw] = s.sketch_canvas;
+  const at = (u, v) => [cx + (u / 256) * cw, cy + (v / 256) * cw];
+  const before = s.stats.sketch_revision;
+  await page.mouse.move(...at(60, 60));
+  await page.mouse.down();
+  for (let t = 1; t <= 6; t++) await page.mouse.move(...at(60 + 12 * t, 60 + 16 * t));
+  const t0 = Date.now();
+  await page.mouse.up();
+  s = await waitFor(page, (q) => q.stats.sketch_revision > before && shownNow(q), 'the stroke terrain on WebGPU', 300_000);
+  const strokeMs = Date.now() - t0;
+  assert.equal(s.sketch_backend, 'WebGPU');
+  const relief = Number(new URLSearchParams(s.link).get('relief'));
+  const dh = await nativeSketchDh(page, s.link, 'webgpu');
+  report.sketch_webgpu = { adapter: s.adapter, first_generator_ms: first, stroke_generator_ms: s.stats.sketch_ms, stroke_to_terrain_ms: strokeMs, native_max_dh_m: dh };
+  assert.ok(dh < (relief / 65535) * 0.5 + 0.05, `WebGPU page vs native CLI: ${dh} m`);
+  assert.deepEqual(errors, []);
+  await page.close();
 });
