@@ -33,6 +33,8 @@ pub struct Environment {
     pub triangles: usize,
     /// CPU time of the last frame's streaming, selection and draw encoding (milliseconds).
     pub cpu_ms: f64,
+    /// Where the sketch generator runs ("WebGPU" or "CPU worker").
+    pub sketch_backend: String,
 }
 
 /// What the user asked for this frame.
@@ -102,6 +104,9 @@ impl Overlay {
             }
             ui.label(format!("ML: {}", env.ml_status));
             ui.label(format!("Source: {}", env.source));
+            if stats.source == SourceKind::Sketch.label() && stats.sketch_shown > 0 {
+                ui.monospace(format!("sketch → terrain {:.0} ms on {}", stats.sketch_ms, env.sketch_backend));
+            }
             if stats.source == SourceKind::Learned.label() {
                 ui.monospace(format!("tile queue {} waiting, {} in flight, {:.0} ms/tile", stats.tiles_pending.saturating_sub(stats.tile_jobs.in_flight), stats.tile_jobs.in_flight, stats.ms_per_tile));
             }

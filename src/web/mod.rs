@@ -1050,6 +1050,7 @@ impl eframe::App for WebApp {
             self.env.tem_loading = ml.loading.map(|k| (k, LEVELS));
             self.env.tem_error = ml.error.clone();
             self.env.tem_ready = ml.tem.is_some();
+            self.env.sketch_backend = if ml.sketch_gpu.is_some() { "WebGPU" } else { "CPU worker" }.into();
         }
         self.env.source = self.app.source_name();
         let mode = self.app.controller.mode;
@@ -1122,7 +1123,7 @@ impl eframe::App for WebApp {
             // draw on it.
             "sketch_canvas": self.sketch_panel.canvas_rect.filter(|_| self.app.source() == crate::world::SourceKind::Sketch).map(|r| [r.min.x, r.min.y, r.width(), r.height()]),
             "sketch_models": format!("{:?}", self.app.sketch_models()),
-            "sketch_backend": if self.ml.borrow().sketch_gpu.is_some() { "WebGPU" } else { "CPU worker" },
+            "sketch_backend": self.env.sketch_backend,
             "sketch_variants": self.sketch_panel.variant_count(),
             "sketch_blends": self.ml.borrow().blends,
             "link_too_long": self.link_too_long,

@@ -739,6 +739,7 @@ test('sketch to terrain on WebGPU (?tem=gpu): a stroke is made on the GPU and ma
   const strokeMs = Date.now() - t0;
   assert.equal(s.sketch_backend, 'WebGPU');
   const relief = Number(new URLSearchParams(s.link).get('relief'));
+  await page.screenshot({ path: path.join(out, 'sketch_webgpu.png.screenshot.png') });
   const dh = await nativeSketchDh(page, s.link, 'webgpu');
   report.sketch_webgpu = { adapter: s.adapter, first_generator_ms: first, stroke_generator_ms: s.stats.sketch_ms, stroke_to_terrain_ms: strokeMs, native_max_dh_m: dh };
   assert.ok(dh < (relief / 65535) * 0.5 + 0.05, `WebGPU page vs native CLI: ${dh} m`);
