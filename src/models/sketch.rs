@@ -130,14 +130,7 @@ impl SketchGenCpu {
     #[cfg(feature = "train")]
     pub fn into_model(&self, m: SketchGen) -> SketchGen {
         let mut m = m;
-        let mut k = 0;
-        for st in m.enc.iter_mut().chain(m.dec.iter_mut()) {
-            for c in st.convs_mut() {
-                cpu::conv_into_burn(&self.convs[k], c);
-                k += 1;
-            }
-        }
-        cpu::conv_into_burn(&self.convs[k], &mut m.out);
+        crate::models::tcm::unet_into_burn(&self.convs, &mut m.enc, &mut m.dec, &mut m.out);
         m
     }
 

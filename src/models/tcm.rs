@@ -199,6 +199,18 @@ impl Stage {
     }
 }
 
+/// Writes `convs` (network order: the encoder's and decoder's stages, then the output
+/// convolution) into the burn layers of a UNet of [`Stage`]s (the TCM's and the sketch
+/// generator's `into_model`).
+#[cfg(feature = "train")]
+pub(crate) fn unet_into_burn(convs: &[Conv3], enc: &mut [Stage], dec: &mut [Stage], out: &mut Conv2d) {
+    let layers: Vec<&mut Conv2d> = enc.iter_mut().chain(dec.iter_mut()).flat_map(|st| st.convs_mut()).chain([out]).collect();
+    assert_eq!(convs.len(), layers.len(), "one set of weights per convolution");
+    for (c, layer) in convs.iter().zip(layers) {
+        cpu::conv_into_burn(c, layer);
+    }
+}
+
 /// 2×2 mean pooling of [B, C, H, W] (H, W even).
 pub fn pool2(x: Tensor<4>) -> Tensor<4> {
     let [b, c, h, w] = x.dims();
@@ -340,14 +352,7 @@ impl TcmCpu {
     #[cfg(feature = "train")]
     pub fn into_model(&self, m: Tcm) -> Tcm {
         let mut m = m;
-        let mut k = 0;
-        for st in m.enc.iter_mut().chain(m.dec.iter_mut()) {
-            for c in st.convs_mut() {
-                cpu::conv_into_burn(&self.convs[k], c);
-                k += 1;
-            }
-        }
-        cpu::conv_into_burn(&self.convs[k], &mut m.out);
+        unet_into_burn(&self.convs, &mut m.enc, &mut m.dec, &mut m.out);
         m
     }
 
