@@ -176,6 +176,18 @@ enum Command {
         /// of the made tile and of the real one (a new run only; 0: none).
         #[arg(long, default_value_t = 0.0)]
         coarse: f32,
+        /// Weight of the L1 term far from any given neighbour, and everywhere in phase-0
+        /// windows (no neighbour given); a new run only; 1: full L1 everywhere.
+        #[arg(long, default_value_t = 1.0)]
+        free_l1: f32,
+        /// Reach (samples at 128 m) of the full L1 weight from the given neighbours: beyond
+        /// it L1 fades to --free-l1 (a new run only; 0: full L1 wherever a neighbour is given).
+        #[arg(long, default_value_t = 0.0)]
+        l1_reach: f32,
+        /// Judge each made tile joined to its given neighbours, as the world shows it (a new
+        /// run only).
+        #[arg(long)]
+        joined: bool,
         /// Train only the TCM; the ×4 step's checkpoint stays as it is.
         #[arg(long)]
         tcm_only: bool,
@@ -511,9 +523,9 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse]: [f32; 4], init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
+fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach]: [f32; 6], joined: bool, init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
     use terrain::train::{grow, pairs, tcm};
-    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage), ("--coarse", coarse)] {
+    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage), ("--coarse", coarse), ("--free-l1", free_l1), ("--l1-reach", l1_reach)] {
         if !w.is_finite() || w < 0.0 {
             return Err(format!("{flag} must be a finite number ≥ 0, not {w}"));
         }
@@ -540,7 +552,7 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
         }
     }
     let device = burn::tensor::Device::flex().autodiff();
-    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, ..Default::default() };
+    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, free_l1, l1_reach_px: l1_reach, joined, ..Default::default() };
     let from = resume.then_some(checkpoint);
     let start = match init {
         Some(dir) => {
@@ -956,8 +968,8 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
         #[cfg(feature = "train")]
-        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, tcm_only } => {
-            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse], init.as_deref(), tcm_only)
+        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, free_l1, l1_reach, joined, tcm_only } => {
+            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach], joined, init.as_deref(), tcm_only)
         }
     };
     match result {

@@ -12,6 +12,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use super::gan::{self, Disc};
 use super::pairs::{Dem, Grid, Rng, Split, grids_at, random_window};
 use crate::dem::Heightfield;
+use crate::world::seam;
 use crate::models::tcm::{CONTEXT_PX, COARSE_SPACING_M, HEIGHT_SCALE_M, IN_CHANNELS, RUGGEDNESS_BOX_PX, TILE_PX, Tcm, TcmCpu, assemble_input, centre, phase_mask, tile_ruggedness};
 use burn::tensor::module::avg_pool2d;
 use burn::tensor::ops::AvgPoolOptions;
@@ -152,11 +153,30 @@ pub struct TcmConfig {
     /// read 0.
     #[serde(default)]
     pub coarse: f32,
+    /// Factor on the L1 term for windows of phase 0 (no neighbour given: the centre is free, so
+    /// its L1 target is one of many plausible tiles and pulls towards their smooth mean);
+    /// the other phases keep the full L1 term. Runs saved before it existed read 1.
+    #[serde(default = "one")]
+    pub free_l1: f32,
+    /// Reach (samples at 128 m) of the full L1 weight from the given neighbours
+    /// ([`l1_weight_map`]); 0: every window with a neighbour weighs L1 fully. Runs saved
+    /// before it existed read 0.
+    #[serde(default)]
+    pub l1_reach_px: f32,
+    /// Train on the tiles as the world shows them: each made tile joined to its given side
+    /// neighbours ([`joined_offsets`]) before the losses see it. Runs saved before it existed
+    /// read false.
+    #[serde(default)]
+    pub joined: bool,
+}
+
+fn one() -> f32 {
+    1.0
 }
 
 impl Default for TcmConfig {
     fn default() -> Self {
-        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0, drainage: 0.0, coarse: 0.0 }
+        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0, drainage: 0.0, coarse: 0.0, free_l1: 1.0, l1_reach_px: 0.0, joined: false }
     }
 }
 
@@ -342,6 +362,71 @@ fn with_centre(real: Tensor<4>, tile: Tensor<4>) -> Tensor<4> {
     real.slice_assign([0..tile.dims()[0], 0..1, t..2 * t, t..2 * t], tile)
 }
 
+/// Weight of the L1 term at each sample of the centre tile ([`TILE_PX`]², row-major) for a
+/// window whose given neighbours are `mask` ([`phase_mask`] order): `free` + (1 − `free`) ·
+/// exp(−d / `reach_px`), d the distance (samples at 128 m) to the nearest given neighbour.
+/// Where the neighbours fix the answer (near them) L1 counts fully; far from them the centre
+/// is one of many plausible tiles, and L1 towards the real one pulls towards their smooth
+/// mean, so it counts `free` and the adversarial term shapes the tile. No neighbour: `free`
+/// everywhere; `reach_px` 0: 1 everywhere if any neighbour is given.
+pub fn l1_weight_map(mask: &[bool; 9], free: f32, reach_px: f32) -> Vec<f32> {
+    let t = TILE_PX as f32;
+    let mut w = vec![free; TILE_PX * TILE_PX];
+    if !mask.iter().any(|&m| m) {
+        return w;
+    }
+    if reach_px <= 0.0 {
+        w.fill(1.0);
+        return w;
+    }
+    for (p, w) in w.iter_mut().enumerate() {
+        let (x, y) = (t + (p % TILE_PX) as f32 + 0.5, t + (p / TILE_PX) as f32 + 0.5);
+        let d = (0..9).filter(|&k| mask[k]).map(|k| {
+            let (x0, y0) = ((k % 3) as f32 * t, (k / 3) as f32 * t);
+            let dx = (x0 - x).max(x - (x0 + t)).max(0.0);
+            let dy = (y0 - y).max(y - (y0 + t)).max(0.0);
+            dx.hypot(dy)
+        });
+        let d = d.fold(f32::INFINITY, f32::min);
+        *w = free + (1.0 - free) * (-d / reach_px).exp();
+    }
+    w
+}
+
+/// The mean |`made` − `real`| over a batch of centre tiles [B, 1, T, T] weighted sample by
+/// sample by `weights` (B·T², [`l1_weight_map`] per window) and divided by their sum; equal
+/// weights give the plain mean. [1].
+pub fn weighted_l1(made: Tensor<4>, real: Tensor<4>, weights: Vec<f32>) -> Tensor<1> {
+    let dims = made.dims();
+    let total: f32 = weights.iter().sum();
+    let w = tensor(weights.iter().map(|v| v / total.max(1e-6)).collect(), dims, &made.device());
+    ((made - real).abs() * w).sum()
+}
+
+/// What the world's join ([`seam::join_edges`]) adds to each made centre tile of a batch:
+/// `made` (B·[`TILE_PX`]²) next to the real windows `real` (B·[`CONTEXT_PX`]²) whose side
+/// tiles are given where `masks` says (the four sides only, as in the world). Added to the
+/// generator's output as a constant (the gradient passes straight through), so the losses and
+/// the discriminator judge the tile as the world shows it, while the generator learns as if
+/// its own output were moved. B·[`TILE_PX`]².
+pub fn joined_offsets(made: &[f32], real: &[f32], masks: &[[bool; 9]]) -> Vec<f32> {
+    let (t2, c2) = (TILE_PX * TILE_PX, CONTEXT_PX * CONTEXT_PX);
+    let mut out = vec![0f32; made.len()];
+    for (b, mask) in masks.iter().enumerate() {
+        let window = &real[b * c2..(b + 1) * c2];
+        let tiles: Vec<Option<Vec<f32>>> = seam::SIDES.iter().map(|&(di, dj)| {
+            let t = ((dj + 1) * 3 + di + 1) as usize;
+            mask[t].then(|| tile_of(window, t))
+        }).collect();
+        let mut tile = made[b * t2..(b + 1) * t2].to_vec();
+        seam::join_edges(&mut tile, TILE_PX, std::array::from_fn(|k| tiles[k].as_deref()));
+        for (o, (j, m)) in out[b * t2..(b + 1) * t2].iter_mut().zip(tile.iter().zip(&made[b * t2..(b + 1) * t2])) {
+            *o = j - m;
+        }
+    }
+    out
+}
+
 /// Starts a run on `device` (an autodiff device): resumes the checkpoint in `resume_from`, or
 /// else starts the generator from `init` (weights the CPU kernels read, e.g.
 /// [`TcmCpu::widened`]) or from random weights.
@@ -374,7 +459,7 @@ impl TcmRun {
         let t0 = web_time::Instant::now();
         let mut rng = Rng(self.cfg.seed.wrapping_mul(0x1_0000_0001) ^ self.progress.step as u64);
         let b = self.cfg.batch;
-        let (mut inputs, mut reals) = (Vec::new(), Vec::new());
+        let (mut inputs, mut reals, mut l1_weights, mut masks) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let mut tries = 0;
         while reals.len() < b * CONTEXT_PX * CONTEXT_PX && tries < b * 20 {
             tries += 1;
@@ -383,6 +468,8 @@ impl TcmRun {
             if let Some(s) = sample(&g.hf, Split::Train, phase, &mut rng) {
                 inputs.extend(s.input);
                 reals.extend(s.real);
+                l1_weights.extend(l1_weight_map(&phase_mask(s.phase), self.cfg.free_l1, self.cfg.l1_reach_px));
+                masks.push(phase_mask(s.phase));
             }
         }
         let n = reals.len() / (CONTEXT_PX * CONTEXT_PX);
@@ -394,7 +481,12 @@ impl TcmRun {
         let real = tensor(reals, [n, 1, CONTEXT_PX, CONTEXT_PX], dev);
         let cond = Tensor::cat(vec![x.clone().narrow(1, 4, 1), x.clone().narrow(1, 7, 1)], 1);
         let truth = centre(real.clone(), TILE_PX);
-        let fake = self.g.forward(x);
+        let mut fake = self.g.forward(x);
+        if self.cfg.joined {
+            let values = |t: Tensor<4>| t.detach().into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"));
+            let offsets = joined_offsets(&values(fake.clone())?, &values(real.clone())?, &masks);
+            fake = fake + tensor(offsets, [n, 1, TILE_PX, TILE_PX], dev);
+        }
         let adv_w = self.cfg.adversarial;
         let (mut adv_v, mut disc_v) = (0.0, 0.0);
         if adv_w > 0.0 {
@@ -402,7 +494,7 @@ impl TcmRun {
             let fake_in = Tensor::cat(vec![with_centre(real.clone(), fake.clone().detach()), cond.clone()], 1);
             disc_v = gan::disc_step(&mut self.d, &mut self.od, self.cfg.lr * 0.5, real_in, fake_in, CENTRE);
         }
-        let l1 = (fake.clone() - truth).abs().mean();
+        let l1 = weighted_l1(fake.clone(), truth, l1_weights);
         let l1_v = l1.clone().into_scalar::<f32>() as f64;
         let mut loss = l1 * L1_WEIGHT;
         if self.cfg.ruggedness > 0.0 {
@@ -522,6 +614,63 @@ mod tests {
         assert!((gap - 0.25).abs() < 1e-6, "{gap}");
         let checker: Vec<f32> = (0..t * t).map(|p| base[p] + if (p % t + p / t) % 2 == 0 { 0.5 } else { -0.5 }).collect();
         assert!(coarse_gap(tensor(checker, [1, 1, t, t], &device), a).into_scalar::<f32>() < 1e-6);
+    }
+
+    /// Windows with errors 1 and 3: equal weights give the plain mean 2; weights 0.25 and 1
+    /// give (0.25·1 + 3) / 1.25 = 2.6; weight 0 on the first leaves the second's 3.
+    #[test]
+    fn weighted_l1_weights_each_sample_and_divides_by_the_weights_sum() {
+        let device = Device::flex();
+        let n = TILE_PX * TILE_PX;
+        let made = tensor([vec![1.0; n], vec![-3.0; n]].concat(), [2, 1, TILE_PX, TILE_PX], &device);
+        let real = tensor(vec![0.0; 2 * n], [2, 1, TILE_PX, TILE_PX], &device);
+        for (w, want) in [([1.0, 1.0], 2.0), ([0.25, 1.0], 2.6), ([0.0, 1.0], 3.0)] {
+            let weights = [vec![w[0]; n], vec![w[1]; n]].concat();
+            let got = weighted_l1(made.clone(), real.clone(), weights).into_scalar::<f32>();
+            assert!((got - want).abs() < 1e-5, "{w:?}: {got}");
+        }
+    }
+
+    /// Phase 0 (no neighbour) weighs L1 by `free` everywhere; with only the −x neighbour
+    /// given and reach 4, the first column (0.5 samples from it) weighs
+    /// 0.1 + 0.9·e^(−1/8) ≈ 0.894 and the last (31.5 samples away) 0.1 + 0.9·e^(−7.875)
+    /// ≈ 0.1003; reach 0 weighs 1 everywhere.
+    #[test]
+    fn l1_weight_map_is_free_far_from_the_given_neighbours_and_full_beside_them() {
+        assert!(l1_weight_map(&[false; 9], 0.1, 4.0).iter().all(|&w| w == 0.1));
+        let mut left = [false; 9];
+        left[3] = true;
+        let w = l1_weight_map(&left, 0.1, 4.0);
+        let want_first = 0.1 + 0.9 * (-0.125f32).exp();
+        let want_last = 0.1 + 0.9 * (-7.875f32).exp();
+        for row in [0, 17, TILE_PX - 1] {
+            assert!((w[row * TILE_PX] - want_first).abs() < 1e-5, "{}", w[row * TILE_PX]);
+            assert!((w[row * TILE_PX + TILE_PX - 1] - want_last).abs() < 1e-5);
+        }
+        assert!(l1_weight_map(&left, 0.1, 0.0).iter().all(|&w| w == 1.0));
+    }
+
+    /// A made tile 5 units below the plane its given −x neighbour continues is moved up by 5
+    /// at its −x edge (the join's membrane fixes that edge) and not at all in phase 0; the
+    /// offsets are the world's join, applied to the tile beside the real window.
+    #[test]
+    fn joined_offsets_are_what_the_worlds_join_adds() {
+        let c = CONTEXT_PX;
+        let real: Vec<f32> = (0..c * c).map(|p| (p % c) as f32 * 0.01).collect();
+        let made: Vec<f32> = (0..TILE_PX * TILE_PX).map(|p| (TILE_PX + p % TILE_PX) as f32 * 0.01 - 5.0).collect();
+        let mut left = [false; 9];
+        left[3] = true;
+        let off = joined_offsets(&[made.clone(), made.clone()].concat(), &[real.clone(), real].concat(), &[left, [false; 9]]);
+        for row in [0, 16, TILE_PX - 1] {
+            assert!((off[row * TILE_PX] - 5.0).abs() < 1e-4, "{}", off[row * TILE_PX]);
+        }
+        assert!(off[TILE_PX * TILE_PX..].iter().all(|&o| o == 0.0));
+        let mut want = made.clone();
+        let nb = tile_of(&(0..c * c).map(|p| (p % c) as f32 * 0.01).collect::<Vec<_>>(), 3);
+        seam::join_edges(&mut want, TILE_PX, [Some(&nb), None, None, None]);
+        for p in 0..TILE_PX * TILE_PX {
+            assert!((made[p] + off[p] - want[p]).abs() < 1e-5);
+        }
     }
 
     /// A tilted plane has a dome height of 0 (to 1e-9); the paraboloid 100 − r² (r in
