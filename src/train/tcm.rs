@@ -168,6 +168,9 @@ pub struct TcmConfig {
     /// read false.
     #[serde(default)]
     pub joined: bool,
+    /// Weight of the dome term ([`dome_gap`]; 0: none). Runs saved before it existed read 0.
+    #[serde(default)]
+    pub dome: f32,
 }
 
 fn one() -> f32 {
@@ -176,7 +179,7 @@ fn one() -> f32 {
 
 impl Default for TcmConfig {
     fn default() -> Self {
-        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0, drainage: 0.0, coarse: 0.0, free_l1: 1.0, l1_reach_px: 0.0, joined: false }
+        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0, drainage: 0.0, coarse: 0.0, free_l1: 1.0, l1_reach_px: 0.0, joined: false, dome: 0.0 }
     }
 }
 
@@ -233,6 +236,38 @@ pub const COARSE_BLOCK_PX: usize = 8;
 pub fn coarse_gap(made: Tensor<4>, real: Tensor<4>) -> Tensor<1> {
     let pool = |t: Tensor<4>| avg_pool2d(t, AvgPoolOptions::new([COARSE_BLOCK_PX, COARSE_BLOCK_PX]).with_stride([COARSE_BLOCK_PX, COARSE_BLOCK_PX]));
     (pool(made) - pool(real)).abs().mean()
+}
+
+/// Per schedule phase present in a batch of centre tiles [B, 1, T, T] (`phases`, B values),
+/// |mean [`dome_height`] of the made tiles − that of the real ones|, weighted by the phase's
+/// share of the batch and summed. [1]. The PatchGAN judges patches, not a whole tile's
+/// shape, and far from the neighbours L1 weighs little ([`l1_weight_map`]): this term keeps
+/// the made tiles from being bowls or domes on average (each phase drew the tile grid on the
+/// world with its own bias), without pulling any one tile towards the real one's shape.
+pub fn dome_gap(made: Tensor<4>, real: Tensor<4>, phases: &[usize]) -> Tensor<1> {
+    let (b, n) = (phases.len(), TILE_PX * TILE_PX);
+    // dome_height is linear: its weights are its values on the unit impulses.
+    let mut unit = vec![0f32; n];
+    let weights: Vec<f32> = (0..n).map(|p| {
+        unit[p] = 1.0;
+        let w = dome_height(&unit) as f32;
+        unit[p] = 0.0;
+        w
+    }).collect();
+    let w = tensor(weights, [1, 1, TILE_PX, TILE_PX], &made.device());
+    let domes = ((made - real) * w).sum_dim(3).sum_dim(2).reshape([b]);
+    let mut total = None;
+    for phase in 0..4 {
+        let share: Vec<f32> = phases.iter().map(|&p| if p == phase { 1.0 } else { 0.0 }).collect();
+        let count: f32 = share.iter().sum();
+        if count == 0.0 {
+            continue;
+        }
+        let pick = Tensor::<1>::from_data(TensorData::new(share, [b]), &domes.device());
+        let term = (domes.clone() * pick).sum().abs() / b as f32;
+        total = Some(match total { Some(t) => t + term, None => term });
+    }
+    total.unwrap_or_else(|| Tensor::<1>::zeros([1], &domes.device()))
 }
 
 /// The dome height of a tile (`TILE_PX`², any unit): after removing its best-fit plane, the
@@ -459,7 +494,7 @@ impl TcmRun {
         let t0 = web_time::Instant::now();
         let mut rng = Rng(self.cfg.seed.wrapping_mul(0x1_0000_0001) ^ self.progress.step as u64);
         let b = self.cfg.batch;
-        let (mut inputs, mut reals, mut l1_weights, mut masks) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut inputs, mut reals, mut l1_weights, mut masks, mut phases) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let mut tries = 0;
         while reals.len() < b * CONTEXT_PX * CONTEXT_PX && tries < b * 20 {
             tries += 1;
@@ -470,6 +505,7 @@ impl TcmRun {
                 reals.extend(s.real);
                 l1_weights.extend(l1_weight_map(&phase_mask(s.phase), self.cfg.free_l1, self.cfg.l1_reach_px));
                 masks.push(phase_mask(s.phase));
+                phases.push(s.phase);
             }
         }
         let n = reals.len() / (CONTEXT_PX * CONTEXT_PX);
@@ -499,6 +535,9 @@ impl TcmRun {
         let mut loss = l1 * L1_WEIGHT;
         if self.cfg.ruggedness > 0.0 {
             loss = loss + log_relief_gap(with_centre(real.clone(), fake.clone()), real.clone()) * self.cfg.ruggedness;
+        }
+        if self.cfg.dome > 0.0 {
+            loss = loss + dome_gap(fake.clone(), centre(real.clone(), TILE_PX), &phases) * self.cfg.dome;
         }
         if self.cfg.coarse > 0.0 {
             loss = loss + coarse_gap(fake.clone(), centre(real.clone(), TILE_PX)) * self.cfg.coarse;
@@ -671,6 +710,30 @@ mod tests {
         for p in 0..TILE_PX * TILE_PX {
             assert!((made[p] + off[p] - want[p]).abs() < 1e-5);
         }
+    }
+
+    /// The dome term: 0 for made = real; a made batch whose phase-0 tile is the real one plus
+    /// a paraboloid of dome height h (and phase-2 tile plus a plane) scores h · ½ (phase 0's
+    /// share of the batch), the plane adding nothing; a bowl and a dome of the same size in
+    /// one phase cancel.
+    #[test]
+    fn dome_gap_is_the_phase_mean_dome_error_weighted_by_share() {
+        let device = Device::flex();
+        let n = TILE_PX;
+        let c = (n as f32 - 1.0) / 2.0;
+        let real: Vec<f32> = (0..n * n).map(|p| ((p % n) as f32 * 0.37).sin()).collect();
+        let bump: Vec<f32> = (0..n * n).map(|p| { let (x, y) = ((p % n) as f32 - c, (p / n) as f32 - c); 100.0 - x * x - y * y }).collect();
+        let h = dome_height(&bump) as f32;
+        let plane: Vec<f32> = (0..n * n).map(|p| (p % n) as f32 * 0.5 + (p / n) as f32).collect();
+        let both = |a: &[f32], b: &[f32]| tensor([a.to_vec(), b.to_vec()].concat(), [2, 1, n, n], &device);
+        let r = both(&real, &real);
+        assert!(dome_gap(r.clone(), r.clone(), &[0, 2]).into_scalar::<f32>().abs() < 1e-5);
+        let domed: Vec<f32> = real.iter().zip(&bump).map(|(a, b)| a + b).collect();
+        let tilted: Vec<f32> = real.iter().zip(&plane).map(|(a, b)| a + b).collect();
+        let got = dome_gap(both(&domed, &tilted), r.clone(), &[0, 2]).into_scalar::<f32>();
+        assert!((got - h / 2.0).abs() < 1e-3 * h, "{got} vs {}", h / 2.0);
+        let bowl: Vec<f32> = real.iter().zip(&bump).map(|(a, b)| a - b).collect();
+        assert!(dome_gap(both(&domed, &bowl), r, &[1, 1]).into_scalar::<f32>().abs() < 1e-3);
     }
 
     /// A tilted plane has a dome height of 0 (to 1e-9); the paraboloid 100 − r² (r in
