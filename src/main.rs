@@ -192,6 +192,9 @@ enum Command {
         /// real ones| over the batch (a new run only; 0: none).
         #[arg(long, default_value_t = 0.0)]
         dome: f32,
+        /// The discriminator also sees the window's slopes (a new run only).
+        #[arg(long)]
+        disc_slopes: bool,
         /// Train only the TCM; the ×4 step's checkpoint stays as it is.
         #[arg(long)]
         tcm_only: bool,
@@ -527,7 +530,7 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7], joined: bool, init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
+fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7], [joined, disc_slopes]: [bool; 2], init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
     use terrain::train::{grow, pairs, tcm};
     for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage), ("--coarse", coarse), ("--free-l1", free_l1), ("--l1-reach", l1_reach), ("--dome", dome)] {
         if !w.is_finite() || w < 0.0 {
@@ -556,7 +559,7 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
         }
     }
     let device = burn::tensor::Device::flex().autodiff();
-    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, free_l1, l1_reach_px: l1_reach, joined, dome, ..Default::default() };
+    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, free_l1, l1_reach_px: l1_reach, joined, dome, disc_slopes, ..Default::default() };
     let from = resume.then_some(checkpoint);
     let start = match init {
         Some(dir) => {
@@ -972,8 +975,8 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
         #[cfg(feature = "train")]
-        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, free_l1, l1_reach, joined, dome, tcm_only } => {
-            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome], joined, init.as_deref(), tcm_only)
+        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, free_l1, l1_reach, joined, dome, disc_slopes, tcm_only } => {
+            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome], [joined, disc_slopes], init.as_deref(), tcm_only)
         }
     };
     match result {

@@ -171,6 +171,11 @@ pub struct TcmConfig {
     /// Weight of the dome term ([`dome_gap`]; 0: none). Runs saved before it existed read 0.
     #[serde(default)]
     pub dome: f32,
+    /// The discriminator also sees the window's slopes ([`with_slopes`]): the texture of
+    /// valleys and ridges is in the slopes, while the heights are dominated by the tile's
+    /// level and tilt. Runs saved before it existed read false.
+    #[serde(default)]
+    pub disc_slopes: bool,
 }
 
 fn one() -> f32 {
@@ -179,7 +184,7 @@ fn one() -> f32 {
 
 impl Default for TcmConfig {
     fn default() -> Self {
-        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0, drainage: 0.0, coarse: 0.0, free_l1: 1.0, l1_reach_px: 0.0, joined: false, dome: 0.0 }
+        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0, drainage: 0.0, coarse: 0.0, free_l1: 1.0, l1_reach_px: 0.0, joined: false, dome: 0.0, disc_slopes: false }
     }
 }
 
@@ -462,6 +467,22 @@ pub fn joined_offsets(made: &[f32], real: &[f32], masks: &[[bool; 9]]) -> Vec<f3
     out
 }
 
+/// Slope gain of [`with_slopes`]: a 128 m step of 0.1 × [`HEIGHT_SCALE_M`] (50 m, 21°)
+/// becomes 0.5.
+pub const DISC_SLOPE_GAIN: f32 = 5.0;
+
+/// Windows [B, 1, H, W] (heights) with their slopes appended: [B, 3, H, W], the forward
+/// differences along x and along y times [`DISC_SLOPE_GAIN`] (0 in the last column / row).
+pub fn with_slopes(h: Tensor<4>) -> Tensor<4> {
+    let [b, _, rows, cols] = h.dims();
+    let dev = h.device();
+    let dx = h.clone().narrow(3, 1, cols - 1) - h.clone().narrow(3, 0, cols - 1);
+    let dx = Tensor::cat(vec![dx, Tensor::zeros([b, 1, rows, 1], &dev)], 3);
+    let dy = h.clone().narrow(2, 1, rows - 1) - h.clone().narrow(2, 0, rows - 1);
+    let dy = Tensor::cat(vec![dy, Tensor::zeros([b, 1, 1, cols], &dev)], 2);
+    Tensor::cat(vec![h, dx * DISC_SLOPE_GAIN, dy * DISC_SLOPE_GAIN], 1)
+}
+
 /// Starts a run on `device` (an autodiff device): resumes the checkpoint in `resume_from`, or
 /// else starts the generator from `init` (weights the CPU kernels read, e.g.
 /// [`TcmCpu::widened`]) or from random weights.
@@ -470,15 +491,19 @@ pub fn start_run(cfg: TcmConfig, device: &Device, resume_from: Option<&Path>, in
     if let Some(w) = init {
         g = w.into_model(g);
     }
-    let mut d = Disc::with_inputs(DISC_CHANNELS, device);
+    let mut cfg = cfg;
+    if let Some(dir) = resume_from {
+        // The settings decide the discriminator's inputs.
+        let state: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("tcm_state.json")).map_err(|e| format!("{}: {e}", dir.join("tcm_state.json").display()))?).map_err(|e| format!("tcm_state.json: {e}"))?;
+        cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("tcm_state.json: {e}"))?;
+    }
+    let mut d = Disc::with_inputs(DISC_CHANNELS + if cfg.disc_slopes { 2 } else { 0 }, device);
     let (mut og, mut od) = (gan::adam(), gan::adam());
     let mut progress = TcmProgress::default();
-    let mut cfg = cfg;
     if let Some(dir) = resume_from {
         let state;
         (og, od, state) = gan::load_run(dir, "tcm", GEN_FILE, &mut g, &mut d)?;
         progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("tcm_state.json: {e}"))?;
-        cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("tcm_state.json: {e}"))?;
     }
     Ok(TcmRun { g, d, og, od, cfg, progress, device: device.clone() })
 }
@@ -526,8 +551,9 @@ impl TcmRun {
         let adv_w = self.cfg.adversarial;
         let (mut adv_v, mut disc_v) = (0.0, 0.0);
         if adv_w > 0.0 {
-            let real_in = Tensor::cat(vec![real.clone(), cond.clone()], 1);
-            let fake_in = Tensor::cat(vec![with_centre(real.clone(), fake.clone().detach()), cond.clone()], 1);
+            let judged = |w: Tensor<4>| Tensor::cat(vec![if self.cfg.disc_slopes { with_slopes(w) } else { w }, cond.clone()], 1);
+            let real_in = judged(real.clone());
+            let fake_in = judged(with_centre(real.clone(), fake.clone().detach()));
             disc_v = gan::disc_step(&mut self.d, &mut self.od, self.cfg.lr * 0.5, real_in, fake_in, CENTRE);
         }
         let l1 = weighted_l1(fake.clone(), truth, l1_weights);
@@ -548,7 +574,9 @@ impl TcmRun {
             loss = loss + depression * self.cfg.drainage;
         }
         if adv_w > 0.0 {
-            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![with_centre(real, fake), cond], 1), CENTRE);
+            let window = with_centre(real, fake);
+            let window = if self.cfg.disc_slopes { with_slopes(window) } else { window };
+            let adv = gan::gen_adversarial(&self.d, Tensor::cat(vec![window, cond], 1), CENTRE);
             adv_v = adv.clone().into_scalar::<f32>() as f64;
             loss = loss + adv * adv_w;
         }
@@ -734,6 +762,23 @@ mod tests {
         assert!((got - h / 2.0).abs() < 1e-3 * h, "{got} vs {}", h / 2.0);
         let bowl: Vec<f32> = real.iter().zip(&bump).map(|(a, b)| a - b).collect();
         assert!(dome_gap(both(&domed, &bowl), r, &[1, 1]).into_scalar::<f32>().abs() < 1e-3);
+    }
+
+    /// The plane h = 0.01·x + 0.02·y has slopes 0.05 and 0.1 (× the gain 5) everywhere but
+    /// in the last column (x) and row (y), which are 0; the heights pass unchanged.
+    #[test]
+    fn with_slopes_appends_the_scaled_forward_differences() {
+        let device = Device::flex();
+        let n = 8;
+        let h: Vec<f32> = (0..n * n).map(|p| 0.01 * (p % n) as f32 + 0.02 * (p / n) as f32).collect();
+        let out = with_slopes(tensor(h.clone(), [1, 1, n, n], &device)).into_data().try_to_vec::<f32>().unwrap();
+        assert_eq!(out.len(), 3 * n * n);
+        for p in 0..n * n {
+            let (x, y) = (p % n, p / n);
+            assert!((out[p] - h[p]).abs() < 1e-7);
+            assert!((out[n * n + p] - if x + 1 < n { 0.05 } else { 0.0 }).abs() < 1e-5, "dx at {x},{y}");
+            assert!((out[2 * n * n + p] - if y + 1 < n { 0.1 } else { 0.0 }).abs() < 1e-5, "dy at {x},{y}");
+        }
     }
 
     /// A tilted plane has a dome height of 0 (to 1e-9); the paraboloid 100 − r² (r in
