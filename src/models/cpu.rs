@@ -834,24 +834,24 @@ pub fn conv_into_burn(src: &Conv3, c: &mut burn::nn::conv::Conv2d) {
 /// `{name}.bias` [cout], float32, or float16 as [`to_half_burnpack`] writes it) without a
 /// tensor framework. Anything missing, misshapen or
 /// non-finite is an error naming the tensor.
-pub fn convs_from_burnpack(bytes: &[u8], layers: &[(String, usize, usize)]) -> Result<Vec<Conv3>, String> {
-    let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.to_vec())).map_err(|e| format!("not a weight file ({e})"))?;
-    let tensors = reader.into_tensors().map_err(|e| format!("unreadable tensors ({e})"))?;
+pub fn convs_from_burnpack(bytes: &[u8], layers: &[(String, usize, usize)]) -> Result<Vec<Conv3>, crate::models::WeightError> {
+    let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.to_vec())).map_err(|e| crate::models::WeightError::NotWeightFile(e.to_string()))?;
+    let tensors = reader.into_tensors().map_err(|e| crate::models::WeightError::Unreadable(e.to_string()))?;
     let mut by_name = std::collections::HashMap::new();
     for t in tensors {
-        let (name, dtype, shape, _, data) = t.into_parts().map_err(|e| format!("unreadable tensor ({e})"))?;
+        let (name, dtype, shape, _, data) = t.into_parts().map_err(|e| crate::models::WeightError::Unreadable(e.to_string()))?;
         by_name.insert(name, (dtype, shape, data));
     }
-    let mut get = |name: &str| -> Result<(Vec<usize>, Vec<f32>), String> {
-        let (dtype, shape, data) = by_name.remove(name).ok_or_else(|| format!("missing tensor {name}"))?;
+    let mut get = |name: &str| -> Result<(Vec<usize>, Vec<f32>), crate::models::WeightError> {
+        let (dtype, shape, data) = by_name.remove(name).ok_or_else(|| crate::models::WeightError::Missing(vec![name.to_string()]))?;
         let (size, decode): (usize, fn(&[u8]) -> f32) = match dtype {
             burn_pack::DType::F32 => (4, |c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
             burn_pack::DType::F16 => (2, |c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()),
-            _ => return Err(format!("tensor {name} is {dtype:?}, float32 or float16 expected")),
+            _ => return Err(crate::models::WeightError::Type { name: name.to_string(), dtype: format!("{dtype:?}") }),
         };
         let dims = shape.to_vec();
         if data.len() != dims.iter().product::<usize>() * size {
-            return Err(format!("tensor {name} has {} bytes for shape {dims:?}", data.len()));
+            return Err(crate::models::WeightError::Size { name: name.to_string(), bytes: data.len(), shape: dims });
         }
         let values = data.chunks_exact(size).map(decode).collect();
         Ok((dims, values))
@@ -861,10 +861,10 @@ pub fn convs_from_burnpack(bytes: &[u8], layers: &[(String, usize, usize)]) -> R
         let (cout, cin) = (*cout, *cin);
         let (wd, w) = get(&format!("{name}.weight"))?;
         if wd != [cout, cin, 3, 3] {
-            return Err(format!("tensor {name}.weight has shape {wd:?}, [{cout}, {cin}, 3, 3] expected"));
+            return Err(crate::models::WeightError::Shape { name: format!("{name}.weight"), got: wd, want: vec![cout, cin, 3, 3] });
         }
         let (_, b) = get(&format!("{name}.bias"))?;
-        convs.push(Conv3::from_oihw(cout, cin, &w, Some(&b)).map_err(|e| format!("{name}: {e}"))?);
+        convs.push(Conv3::from_oihw(cout, cin, &w, Some(&b)).map_err(|source| crate::models::WeightError::Layer { name: name.clone(), source })?);
     }
     Ok(convs)
 }
@@ -953,7 +953,7 @@ mod tests {
         }
         let f64_file = burn_pack::Writer::new(vec![burn_pack::Tensor::new("a.weight".into(), burn_pack::DType::F64, vec![1], None, burn_pack::Bytes::from_bytes_vec(vec![0; 8]))]).into_bytes().unwrap().to_vec();
         let err = convs_from_burnpack(&f64_file, &layers[..1]).unwrap_err();
-        assert!(err.contains("a.weight") && err.contains("F64"), "{err}");
+        assert!(matches!(&err, crate::models::WeightError::Type { name, dtype } if name == "a.weight" && dtype == "F64"), "{err}");
     }
 
     /// A 16 → 6 layer padded to 8 outputs gives the same first 6 channels on every pixel of

@@ -177,7 +177,7 @@ impl GrowCpu {
     }
 
     /// Reads a weight file (burnpack, as training writes it).
-    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
+    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
         Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
     }
 

@@ -25,15 +25,102 @@ pub fn weights_hash(files: &[&[u8]]) -> String {
     format!("{:08x}", h >> 32)
 }
 
+/// Why a weight file could not be read: the page falls back (procedural world, band
+/// interpolation, no learned detail) and says this; the CLI prints it.
+#[derive(Debug, thiserror::Error)]
+pub enum WeightError {
+    /// The file cannot be read from disk.
+    #[error("{file}: {reason}")]
+    Read {
+        /// The file's path.
+        file: String,
+        /// The system's reason.
+        reason: String,
+    },
+    /// The bytes are not a burnpack file.
+    #[error("not a weight file ({0})")]
+    NotWeightFile(String),
+    /// The file's tensors cannot be read.
+    #[error("unreadable tensors ({0})")]
+    Unreadable(String),
+    /// Tensors the network needs are not in the file.
+    #[error("missing tensors {0:?}")]
+    Missing(Vec<String>),
+    /// A tensor has a number type other than float32 or float16.
+    #[error("tensor {name} is {dtype}, float32 or float16 expected")]
+    Type {
+        /// The tensor's name.
+        name: String,
+        /// Its number type.
+        dtype: String,
+    },
+    /// A tensor's shape is not the layer's.
+    #[error("tensor {name} has shape {got:?}, {want:?} expected")]
+    Shape {
+        /// The tensor's name.
+        name: String,
+        /// Its shape in the file.
+        got: Vec<usize>,
+        /// The shape the layer needs.
+        want: Vec<usize>,
+    },
+    /// A tensor's bytes do not fill its shape.
+    #[error("tensor {name} has {bytes} bytes for shape {shape:?}")]
+    Size {
+        /// The tensor's name.
+        name: String,
+        /// Bytes in the file.
+        bytes: usize,
+        /// Its shape.
+        shape: Vec<usize>,
+    },
+    /// A layer cannot be built from its tensors.
+    #[error("{name}: {source}")]
+    Layer {
+        /// The layer's name.
+        name: String,
+        /// Why.
+        source: cpu::LayerError,
+    },
+    /// One of the above, in the named file.
+    #[error("{file}: {source}")]
+    InFile {
+        /// The weight file's name.
+        file: String,
+        /// Why it could not be read.
+        source: Box<WeightError>,
+    },
+}
+
+impl WeightError {
+    /// This error, said of the weight file `file`.
+    pub fn in_file(self, file: impl std::fmt::Display) -> Self {
+        Self::InFile { file: file.to_string(), source: Box::new(self) }
+    }
+}
+
+/// The bytes of the weight file `path` (a [`WeightError::Read`] naming it if they cannot be
+/// read).
+#[cfg(not(target_arch = "wasm32"))]
+pub fn read_weight_file(path: &std::path::Path) -> Result<Vec<u8>, WeightError> {
+    std::fs::read(path).map_err(|e| WeightError::Read { file: path.display().to_string(), reason: e.to_string() })
+}
+
+impl From<WeightError> for String {
+    fn from(e: WeightError) -> Self {
+        e.to_string()
+    }
+}
+
 /// `model` with the weights of a burnpack file (as training writes it, float32, or shipped as
 /// float16: every float tensor becomes the model's float32); an error names missing tensors.
-pub fn load_burnpack<M: burn::store::ModuleSnapshot>(model: M, bytes: &[u8]) -> Result<M, String> {
+pub fn load_burnpack<M: burn::store::ModuleSnapshot>(model: M, bytes: &[u8]) -> Result<M, WeightError> {
     use burn::store::{BurnpackStore, FloatCastAdapter};
     let mut model = model;
     let mut store = BurnpackStore::from_bytes(Some(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))).with_from_adapter(FloatCastAdapter::to(burn::tensor::DType::F32));
-    let r = model.load_from(&mut store).map_err(|e| format!("{e:?}"))?;
+    let r = model.load_from(&mut store).map_err(|e| WeightError::NotWeightFile(format!("{e:?}")))?;
     if !r.missing.is_empty() {
-        return Err(format!("missing tensors {:?}", r.missing));
+        return Err(WeightError::Missing(r.missing.iter().map(|m| m.0.clone()).collect()));
     }
     Ok(model)
 }
@@ -187,7 +274,7 @@ mod tests {
     #[test]
     fn a_broken_sketch_weight_file_is_refused_on_the_gpu() {
         let e = sketch::SketchGenGpu::from_burnpack(b"not a burnpack file", &test_gpu()).unwrap_err();
-        assert!(e.contains(sketch::WEIGHT_FILE), "{e}");
+        assert!(e.to_string().starts_with(&format!("{}: not a weight file", sketch::WEIGHT_FILE)), "{e}");
     }
 }
 

@@ -122,7 +122,7 @@ impl SketchGenCpu {
     }
 
     /// Reads a generator weight file (burnpack, as training writes it).
-    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
+    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
         Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
     }
 
@@ -194,8 +194,8 @@ pub struct SketchGenGpu {
 
 impl SketchGenGpu {
     /// Reads a generator weight file (burnpack, float32 or float16) onto `device`.
-    pub fn from_burnpack(bytes: &[u8], device: &Device) -> Result<Self, String> {
-        let model = crate::models::load_burnpack(SketchGen::new(device), bytes).map_err(|e| format!("{WEIGHT_FILE}: {e}"))?;
+    pub fn from_burnpack(bytes: &[u8], device: &Device) -> Result<Self, crate::models::WeightError> {
+        let model = crate::models::load_burnpack(SketchGen::new(device), bytes).map_err(|e| e.in_file(WEIGHT_FILE))?;
         Ok(Self { model, device: device.clone() })
     }
 

@@ -142,7 +142,7 @@ impl SketchVaeCpu {
     }
 
     /// Reads a VAE weight file (burnpack, as training writes it).
-    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
+    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
         Ok(Self::from_convs(cpu::convs_from_burnpack(bytes, &conv_layers())?))
     }
 
@@ -221,9 +221,9 @@ pub struct SketchModels {
 
 impl SketchModels {
     /// Reads both weight files (burnpack bytes); a broken file is an error naming it.
-    pub fn from_bytes(generator: &[u8], vae: &[u8]) -> Result<Self, String> {
-        let g = crate::models::sketch::SketchGenCpu::from_burnpack(generator).map_err(|e| format!("{}: {e}", crate::models::sketch::WEIGHT_FILE))?;
-        let v = SketchVaeCpu::from_burnpack(vae).map_err(|e| format!("{WEIGHT_FILE}: {e}"))?;
+    pub fn from_bytes(generator: &[u8], vae: &[u8]) -> Result<Self, crate::models::WeightError> {
+        let g = crate::models::sketch::SketchGenCpu::from_burnpack(generator).map_err(|e| e.in_file(crate::models::sketch::WEIGHT_FILE))?;
+        let v = SketchVaeCpu::from_burnpack(vae).map_err(|e| e.in_file(WEIGHT_FILE))?;
         Ok(Self { generator: g, vae: v, hash: crate::models::weights_hash(&[generator, vae]) })
     }
 }
@@ -236,7 +236,7 @@ mod tests {
     #[test]
     fn a_broken_vae_file_is_named() {
         let err = SketchModels::from_bytes(b"not weights", b"not weights").unwrap_err();
-        assert!(err.starts_with(crate::models::sketch::WEIGHT_FILE), "{err}");
+        assert!(err.to_string().starts_with(crate::models::sketch::WEIGHT_FILE), "{err}");
     }
 
     /// Codes have 128 numbers; the VAE stays under 1 M parameters; the CPU kernels compute the

@@ -328,14 +328,14 @@ impl TcmCpu {
     }
 
     /// Reads a generator weight file (burnpack, as training writes it).
-    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
+    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
         Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
     }
 
     /// Reads a weight file of the first generator ([`IN_CHANNELS_V1`] inputs, no ruggedness
     /// channel) and widens its first layer with zero weights for the channels it lacks: the
     /// same function of the first seven channels, the starting point of a training run.
-    pub fn widened(bytes: &[u8]) -> Result<Self, String> {
+    pub fn widened(bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
         let mut convs = cpu::convs_from_burnpack(bytes, &conv_layers_with(IN_CHANNELS_V1))?;
         let first = &convs[0];
         let (w, b) = first.to_oihw();
@@ -344,7 +344,7 @@ impl TcmCpu {
         for o in 0..cout {
             wide[o * IN_CHANNELS * 9..][..cin * 9].copy_from_slice(&w[o * cin * 9..][..cin * 9]);
         }
-        convs[0] = Conv3::from_oihw(cout, IN_CHANNELS, &wide, Some(&b)).map_err(|e| e.to_string())?;
+        convs[0] = Conv3::from_oihw(cout, IN_CHANNELS, &wide, Some(&b)).map_err(|source| crate::models::WeightError::Layer { name: "enc.0.a".into(), source })?;
         Ok(Self { convs })
     }
 

@@ -109,19 +109,18 @@ pub fn weight_file(k: usize) -> String {
 /// Loads the five burn models of the ladder from `dir` onto `device` (training, fine-tuning,
 /// WebGPU/Vulkan inference).
 #[cfg(not(target_arch = "wasm32"))]
-pub fn load_models(dir: &std::path::Path, device: &Device) -> Result<Vec<Tem>, String> {
+pub fn load_models(dir: &std::path::Path, device: &Device) -> Result<Vec<Tem>, super::WeightError> {
     (0..LEVELS).map(|k| load_model(&read_weight_file(dir, k)?, k, device)).collect()
 }
 
 #[cfg(not(target_arch = "wasm32"))]
-fn read_weight_file(dir: &std::path::Path, k: usize) -> Result<Vec<u8>, String> {
-    let path = dir.join(weight_file(k));
-    std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))
+fn read_weight_file(dir: &std::path::Path, k: usize) -> Result<Vec<u8>, super::WeightError> {
+    super::read_weight_file(&dir.join(weight_file(k)))
 }
 
 /// One burn model from burnpack bytes (level `k`, for the error message).
-fn load_model(bytes: &[u8], k: usize, device: &Device) -> Result<Tem, String> {
-    super::load_burnpack(Tem::new(device), bytes).map_err(|e| format!("{}: {e}", weight_file(k)))
+fn load_model(bytes: &[u8], k: usize, device: &Device) -> Result<Tem, super::WeightError> {
+    super::load_burnpack(Tem::new(device), bytes).map_err(|e| e.in_file(weight_file(k)))
 }
 
 /// Where a [`TemSet`] runs.
@@ -193,7 +192,7 @@ impl TemSet {
         }
         Ok(match exec {
             Exec::Cpu { threads } => {
-                let models = files.iter().enumerate().map(|(k, b)| TemCpu::from_burnpack(b).map_err(|e| format!("{}: {e}", weight_file(k)))).collect::<Result<_, _>>()?;
+                let models = files.iter().enumerate().map(|(k, b)| TemCpu::from_burnpack(b).map_err(|e| e.in_file(weight_file(k)))).collect::<Result<_, _>>()?;
                 Self::cpu(models, *threads)
             }
             Exec::Burn(device) => {
@@ -362,7 +361,7 @@ impl TemCpu {
     /// Reads a burnpack weight file (as written by training) without a tensor framework:
     /// `{name}.weight` [cout, cin, 3, 3] and `{name}.bias` [cout], float32, for every
     /// convolution; anything missing, misshapen or non-finite is an error.
-    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, String> {
+    pub fn from_burnpack(bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
         let shapes = [(WIDTH, 4), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (WIDTH, WIDTH), (1, WIDTH / 4)];
         let layers: Vec<(String, usize, usize)> = conv_names().into_iter().zip(shapes).map(|(n, (o, i))| (n, o, i)).collect();
         let mut convs = cpu::convs_from_burnpack(bytes, &layers)?;

@@ -165,7 +165,7 @@ pub fn save_models(models: &[Tem], dir: &Path) -> Result<(), String> {
 
 /// Loads the five models from burnpack files in `dir` onto `device`.
 pub fn load_models(dir: &Path, device: &Device) -> Result<Vec<Tem>, String> {
-    crate::models::tem::load_models(dir, device)
+    Ok(crate::models::tem::load_models(dir, device)?)
 }
 
 /// Accuracy of one level on held-out windows.

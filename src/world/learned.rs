@@ -109,9 +109,9 @@ pub struct LearnedModels {
 
 impl LearnedModels {
     /// Reads both weight files (burnpack bytes); a broken file is an error naming it.
-    pub fn from_bytes(tcm_bytes: &[u8], grow_bytes: &[u8]) -> Result<Self, String> {
-        let tcm = TcmCpu::from_burnpack(tcm_bytes).map_err(|e| format!("{}: {e}", TCM_FILE))?;
-        let grow = GrowCpu::from_burnpack(grow_bytes).map_err(|e| format!("{}: {e}", GROW_FILE))?;
+    pub fn from_bytes(tcm_bytes: &[u8], grow_bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
+        let tcm = TcmCpu::from_burnpack(tcm_bytes).map_err(|e| e.in_file(TCM_FILE))?;
+        let grow = GrowCpu::from_burnpack(grow_bytes).map_err(|e| e.in_file(GROW_FILE))?;
         Ok(Self { tcm, grow, hash: crate::models::weights_hash(&[tcm_bytes, grow_bytes]) })
     }
 
@@ -122,8 +122,8 @@ impl LearnedModels {
 
     /// Reads `dir/`[`TCM_FILE`] and `dir/`[`GROW_FILE`].
     #[cfg(not(target_arch = "wasm32"))]
-    pub fn load_dir(dir: &std::path::Path) -> Result<Self, String> {
-        let read = |f: &str| std::fs::read(dir.join(f)).map_err(|e| format!("{}: {e}", dir.join(f).display()));
+    pub fn load_dir(dir: &std::path::Path) -> Result<Self, crate::models::WeightError> {
+        let read = |f: &str| crate::models::read_weight_file(&dir.join(f));
         Self::from_bytes(&read(TCM_FILE)?, &read(GROW_FILE)?)
     }
 }
