@@ -656,8 +656,9 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
         .map(|(name, rs, ms)| {
             let (m, p): (Vec<f64>, Vec<f64>) = rs.iter().map(world_eval::seam_ratio).unzip();
             let (cm, cp): (Vec<f64>, Vec<f64>) = rs.iter().map(world_eval::crease_ratio).unzip();
+            let strip: Vec<f64> = rs.iter().map(world_eval::edge_strip_ratio).collect();
             let worst = |v: &[f64]| v.iter().cloned().fold(f64::MIN, f64::max);
-            (name.to_string(), serde_json::json!({ "seam_mean": m.iter().sum::<f64>() / m.len() as f64, "seam_p95": worst(&p), "crease_mean": cm.iter().sum::<f64>() / cm.len() as f64, "crease_p95": worst(&cp), "ms_per_tile": ms }))
+            (name.to_string(), serde_json::json!({ "seam_mean": m.iter().sum::<f64>() / m.len() as f64, "seam_p95": worst(&p), "crease_mean": cm.iter().sum::<f64>() / cm.len() as f64, "crease_p95": worst(&cp), "edge_strip": strip.iter().sum::<f64>() / strip.len() as f64, "ms_per_tile": ms }))
         })
         .collect();
     // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.

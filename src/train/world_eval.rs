@@ -1,6 +1,6 @@
 //! Evaluating a world against real terrain: geomorphometric statistics ([`crate::geomorph`])
 //! of windows cut from the validation split of real DEMs at 32 m and from generated regions,
-//! the distance between their distributions, and the seam figure.
+//! the distance between their distributions, and the seam, crease and edge-strip figures.
 
 use crate::dem::Heightfield;
 use crate::geomorph::{self, Stats};
@@ -87,6 +87,55 @@ pub fn crease_ratio(hf: &Heightfield) -> (f64, f64) {
     edge_ratio(hf, |get, c| (get(c + 1) - get(c) - get(c - 1) + get(c - 2)).abs(), 2..=5)
 }
 
+/// Samples of 32 m per 128 m sample (the TCM's scale) for [`edge_strip_ratio`].
+const STRIP_POOL: usize = 4;
+/// The strip along each tile edge that [`edge_strip_ratio`] measures: 128 m samples 1 to 4
+/// inside the edge (the edge sample itself is what [`crease_ratio`] sees).
+const STRIP: std::ops::RangeInclusive<usize> = 1..=4;
+/// Where [`edge_strip_ratio`]'s interior starts: 128 m samples from the tile edge.
+const STRIP_INTERIOR_FROM: usize = 8;
+
+/// The edge-strip figure of a region made of whole tiles: the region area-averaged to 128 m
+/// (the scale the tiles are made at), then the mean |second difference| across the edges'
+/// direction (x for the vertical edges, y for the horizontal ones) over the strips 1–4
+/// samples inside every tile edge, divided by the same mean over the tiles' interiors
+/// (≥ 8 samples from every edge). 1 for a field without tiles; a world whose tiles are
+/// smooth inside and busy along their edges — a tile grid the eye sees although heights and
+/// slopes meet at the edge itself — scores above 1.
+pub fn edge_strip_ratio(hf: &Heightfield) -> f64 {
+    let (p, t) = (STRIP_POOL, TILE_SAMPLES / STRIP_POOL);
+    let (w, h) = (hf.width / p, hf.height / p);
+    let coarse: Vec<f64> = (0..w * h)
+        .map(|k| {
+            let (x, y) = (k % w * p, k / w * p);
+            (0..p * p).map(|q| hf.data[(y + q / p) * hf.width + x + q % p] as f64).sum::<f64>() / (p * p) as f64
+        })
+        .collect();
+    let at = |x: usize, y: usize| coarse[y * w + x];
+    let from_edge = |v: usize| (v % t).min(t - 1 - v % t);
+    let (mut strip, mut ns, mut inner, mut ni) = (0.0, 0, 0.0, 0);
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let across_x = (at(x + 1, y) - 2.0 * at(x, y) + at(x - 1, y)).abs();
+            let across_y = (at(x, y + 1) - 2.0 * at(x, y) + at(x, y - 1)).abs();
+            // (samples from the edge the curvature crosses, from the other pair of edges).
+            for (d, other, curvature) in [(from_edge(x), from_edge(y), across_x), (from_edge(y), from_edge(x), across_y)] {
+                if STRIP.contains(&d) {
+                    strip += curvature;
+                    ns += 1;
+                } else if d >= STRIP_INTERIOR_FROM && other >= STRIP_INTERIOR_FROM {
+                    inner += curvature;
+                    ni += 1;
+                }
+            }
+        }
+    }
+    if ns == 0 || ni == 0 || inner <= 0.0 {
+        return f64::NAN;
+    }
+    (strip / ns as f64) / (inner / ni as f64)
+}
+
 /// Mean over the samples along each tile edge of `diff` at the edge (position `e`) over its
 /// mean at `e ± k` for `k` in `inside`; (mean, p95) of that ratio over the edges.
 fn edge_ratio(hf: &Heightfield, diff: impl Fn(&dyn Fn(usize) -> f64, usize) -> f64, inside: std::ops::RangeInclusive<usize>) -> (f64, f64) {
@@ -138,6 +187,22 @@ mod tests {
         let stepped = Heightfield::new(2 * n, 2 * n, 32.0, smooth.data.iter().enumerate().map(|(p, v)| v + if p % (2 * n) >= n { 10.0 } else { 0.0 }).collect());
         let (_, p95) = seam_ratio(&stepped);
         assert!(p95 > 5.0, "{p95}");
+    }
+
+    /// A field of the same ripples everywhere has an edge-strip figure within 5 % of 1; the
+    /// same ripples 3× stronger within 4 × 128 m of every tile edge score above 2.
+    #[test]
+    fn edge_strip_ratio_is_one_without_tiles_and_large_for_busy_edges() {
+        let n = TILE_SAMPLES;
+        let side = 4 * n;
+        let ripple = |p: usize| (((p % side) as f32) * 0.21).sin() * 20.0 + (((p / side) as f32) * 0.17).sin() * 20.0;
+        let plain = Heightfield::new(side, side, 32.0, (0..side * side).map(ripple).collect());
+        let r = edge_strip_ratio(&plain);
+        assert!((r - 1.0).abs() < 0.05, "{r}");
+        let near = |v: usize| (v % n).min(n - 1 - v % n) < 5 * STRIP_POOL;
+        let busy = Heightfield::new(side, side, 32.0, (0..side * side).map(|p| ripple(p) * if near(p % side) || near(p / side) { 3.0 } else { 1.0 }).collect());
+        let r = edge_strip_ratio(&busy);
+        assert!(r > 2.0, "{r}");
     }
 
     /// A bowl (constant curvature) has a crease figure of 1; the same bowl folded along a
