@@ -14,9 +14,15 @@
 //!   (corner tile at even i and j) it belongs to, the block's border fixed: a basin cut by a
 //!   tile edge inside the block is filled as one (a fill per tile leaves it as a pit along the
 //!   edge), every sample drains to the block's border, and a tile is a pure function of the
-//!   block's four tiles. Filled blocks are kept in a bounded cache. (A second stage of blocks
-//!   offset by one tile, so that no tile edge is left unfilled, was tried: it turned basins
-//!   into wide flat lakes, whose slope distribution is further from real terrain's.)
+//!   block's four tiles;
+//! - a second stage fills the blocks offset by one tile (corner tile at odd i and j) of those
+//!   filled tiles, the same way: a basin cut by a first-stage block's border lies inside a
+//!   second-stage block. A world tile is the quadrant of its second-stage block, a pure
+//!   function of the 4×4 tiles of the four first-stage blocks under it. With tiles as smooth as
+//!   the first generators made (tile grid, bowls and domes along the edges) this stage turned
+//!   the basins along the edges into wide flat lakes; with tiles as rugged as real terrain it
+//!   takes the closed depressions left along the first stage's borders to none (eval-tcm).
+//!   Filled blocks of both stages are kept in bounded caches.
 //!
 //! The macro field — the absolute level and the large-scale relief the TCM is conditioned on —
 //! is seeded Perlin fBm over tile coordinates ([`macro_height`]), and so is the ruggedness
@@ -65,13 +71,19 @@ pub const COARSE_CACHE_TILES: usize = 4096;
 /// Side (tiles) of the blocks whose closed depressions are filled together.
 pub const FILL_BLOCK_TILES: i32 = 2;
 
-/// Filled blocks kept in the cache (each 256 KiB).
+/// Filled blocks kept in the cache of each stage (each 256 KiB).
 pub const FILL_CACHE_BLOCKS: usize = 64;
 
-/// The corner tile (even i and j) of the fill block that holds tile `c`.
+/// The corner tile (even i and j) of the first-stage fill block that holds tile `c`.
 pub fn fill_block_corner(c: TileCoord) -> TileCoord {
     let corner = |v: i32| v.div_euclid(FILL_BLOCK_TILES) * FILL_BLOCK_TILES;
     TileCoord::new(corner(c.i), corner(c.j))
+}
+
+/// The corner tile (odd i and j) of the second-stage fill block that holds tile `c`: the
+/// blocks of the first stage offset by one tile.
+pub fn second_block_corner(c: TileCoord) -> TileCoord {
+    fill_block_corner(c.offset(-1, -1)).offset(1, 1)
 }
 
 /// The macro field at the centre of tile (i, j) of world `seed` (metres): three octaves of
@@ -138,6 +150,7 @@ pub struct LearnedSource {
     models: Arc<LearnedModels>,
     coarse: Mutex<HashMap<(u64, TileCoord), Arc<Vec<f32>>>>,
     filled: Mutex<BlockCache>,
+    drained: Mutex<BlockCache>,
     scratch: Mutex<(TcmScratch, GrowScratch)>,
     threads: usize,
 }
@@ -145,12 +158,13 @@ pub struct LearnedSource {
 impl LearnedSource {
     /// A source running `models` on `threads` threads.
     pub fn new(models: Arc<LearnedModels>, threads: usize) -> Self {
-        Self { models, coarse: Mutex::default(), filled: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), scratch: Mutex::default(), threads: threads.max(1) }
+        Self { models, coarse: Mutex::default(), filled: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), drained: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), scratch: Mutex::default(), threads: threads.max(1) }
     }
 
-    /// The same source keeping at most `blocks` filled blocks (tests of eviction).
+    /// The same source keeping at most `blocks` filled blocks per stage (tests of eviction).
     pub fn with_fill_cache(mut self, blocks: usize) -> Self {
         self.filled = Mutex::new(BlockCache::new(blocks));
+        self.drained = Mutex::new(BlockCache::new(blocks));
         self
     }
 
@@ -215,18 +229,34 @@ impl TileSource for LearnedSource {
     }
 
     fn generate(&self, seed: u64, coord: TileCoord, _: &Neighbourhood<'_>) -> Tile {
-        let corner = fill_block_corner(coord);
-        let block = self.filled_block(seed, corner);
+        let corner = second_block_corner(coord);
+        let block = self.drained_block(seed, corner);
         Tile::new(coord, quadrant(&block, coord, corner))
     }
 }
 
 impl LearnedSource {
-    /// The 2×2-tile block with corner tile `corner` of world `seed`, its closed depressions
-    /// filled with its border fixed ([`TILE_SAMPLES`]·2 samples square, metres).
+    /// The first-stage block (2×2 tiles, corner tile `corner`, [`fill_block_corner`]) of world
+    /// `seed`: the networks' tiles, closed depressions filled with the block's border fixed
+    /// ([`TILE_SAMPLES`]·2 samples square, metres).
     fn filled_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
+        Self::fill_cached(&self.filled, seed, corner, |c| self.raw_tile(seed, c))
+    }
+
+    /// The second-stage block (corner tile `corner`, [`second_block_corner`]) of world `seed`:
+    /// the first stage's filled tiles, filled again over this block.
+    fn drained_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
+        Self::fill_cached(&self.drained, seed, corner, |c| {
+            let first = fill_block_corner(c);
+            quadrant(&self.filled_block(seed, first), c, first)
+        })
+    }
+
+    /// The block of 2×2 tiles `tile(c)` with corner tile `corner`, its closed depressions filled
+    /// with its border fixed (real terrain drains), from `cache` or made and kept there.
+    fn fill_cached(cache: &Mutex<BlockCache>, seed: u64, corner: TileCoord, tile: impl Fn(TileCoord) -> Vec<f32>) -> Arc<Vec<f32>> {
         let key = (seed, corner);
-        if let Some(b) = self.filled.lock().unwrap_or_else(|p| p.into_inner()).get(&key) {
+        if let Some(b) = cache.lock().unwrap_or_else(|p| p.into_inner()).get(&key) {
             return b;
         }
         let (n, k) = (TILE_SAMPLES, FILL_BLOCK_TILES as usize);
@@ -234,12 +264,11 @@ impl LearnedSource {
         let mut h = vec![0f32; m * m];
         for t in 0..k * k {
             let c = corner.offset((t % k) as i32, (t / k) as i32);
-            paste(&mut h, m, &self.raw_tile(seed, c), n, (t % k) * n, (t / k) * n);
+            paste(&mut h, m, &tile(c), n, (t % k) * n, (t / k) * n);
         }
-        // Real terrain drains: the networks' pits are filled, the block's border kept.
         drainage::fill_depressions(&mut h, m, drainage::FLAT_GRADIENT_M);
         let h = Arc::new(h);
-        self.filled.lock().unwrap_or_else(|p| p.into_inner()).insert(key, h.clone());
+        cache.lock().unwrap_or_else(|p| p.into_inner()).insert(key, h.clone());
         h
     }
 
@@ -351,15 +380,16 @@ mod tests {
         }
     }
 
-    /// A basin cut by tile edges inside a fill block is filled as one: the 2×2 tiles of the
-    /// block with corner (−2, 0), put together, have no closed depression of any depth.
+    /// A basin cut by tile edges inside a second-stage block is filled as one: the 2×2 world
+    /// tiles of the block with corner (−1, 1), put together, have no closed depression of any
+    /// depth.
     #[test]
-    fn tiles_of_a_fill_block_drain_together() {
+    fn tiles_of_a_second_stage_block_drain_together() {
         let src = LearnedSource::new(random_models(), 1);
         let (n, m) = (TILE_SAMPLES, 2 * TILE_SAMPLES);
         let mut h = vec![0f32; m * m];
         for t in 0..4 {
-            let tile = src.generate(9, TileCoord::new(-2 + t % 2, t / 2), &Neighbourhood::default());
+            let tile = src.generate(9, TileCoord::new(-1 + t % 2, 1 + t / 2), &Neighbourhood::default());
             paste(&mut h, m, &tile.heights, n, (t as usize % 2) * n, (t as usize / 2) * n);
         }
         assert_eq!(drainage::depression_fraction(&h, m, 0.0), 0.0);
@@ -371,6 +401,15 @@ mod tests {
         assert_eq!(fill_block_corner(TileCoord::new(0, 1)), TileCoord::new(0, 0));
         assert_eq!(fill_block_corner(TileCoord::new(-1, -2)), TileCoord::new(-2, -2));
         assert_eq!(fill_block_corner(TileCoord::new(3, -3)), TileCoord::new(2, -4));
+    }
+
+    /// Second-stage blocks start at odd tile coordinates, for negative coordinates too.
+    #[test]
+    fn second_stage_blocks_start_at_odd_tiles() {
+        assert_eq!(second_block_corner(TileCoord::new(0, 1)), TileCoord::new(-1, 1));
+        assert_eq!(second_block_corner(TileCoord::new(2, 1)), TileCoord::new(1, 1));
+        assert_eq!(second_block_corner(TileCoord::new(-1, -2)), TileCoord::new(-1, -3));
+        assert_eq!(second_block_corner(TileCoord::new(4, -3)), TileCoord::new(3, -3));
     }
 
     /// The ruggedness field over 200×200 tiles of two seeds has the mean and standard
