@@ -113,10 +113,14 @@ pub fn load_run<G: ModuleSnapshot>(dir: &Path, prefix: &str, gen_file: &str, g: 
         p => adam().load(p).map_err(|e| format!("{file}: {e:?}")),
     };
     let (og, od) = (load(format!("{prefix}_adam.bin"))?, load(format!("{prefix}_disc_adam.bin"))?);
+    Ok((og, od, read_state(dir, prefix)?))
+}
+
+/// The settings and progress a run saved in `dir` (`{prefix}_state.json`).
+pub fn read_state(dir: &Path, prefix: &str) -> Result<serde_json::Value, String> {
     let file = format!("{prefix}_state.json");
     let text = std::fs::read_to_string(dir.join(&file)).map_err(|e| format!("{}: {e}", dir.join(&file).display()))?;
-    let state = serde_json::from_str(&text).map_err(|e| format!("{file}: {e}"))?;
-    Ok((og, od, state))
+    serde_json::from_str(&text).map_err(|e| format!("{file}: {e}"))
 }
 
 /// Loads a module's weights from a burnpack file; missing tensors are an error.

@@ -153,9 +153,9 @@ pub struct TcmConfig {
     /// read 0.
     #[serde(default)]
     pub coarse: f32,
-    /// Factor on the L1 term for windows of phase 0 (no neighbour given: the centre is free, so
-    /// its L1 target is one of many plausible tiles and pulls towards their smooth mean);
-    /// the other phases keep the full L1 term. Runs saved before it existed read 1.
+    /// Weight of the L1 term far from every given neighbour and everywhere in phase-0 windows
+    /// ([`l1_weight_map`]): there the real tile is one of many plausible ones, and L1 towards it
+    /// pulls towards their smooth mean. Runs saved before it existed read 1.
     #[serde(default = "one")]
     pub free_l1: f32,
     /// Reach (samples at 128 m) of the full L1 weight from the given neighbours
@@ -250,16 +250,22 @@ pub fn coarse_gap(made: Tensor<4>, real: Tensor<4>) -> Tensor<1> {
 /// the made tiles from being bowls or domes on average (each phase drew the tile grid on the
 /// world with its own bias), without pulling any one tile towards the real one's shape.
 pub fn dome_gap(made: Tensor<4>, real: Tensor<4>, phases: &[usize]) -> Tensor<1> {
-    let (b, n) = (phases.len(), TILE_PX * TILE_PX);
-    // dome_height is linear: its weights are its values on the unit impulses.
-    let mut unit = vec![0f32; n];
-    let weights: Vec<f32> = (0..n).map(|p| {
-        unit[p] = 1.0;
-        let w = dome_height(&unit) as f32;
-        unit[p] = 0.0;
-        w
-    }).collect();
-    let w = tensor(weights, [1, 1, TILE_PX, TILE_PX], &made.device());
+    let b = phases.len();
+    // dome_height is linear: its weights are its values on the unit impulses, found once.
+    static WEIGHTS: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
+    let weights = WEIGHTS.get_or_init(|| {
+        let n = TILE_PX * TILE_PX;
+        let mut unit = vec![0f32; n];
+        (0..n)
+            .map(|p| {
+                unit[p] = 1.0;
+                let w = dome_height(&unit) as f32;
+                unit[p] = 0.0;
+                w
+            })
+            .collect()
+    });
+    let w = tensor(weights.clone(), [1, 1, TILE_PX, TILE_PX], &made.device());
     let domes = ((made - real) * w).sum_dim(3).sum_dim(2).reshape([b]);
     let mut total = None;
     for phase in 0..4 {
@@ -493,9 +499,8 @@ pub fn start_run(cfg: TcmConfig, device: &Device, resume_from: Option<&Path>, in
     }
     let mut cfg = cfg;
     if let Some(dir) = resume_from {
-        // The settings decide the discriminator's inputs.
-        let state: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("tcm_state.json")).map_err(|e| format!("{}: {e}", dir.join("tcm_state.json").display()))?).map_err(|e| format!("tcm_state.json: {e}"))?;
-        cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("tcm_state.json: {e}"))?;
+        // The saved settings decide the discriminator's inputs.
+        cfg = serde_json::from_value(gan::read_state(dir, "tcm")?["config"].clone()).map_err(|e| format!("tcm_state.json: {e}"))?;
     }
     let mut d = Disc::with_inputs(DISC_CHANNELS + if cfg.disc_slopes { 2 } else { 0 }, device);
     let (mut og, mut od) = (gan::adam(), gan::adam());
@@ -519,7 +524,7 @@ impl TcmRun {
         let t0 = web_time::Instant::now();
         let mut rng = Rng(self.cfg.seed.wrapping_mul(0x1_0000_0001) ^ self.progress.step as u64);
         let b = self.cfg.batch;
-        let (mut inputs, mut reals, mut l1_weights, mut masks, mut phases) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut inputs, mut reals, mut l1_weights, mut phases) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let mut tries = 0;
         while reals.len() < b * CONTEXT_PX * CONTEXT_PX && tries < b * 20 {
             tries += 1;
@@ -529,7 +534,6 @@ impl TcmRun {
                 inputs.extend(s.input);
                 reals.extend(s.real);
                 l1_weights.extend(l1_weight_map(&phase_mask(s.phase), self.cfg.free_l1, self.cfg.l1_reach_px));
-                masks.push(phase_mask(s.phase));
                 phases.push(s.phase);
             }
         }
@@ -545,6 +549,7 @@ impl TcmRun {
         let mut fake = self.g.forward(x);
         if self.cfg.joined {
             let values = |t: Tensor<4>| t.detach().into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"));
+            let masks: Vec<[bool; 9]> = phases.iter().map(|&p| phase_mask(p)).collect();
             let offsets = joined_offsets(&values(fake.clone())?, &values(real.clone())?, &masks);
             fake = fake + tensor(offsets, [n, 1, TILE_PX, TILE_PX], dev);
         }

@@ -34,7 +34,7 @@ pub struct Environment {
     /// CPU time of the last frame's streaming, selection and draw encoding (milliseconds).
     pub cpu_ms: f64,
     /// Where the sketch generator runs ("WebGPU" or "CPU worker").
-    pub sketch_backend: String,
+    pub sketch_backend: &'static str,
 }
 
 /// What the user asked for this frame.

@@ -1050,7 +1050,7 @@ impl eframe::App for WebApp {
             self.env.tem_loading = ml.loading.map(|k| (k, LEVELS));
             self.env.tem_error = ml.error.clone();
             self.env.tem_ready = ml.tem.is_some();
-            self.env.sketch_backend = if ml.sketch_gpu.is_some() { "WebGPU" } else { "CPU worker" }.into();
+            self.env.sketch_backend = if ml.sketch_gpu.is_some() { "WebGPU" } else { "CPU worker" };
         }
         self.env.source = self.app.source_name();
         let mode = self.app.controller.mode;
