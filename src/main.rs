@@ -195,9 +195,20 @@ enum Command {
         /// The discriminator also sees the window's slopes (a new run only).
         #[arg(long)]
         disc_slopes: bool,
-        /// Train only the TCM; the ×4 step's checkpoint stays as it is.
+        /// Weight of the position term: how much the made tiles' roughness depends on the
+        /// position inside the tile (0: none; with --resume it replaces the saved weight).
         #[arg(long)]
+        position: Option<f32>,
+        /// Train only the TCM; the ×4 step's checkpoint stays as it is.
+        #[arg(long, conflicts_with = "grow_only")]
         tcm_only: bool,
+        /// Train only the ×4 step; the TCM's checkpoint stays as it is.
+        #[arg(long)]
+        grow_only: bool,
+        /// Weight of the ×4 step's cell-position term: how much its steps depend on the place
+        /// inside the 128 m cell (0: none; with --resume it replaces the saved weight).
+        #[arg(long)]
+        grow_position: Option<f32>,
     },
     /// Compare the learned and the procedural world with the held-out east third of every DEM
     /// at 32 m or finer: geomorphometric statistics over 128 and 256-sample windows, their
@@ -530,9 +541,9 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7], [joined, disc_slopes]: [bool; 2], init: Option<&std::path::Path>, tcm_only: bool) -> Result<(), String> {
+fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7], [joined, disc_slopes]: [bool; 2], [position, grow_position]: [Option<f32>; 2], init: Option<&std::path::Path>, [tcm_only, grow_only]: [bool; 2]) -> Result<(), String> {
     use terrain::train::{grow, pairs, tcm};
-    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage), ("--coarse", coarse), ("--free-l1", free_l1), ("--l1-reach", l1_reach), ("--dome", dome)] {
+    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage), ("--coarse", coarse), ("--free-l1", free_l1), ("--l1-reach", l1_reach), ("--dome", dome), ("--position", position.unwrap_or(0.0)), ("--grow-position", grow_position.unwrap_or(0.0))] {
         if !w.is_finite() || w < 0.0 {
             return Err(format!("{flag} must be a finite number ≥ 0, not {w}"));
         }
@@ -559,7 +570,7 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
         }
     }
     let device = burn::tensor::Device::flex().autodiff();
-    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, free_l1, l1_reach_px: l1_reach, joined, dome, disc_slopes, ..Default::default() };
+    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, free_l1, l1_reach_px: l1_reach, joined, dome, disc_slopes, position: position.unwrap_or(0.0), ..Default::default() };
     let from = resume.then_some(checkpoint);
     let start = match init {
         Some(dir) => {
@@ -571,25 +582,42 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
         }
         None => None,
     };
-    let mut run = tcm::start_run(cfg, &device, from, start.as_ref())?;
-    // With --tcm-only the ×4 step is not trained, so its checkpoint need not exist.
-    let mut up = grow::GrowRun::start(batch, adversarial, &device, if tcm_only { None } else { from })?;
+    // A part that is not trained needs no checkpoint: it starts fresh and is not saved.
+    let mut run = tcm::start_run(cfg, &device, from.filter(|_| !grow_only), start.as_ref())?;
+    if let Some(w) = position {
+        run.cfg.position = w;
+    }
+    let mut up = grow::GrowRun::start(batch, adversarial, &device, from.filter(|_| !tcm_only))?;
     if let Some(dir) = init.filter(|_| !tcm_only) {
-        terrain::train::gan::load_into(&mut up.g, &dir.join(grow::GROW_FILE))?;
+        // The shipped file holds float16 weights, which burn's loader does not convert.
+        let file = dir.join(grow::GROW_FILE);
+        let bytes = std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+        let g = terrain::models::grow::GrowCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", file.display()))?;
+        up.g = g.into_model(up.g);
+    }
+    if let Some(w) = grow_position {
+        up.position = w;
     }
     eprintln!("TCM: {} parameters, ×4: {} parameters; {:?}; from step {}", run.g.parameters(), up.parameters(), run.cfg, run.progress.step);
-    let end = run.progress.step + steps;
-    while run.progress.step < end {
-        run.step(&grids)?;
+    // The step count of the part being trained.
+    let at = |run: &tcm::TcmRun, up: &grow::GrowRun| if grow_only { up.progress.step } else { run.progress.step };
+    let end = at(&run, &up) + steps;
+    while at(&run, &up) < end {
+        if !grow_only {
+            run.step(&grids)?;
+        }
         if !tcm_only {
             up.step(&fine, run.cfg.seed)?;
         }
         let (p, q) = (&run.progress, &up.progress);
-        if p.step % 10 == 0 || p.step == end {
-            eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} pits {:.5} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", p.step, p.l1, p.adv, p.disc, p.depression, p.seconds / p.step as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
+        let step = at(&run, &up);
+        if step % 10 == 0 || step == end {
+            eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} pits {:.5} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", step, p.l1, p.adv, p.disc, p.depression, p.seconds / p.step.max(1) as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
         }
-        if p.step % every == 0 || p.step == end {
-            run.save(checkpoint)?;
+        if step % every == 0 || step == end {
+            if !grow_only {
+                run.save(checkpoint)?;
+            }
             if !tcm_only {
                 up.save(checkpoint)?;
             }
@@ -651,16 +679,28 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
         }
         sides.push(serde_json::json!({ "window": side, "real_windows": real.len(), "real_medians": medians(&real), "worlds": worlds, "ratio_tcm_over_procedural": means[0] / means[1] }));
     }
-    let seams: serde_json::Map<String, serde_json::Value> = regions
+    // Seam figures pooled over the edges of all seeds' regions, and the same figures on
+    // real terrain cut into tiles (the validation windows of 256 samples: one edge each way),
+    // which has no seams: what a seamless world scores.
+    let seam_figures = |fields: &[terrain::dem::Heightfield]| {
+        let seam: Vec<f64> = fields.iter().flat_map(world_eval::seam_ratios).collect();
+        let crease: Vec<f64> = fields.iter().flat_map(world_eval::crease_ratios).collect();
+        let ((m, p), (cm, cp), (sm, sp)) = (world_eval::mean_p95(&seam), world_eval::mean_p95(&crease), world_eval::seam_steps(fields));
+        serde_json::json!({ "edges": seam.len(), "seam_mean": m, "seam_p95": p, "crease_mean": cm, "crease_p95": cp, "edge_step_over_inner_step_mean": sm, "edge_step_over_inner_step_p95": sp })
+    };
+    let mut seams: serde_json::Map<String, serde_json::Value> = regions
         .iter()
         .map(|(name, rs, ms)| {
-            let (m, p): (Vec<f64>, Vec<f64>) = rs.iter().map(world_eval::seam_ratio).unzip();
-            let (cm, cp): (Vec<f64>, Vec<f64>) = rs.iter().map(world_eval::crease_ratio).unzip();
+            let mut f = seam_figures(rs);
             let strip: Vec<f64> = rs.iter().map(world_eval::edge_strip_ratio).collect();
-            let worst = |v: &[f64]| v.iter().cloned().fold(f64::MIN, f64::max);
-            (name.to_string(), serde_json::json!({ "seam_mean": m.iter().sum::<f64>() / m.len() as f64, "seam_p95": worst(&p), "crease_mean": cm.iter().sum::<f64>() / cm.len() as f64, "crease_p95": worst(&cp), "edge_strip": strip.iter().sum::<f64>() / strip.len() as f64, "ms_per_tile": ms }))
+            f["edge_strip"] = serde_json::json!(strip.iter().sum::<f64>() / strip.len() as f64);
+            f["ms_per_tile"] = serde_json::json!(ms);
+            (name.to_string(), f)
         })
         .collect();
+    let side = world_eval::WINDOW_SIDES[1];
+    let real: Vec<terrain::dem::Heightfield> = world_eval::real_windows(&dems, side).into_iter().map(|w| terrain::dem::Heightfield::new(side, side, terrain::world::coord::BASE_SPACING_M, w)).collect();
+    seams.insert("real_validation_cut_into_tiles".into(), seam_figures(&real));
     // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.
     let mean_sd = |v: &[f64]| {
         let m = v.iter().sum::<f64>() / v.len() as f64;
@@ -976,8 +1016,8 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
         #[cfg(feature = "train")]
-        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, free_l1, l1_reach, joined, dome, disc_slopes, tcm_only } => {
-            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome], [joined, disc_slopes], init.as_deref(), tcm_only)
+        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, free_l1, l1_reach, joined, dome, disc_slopes, position, tcm_only, grow_only, grow_position } => {
+            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome], [joined, disc_slopes], [position, grow_position], init.as_deref(), [tcm_only, grow_only])
         }
     };
     match result {

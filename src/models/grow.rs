@@ -181,6 +181,17 @@ impl GrowCpu {
         Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
     }
 
+    /// Writes these weights into a burn network (the start of a training run).
+    #[cfg(feature = "train")]
+    pub fn into_model(&self, m: Grow) -> Grow {
+        let mut m = m;
+        let layers = std::iter::once(&mut m.head).chain(m.body.iter_mut()).chain([&mut m.merge]).chain(m.mid.iter_mut()).chain([&mut m.fine, &mut m.tail]);
+        for (c, layer) in self.convs.iter().zip(layers) {
+            cpu::conv_into_burn(c, layer);
+        }
+        m
+    }
+
     /// Copies a burn network's weights.
     pub fn from_model(m: &Grow) -> Result<Self, String> {
         let layers = std::iter::once(&m.head).chain(&m.body).chain([&m.merge]).chain(&m.mid).chain([&m.fine, &m.tail]);

@@ -70,6 +70,157 @@ pub fn fill_depressions(h: &mut [f32], n: usize, gradient_m: f32) -> usize {
     raised
 }
 
+/// Makes every sample of the `n`×`n` heightfield `h` (metres, row-major) drain to the border
+/// mostly by carving, as rivers do, instead of by filling lakes: closed depressions are first
+/// raised to at most `max_depth_m` below their fill level (the deeper parts of deep basins
+/// become level lakes, as [`fill_depressions`] would make them), then a channel is cut from
+/// each remaining pit along its spill path — the priority-flood path to the border — lowering
+/// each sample on it to `gradient_m` (rounded to the next representable height) below the one
+/// upstream until the path already descends. No sample is lowered by much more than
+/// `max_depth_m`; where the channel would have to go below a border sample the pit is raised
+/// instead. A channel one sample wide would be a slot; its sides are then lowered to a V
+/// whose sides drop `wall_m` per sample towards it, by no more than the channel is deep
+/// ([`open_channels`]), and the few pits that leaves are filled. The border is never
+/// changed; NaN samples are left as they are and do not drain. Returns (samples raised,
+/// samples lowered).
+pub fn breach_depressions(h: &mut [f32], n: usize, max_depth_m: f32, wall_m: f32, gradient_m: f32) -> (usize, usize) {
+    assert_eq!(h.len(), n * n, "a {n}×{n} field has {} samples, not {}", n * n, h.len());
+    let original = h.to_vec();
+    let mut level = original.clone();
+    fill_depressions(&mut level, n, 0.0);
+    let mut raised = 0;
+    for (z, l) in h.iter_mut().zip(&level) {
+        if *z < l - max_depth_m {
+            *z = l - max_depth_m;
+            raised += 1;
+        }
+    }
+    const BORDER: usize = usize::MAX;
+    let mut parent = vec![BORDER; n * n];
+    let mut done = vec![false; n * n];
+    let mut heap = BinaryHeap::new();
+    let mut seq = 0u64;
+    for i in 0..n {
+        for p in [i, (n - 1) * n + i, i * n, i * n + n - 1] {
+            if !done[p] && !h[p].is_nan() {
+                done[p] = true;
+                heap.push(Reverse((Height(h[p]), seq, p)));
+                seq += 1;
+            }
+        }
+    }
+    let mut lowered = vec![false; n * n];
+    let mut path = Vec::new();
+    while let Some(Reverse((_, _, p))) = heap.pop() {
+        let (x, y) = (p % n, p / n);
+        for (qx, qy) in [(x.wrapping_sub(1), y), (x + 1, y), (x, y.wrapping_sub(1)), (x, y + 1)] {
+            if qx >= n || qy >= n {
+                continue;
+            }
+            let q = qy * n + qx;
+            if done[q] || h[q].is_nan() {
+                continue;
+            }
+            done[q] = true;
+            parent[q] = p;
+            if h[q] <= h[p] {
+                // The path from q down to the first sample already low enough (or the border).
+                path.clear();
+                let (mut a, mut z) = (p, below(h[q], gradient_m));
+                while a != BORDER && h[a] >= z {
+                    path.push(a);
+                    if parent[a] == BORDER {
+                        break;
+                    }
+                    a = parent[a];
+                    z = below(z, gradient_m);
+                }
+                if let Some(&b) = path.last().filter(|&&b| parent[b] == BORDER) {
+                    // The channel cannot go below the border sample b: raise q above it.
+                    let mut top = h[b];
+                    for _ in 0..path.len() {
+                        top = above(top, gradient_m);
+                    }
+                    h[q] = top;
+                    raised += 1;
+                    path.pop();
+                }
+                let mut z = h[q];
+                for &a in &path {
+                    z = below(z, gradient_m);
+                    if h[a] > z {
+                        h[a] = z;
+                        lowered[a] = true;
+                    }
+                }
+            }
+            heap.push(Reverse((Height(h[q]), seq, q)));
+            seq += 1;
+        }
+    }
+    let cut: Vec<f32> = (0..n * n).map(|p| if lowered[p] { original[p] - h[p] } else { 0.0 }).collect();
+    let opened = open_channels(h, n, &cut, wall_m);
+    if opened > 0 {
+        // Capping the sides at the channel's depth can leave shallow pits beside it.
+        raised += fill_depressions(h, n, gradient_m);
+    }
+    (raised, lowered.iter().filter(|&&l| l).count() + opened)
+}
+
+/// Lowers the samples beside the channels of the `n`×`n` field `h` (`cut`: how deep the
+/// breach cut each sample, 0 off the channels) to the lower envelope of cones around them:
+/// a sample `d` samples (8-neighbour chamfer distance) from a channel sample at height z cut
+/// c deep goes down to z + `wall_m`·d, but by at most c. The border and NaN samples are not
+/// changed. Returns the samples lowered; pits this may leave are for the caller to fill.
+pub fn open_channels(h: &mut [f32], n: usize, cut: &[f32], wall_m: f32) -> usize {
+    if !(wall_m.is_finite() && wall_m > 0.0) {
+        return 0;
+    }
+    let inner = |p: usize| p % n != 0 && p % n != n - 1 && p / n != 0 && p / n != n - 1;
+    // Per sample: the lowest cone over it and the depth of the channel sample it comes from.
+    let mut cone = vec![(f32::INFINITY, 0f32); n * n];
+    let mut heap = BinaryHeap::new();
+    for p in (0..n * n).filter(|&p| cut[p] > 0.0) {
+        cone[p] = (h[p], cut[p]);
+        heap.push(Reverse((Height(h[p]), p)));
+    }
+    let diagonal = wall_m * std::f32::consts::SQRT_2;
+    while let Some(Reverse((Height(z), p))) = heap.pop() {
+        if z > cone[p].0 {
+            continue;
+        }
+        let (x, y) = ((p % n) as i64, (p / n) as i64);
+        for (dx, dy) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)] {
+            let (qx, qy) = (x + dx, y + dy);
+            if qx < 0 || qy < 0 || qx >= n as i64 || qy >= n as i64 {
+                continue;
+            }
+            let q = qy as usize * n + qx as usize;
+            let zq = z + if dx != 0 && dy != 0 { diagonal } else { wall_m };
+            if inner(q) && !h[q].is_nan() && zq < cone[q].0 && zq < h[q] {
+                cone[q] = (zq, cone[p].1);
+                heap.push(Reverse((Height(zq), q)));
+            }
+        }
+    }
+    let mut lowered = 0;
+    for p in 0..n * n {
+        let (z, c) = cone[p];
+        let to = z.max(h[p] - c);
+        if to < h[p] && cut[p] == 0.0 {
+            h[p] = to;
+            lowered += 1;
+        }
+    }
+    lowered
+}
+
+/// `z - d`, or the next representable value below `z` where `d` is below its precision.
+fn below(z: f32, d: f32) -> f32 {
+    let s = z - d;
+    if s < z { s } else { z.next_down() }
+}
+
 /// `z + d`, or the next representable value above `z` where `d` is below its precision.
 fn above(z: f32, d: f32) -> f32 {
     let s = z + d;
@@ -128,6 +279,48 @@ mod tests {
             }
         }
         assert_eq!(depression_fraction(&h, n, 0.0), 0.0);
+    }
+
+    /// White noise (100 m range) breached with a 20 m depth limit: every sample drains
+    /// strictly to the border, the border is bit-identical, no sample went down by more than
+    /// the limit (plus the channels' gradient), channels were cut, and fewer samples were
+    /// raised than a fill raises.
+    #[test]
+    fn breached_noise_drains_keeps_its_border_and_is_lowered_at_most_the_depth_limit() {
+        let n = 64;
+        let h0 = noise(n, 11);
+        let mut h = h0.clone();
+        let (raised, lowered) = breach_depressions(&mut h, n, 20.0, 16.0, FLAT_GRADIENT_M);
+        let filled_raised = fill_depressions(&mut h0.clone(), n, FLAT_GRADIENT_M);
+        println!("breach: {raised} raised, {lowered} lowered; fill: {filled_raised} raised");
+        assert!(drains(&h, n));
+        assert!(lowered > 100 && raised < filled_raised, "{raised} {lowered} {filled_raised}");
+        for p in 0..n * n {
+            assert!(h0[p] - h[p] <= 20.0 + n as f32 * n as f32 * FLAT_GRADIENT_M, "{p}: {} → {}", h0[p], h[p]);
+            if p % n == 0 || p % n == n - 1 || p / n == 0 || p / n == n - 1 {
+                assert_eq!(h[p].to_bits(), h0[p].to_bits());
+            }
+        }
+    }
+
+    /// A bowl 10 m deep spilling over one low border sample, breached with a 4 m limit: its
+    /// centre is raised to 4 m below the spill height (within the gradient over its radius),
+    /// a channel at most 4 m deep is cut through the rim to the spill point, and every
+    /// sample drains.
+    #[test]
+    fn a_bowl_breached_with_a_depth_limit_keeps_a_lake_4_m_below_its_spill_height() {
+        let n = 33;
+        let c = 16.0f32;
+        let mut h: Vec<f32> = (0..n * n).map(|p| 100.0 + (((p % n) as f32 - c).powi(2) + ((p / n) as f32 - c).powi(2)).sqrt().min(c) * 10.0 / c).collect();
+        h[16] = 99.0; // the spill point on the top border, below the bowl's floor
+        let before = h.clone();
+        let (_, lowered) = breach_depressions(&mut h, n, 4.0, f32::INFINITY, FLAT_GRADIENT_M);
+        let spill = before[n + 16];
+        let centre = h[16 * n + 16];
+        assert!((centre - (spill - 4.0)).abs() <= 40.0 * FLAT_GRADIENT_M, "centre {centre}, spill {spill}");
+        assert!(lowered >= 10, "{lowered}");
+        assert!(h.iter().zip(&before).all(|(a, b)| b - a <= 4.0 + 0.05), "lowered by more than 4 m");
+        assert!(drains(&h, n));
     }
 
     /// A bowl 10 m deep whose rim is lowered at one border sample fills to its spill height

@@ -10,19 +10,21 @@
 //! - the 32 m tile is the ×4 network applied to the 128 m field around it (the tile plus
 //!   [`grow::MARGIN`] samples of its neighbours), with noise drawn at global positions, so
 //!   neighbouring 32 m tiles agree along their edges wherever their 128 m fields do;
-//! - its closed depressions are then filled ([`super::drainage`]) over the block of 2×2 tiles
-//!   (corner tile at even i and j) it belongs to, the block's border fixed: a basin cut by a
-//!   tile edge inside the block is filled as one (a fill per tile leaves it as a pit along the
-//!   edge), every sample drains to the block's border, and a tile is a pure function of the
-//!   block's four tiles;
-//! - a second stage fills the blocks offset by one tile (corner tile at odd i and j) of those
-//!   filled tiles, the same way: a basin cut by a first-stage block's border lies inside a
+//! - its closed depressions are then drained ([`super::drainage::breach_depressions`]) over the
+//!   block of 2×2 tiles (corner tile at even i and j) it belongs to, the block's border fixed:
+//!   each pit gets a channel carved along its spill path with V-shaped sides
+//!   ([`CHANNEL_WALL_M`]), and only the parts of a basin more than [`BREACH_DEPTH_M`] below
+//!   its spill height become level lakes. A basin cut by a tile edge inside the block is
+//!   drained as one (a pass per tile leaves it as a pit along the edge), every sample drains
+//!   to the block's border, and a tile is a pure function of the block's four tiles;
+//! - a second stage drains the blocks offset by one tile (corner tile at odd i and j) of those
+//!   drained tiles, the same way: a basin cut by a first-stage block's border lies inside a
 //!   second-stage block. A world tile is the quadrant of its second-stage block, a pure
 //!   function of the 4×4 tiles of the four first-stage blocks under it. With tiles as smooth as
 //!   the first generators made (tile grid, bowls and domes along the edges) this stage turned
 //!   the basins along the edges into wide flat lakes; with tiles as rugged as real terrain it
 //!   takes the closed depressions left along the first stage's borders to none (eval-tcm).
-//!   Filled blocks of both stages are kept in bounded caches.
+//!   Drained blocks of both stages are kept in bounded caches.
 //!
 //! The macro field — the absolute level and the large-scale relief the TCM is conditioned on —
 //! is seeded Perlin fBm over tile coordinates ([`macro_height`]), and so is the ruggedness
@@ -68,7 +70,19 @@ const RUGGEDNESS_NOISE_SD: f64 = 0.34;
 /// 128 m tiles kept in the cache (each 4 KiB).
 pub const COARSE_CACHE_TILES: usize = 4096;
 
-/// Side (tiles) of the blocks whose closed depressions are filled together.
+/// How far below its spill height a closed depression may stay and be drained by a carved
+/// channel instead (metres): deeper parts become level lakes ([`drainage::breach_depressions`]).
+/// eval-tcm, 4 seeds, realism ratio at 128 / 256 px: 0.258 / 0.258 with 50 m; 0.272 / 0.273
+/// with 40 m, 0.262 / 0.262 with 65 m; 0.348 / 0.321 filling every depression (0 m); carving
+/// without a limit makes crack-like gorges (0.59 / 0.58).
+pub const BREACH_DEPTH_M: f32 = 50.0;
+
+/// The drop per 32 m sample of the sides the carved channels are opened to (metres): a V of
+/// 16 m per sample (27°) instead of a slot one sample wide. eval-tcm, 4 seeds, with
+/// [`BREACH_DEPTH_M`]: 0.258 / 0.258; 13 m: 0.280 / 0.265; 20 m: 0.289 / 0.271.
+pub const CHANNEL_WALL_M: f32 = 16.0;
+
+/// Side (tiles) of the blocks whose closed depressions are drained together.
 pub const FILL_BLOCK_TILES: i32 = 2;
 
 /// Filled blocks kept in the cache of each stage (each 256 KiB).
@@ -237,14 +251,14 @@ impl TileSource for LearnedSource {
 
 impl LearnedSource {
     /// The first-stage block (2×2 tiles, corner tile `corner`, [`fill_block_corner`]) of world
-    /// `seed`: the networks' tiles, closed depressions filled with the block's border fixed
+    /// `seed`: the networks' tiles, closed depressions drained with the block's border fixed
     /// ([`TILE_SAMPLES`]·2 samples square, metres).
     fn filled_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
         Self::fill_cached(&self.filled, seed, corner, |c| self.raw_tile(seed, c))
     }
 
     /// The second-stage block (corner tile `corner`, [`second_block_corner`]) of world `seed`:
-    /// the first stage's filled tiles, filled again over this block.
+    /// the first stage's drained tiles, drained again over this block.
     fn drained_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
         Self::fill_cached(&self.drained, seed, corner, |c| {
             let first = fill_block_corner(c);
@@ -252,7 +266,7 @@ impl LearnedSource {
         })
     }
 
-    /// The block of 2×2 tiles `tile(c)` with corner tile `corner`, its closed depressions filled
+    /// The block of 2×2 tiles `tile(c)` with corner tile `corner`, its closed depressions drained
     /// with its border fixed (real terrain drains), from `cache` or made and kept there.
     fn fill_cached(cache: &Mutex<BlockCache>, seed: u64, corner: TileCoord, tile: impl Fn(TileCoord) -> Vec<f32>) -> Arc<Vec<f32>> {
         let key = (seed, corner);
@@ -266,7 +280,7 @@ impl LearnedSource {
             let c = corner.offset((t % k) as i32, (t / k) as i32);
             paste(&mut h, m, &tile(c), n, (t % k) * n, (t / k) * n);
         }
-        drainage::fill_depressions(&mut h, m, drainage::FLAT_GRADIENT_M);
+        drainage::breach_depressions(&mut h, m, BREACH_DEPTH_M, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
         let h = Arc::new(h);
         cache.lock().unwrap_or_else(|p| p.into_inner()).insert(key, h.clone());
         h
