@@ -6,6 +6,47 @@ use crate::dem::Heightfield;
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, TemSet};
 use crate::world::refine::{PatchKey, PatchStore, RefineInput, run_blocking};
 
+/// Why a DEM cannot be enhanced; the message names the option or the input at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum EnhanceError {
+    /// The input spacing is not one the ladder starts from.
+    #[error("--input-res must be one of 32, 16, 8, 4, 2 (m per pixel), got {0}")]
+    InputRes(f64),
+    /// The output spacing is not one the ladder makes.
+    #[error("--output-res must be one of 16, 8, 4, 2, 1 (m per pixel), got {0}")]
+    OutputRes(f64),
+    /// The output spacing is not finer than the input's.
+    #[error("--output-res {output_m} must be finer than --input-res {input_m}")]
+    NotFiner {
+        /// Input spacing (m per pixel).
+        input_m: f64,
+        /// Output spacing (m per pixel).
+        output_m: f64,
+    },
+    /// The output would exceed [`MAX_OUTPUT_SAMPLES`].
+    #[error("the output would be {width} × {height} samples, more than the {MAX_OUTPUT_SAMPLES} this command makes at once: crop the input or choose a coarser --output-res")]
+    TooLarge {
+        /// Output width (samples).
+        width: u64,
+        /// Output height (samples).
+        height: u64,
+    },
+    /// The input has no samples.
+    #[error("the input DEM is empty")]
+    Empty,
+    /// Every input sample is no-data.
+    #[error("the input DEM has no valid sample (all no-data)")]
+    AllNoData,
+    /// Refinement failed (a patch could not be started or a model failed).
+    #[error("refining level {level}: {reason}")]
+    Refine {
+        /// The ladder level.
+        level: usize,
+        /// What went wrong.
+        reason: String,
+    },
+}
+
 /// A DEM as refinement input: pixel (x, y) of the grid is DEM sample (x, y); outside the DEM
 /// the edge is replicated, so edge patches see a plausible context.
 pub struct DemInput {
@@ -35,11 +76,11 @@ impl RefineInput for DemInput {
 
 /// The ladder levels (first, last) that take `input_res_m` to `output_res_m`: the input must
 /// be one of 32/16/8/4/2 m and the output one of 16/8/4/2/1 m below it.
-pub fn levels_for(input_res_m: f64, output_res_m: f64) -> Result<(usize, usize), String> {
-    let first = (0..LEVELS).find(|&k| (2.0 * LEVEL_SPACING_M[k] - input_res_m).abs() < 1e-9).ok_or_else(|| format!("--input-res must be one of 32, 16, 8, 4, 2 (m per pixel), got {input_res_m}"))?;
-    let last = (0..LEVELS).find(|&k| (LEVEL_SPACING_M[k] - output_res_m).abs() < 1e-9).ok_or_else(|| format!("--output-res must be one of 16, 8, 4, 2, 1 (m per pixel), got {output_res_m}"))?;
+pub fn levels_for(input_res_m: f64, output_res_m: f64) -> Result<(usize, usize), EnhanceError> {
+    let first = (0..LEVELS).find(|&k| (2.0 * LEVEL_SPACING_M[k] - input_res_m).abs() < 1e-9).ok_or(EnhanceError::InputRes(input_res_m))?;
+    let last = (0..LEVELS).find(|&k| (LEVEL_SPACING_M[k] - output_res_m).abs() < 1e-9).ok_or(EnhanceError::OutputRes(output_res_m))?;
     if last < first {
-        return Err(format!("--output-res {output_res_m} must be finer than --input-res {input_res_m}"));
+        return Err(EnhanceError::NotFiner { input_m: input_res_m, output_m: output_res_m });
     }
     Ok((first, last))
 }
@@ -51,13 +92,11 @@ pub const MAX_OUTPUT_SAMPLES: u64 = 1 << 27;
 
 /// The size (width, height) of the output for an input of `width × height` refined over
 /// `levels` levels, or an error if it exceeds [`MAX_OUTPUT_SAMPLES`].
-pub fn output_size(width: usize, height: usize, levels: usize) -> Result<(usize, usize), String> {
+pub fn output_size(width: usize, height: usize, levels: usize) -> Result<(usize, usize), EnhanceError> {
     let f = 1u64 << levels;
     let (w, h) = ((width as u64).saturating_mul(f), (height as u64).saturating_mul(f));
     if w.saturating_mul(h) > MAX_OUTPUT_SAMPLES {
-        return Err(format!(
-            "the output would be {w} × {h} samples, more than the {MAX_OUTPUT_SAMPLES} this command makes at once: crop the input or choose a coarser --output-res"
-        ));
+        return Err(EnhanceError::TooLarge { width: w, height: h });
     }
     Ok((w as usize, h as usize))
 }
@@ -69,13 +108,13 @@ pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, usize);
 /// the output covers the same extent with 2^levels times the pixels per side; no-data input
 /// pixels stay no-data (their area in the output is NaN). Returns the result and the
 /// refinement counters.
-pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &TemSet, batch: usize, progress: Progress) -> Result<(Heightfield, crate::world::RefineStats), String> {
+pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &TemSet, batch: usize, progress: Progress) -> Result<(Heightfield, crate::world::RefineStats), EnhanceError> {
     let (first, last) = levels_for(input_res_m, output_res_m)?;
     if input.width == 0 || input.height == 0 {
-        return Err("the input DEM is empty".into());
+        return Err(EnhanceError::Empty);
     }
     let (w, h) = output_size(input.width, input.height, last - first + 1)?;
-    let filled = input.fill_nodata().ok_or("the input DEM has no valid sample (all no-data)")?;
+    let filled = input.fill_nodata().ok_or(EnhanceError::AllNoData)?;
     let source = DemInput::new(filled);
     let mut store = PatchStore::new(first, 0);
     for level in first..=last {
@@ -89,9 +128,9 @@ pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &T
         for chunk in keys.chunks(batch.max(1)) {
             let jobs = store.jobs_for(chunk, &source);
             if jobs.len() != chunk.len() {
-                return Err(format!("level {level}: {} patches could not be started", chunk.len() - jobs.len()));
+                return Err(EnhanceError::Refine { level, reason: format!("{} patches could not be started", chunk.len() - jobs.len()) });
             }
-            done += run_blocking(&mut store, tem, jobs)?;
+            done += run_blocking(&mut store, tem, jobs).map_err(|reason| EnhanceError::Refine { level, reason })?;
             progress(level, done, total);
         }
         if level > first {
@@ -102,7 +141,7 @@ pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &T
     let mut data = Vec::with_capacity(w * h);
     for py in 0..h {
         for px in 0..w {
-            let v = if input.at(px / f, py / f).is_nan() { f32::NAN } else { store.pixel(last, px as i64, py as i64).ok_or("a refined pixel is missing")? };
+            let v = if input.at(px / f, py / f).is_nan() { f32::NAN } else { store.pixel(last, px as i64, py as i64).ok_or_else(|| EnhanceError::Refine { level: last, reason: format!("pixel ({px}, {py}) is missing") })? };
             data.push(v);
         }
     }
@@ -120,16 +159,17 @@ mod tests {
         assert_eq!(levels_for(32.0, 1.0).unwrap(), (0, 4));
         assert_eq!(levels_for(16.0, 8.0).unwrap(), (1, 1));
         assert_eq!(levels_for(4.0, 1.0).unwrap(), (3, 4));
-        assert!(levels_for(30.0, 1.0).unwrap_err().contains("--input-res"));
-        assert!(levels_for(32.0, 3.0).unwrap_err().contains("--output-res"));
-        assert!(levels_for(8.0, 16.0).is_err());
+        assert!(matches!(levels_for(30.0, 1.0), Err(EnhanceError::InputRes(r)) if r == 30.0));
+        assert!(matches!(levels_for(32.0, 3.0), Err(EnhanceError::OutputRes(r)) if r == 3.0));
+        assert!(matches!(levels_for(8.0, 16.0), Err(EnhanceError::NotFiner { .. })));
+        assert!(levels_for(30.0, 1.0).unwrap_err().to_string().contains("--input-res"));
     }
 
     /// A 10,000² input at ×32 would be 10¹¹ samples: refused before any work, with the
     /// limit in the message; the largest allowed size passes the check.
     #[test]
     fn outputs_beyond_the_limit_are_refused_up_front() {
-        let e = output_size(10_000, 10_000, 5).unwrap_err();
+        let e = output_size(10_000, 10_000, 5).unwrap_err().to_string();
         assert!(e.contains("320000 × 320000") && e.contains(&MAX_OUTPUT_SAMPLES.to_string()), "{e}");
         assert_eq!(output_size(362, 362, 5).unwrap(), (11_584, 11_584));
         assert!(output_size(363, 363, 5).is_err(), "11,616² > 2²⁷");
@@ -137,7 +177,7 @@ mod tests {
         let tem = TemSet::untrained(&Exec::cpu());
         let big = Heightfield::new(400, 400, 32.0, vec![100.0; 400 * 400]);
         let mut calls = 0;
-        let err = enhance(&big, 32.0, 1.0, &tem, 4, &mut |_, _, _| calls += 1).unwrap_err();
+        let err = enhance(&big, 32.0, 1.0, &tem, 4, &mut |_, _, _| calls += 1).unwrap_err().to_string();
         assert!(err.contains("crop the input"), "{err}");
         assert_eq!(calls, 0, "refused before any patch was made");
     }
@@ -166,6 +206,6 @@ mod tests {
             }
         }
         assert!(worst < 2.0, "{worst}");
-        assert!(enhance(&Heightfield::new(2, 2, 32.0, vec![f32::NAN; 4]), 32.0, 16.0, &tem, 4, &mut |_, _, _| ()).unwrap_err().contains("no valid"));
+        assert!(matches!(enhance(&Heightfield::new(2, 2, 32.0, vec![f32::NAN; 4]), 32.0, 16.0, &tem, 4, &mut |_, _, _| ()), Err(EnhanceError::AllNoData)));
     }
 }

@@ -434,9 +434,9 @@ fn weights_dir(given: Option<PathBuf>) -> PathBuf {
 
 fn enhance(input: &std::path::Path, input_res: f64, output_res: f64, out: &std::path::Path, weights: Option<PathBuf>, batch: usize) -> Result<(), String> {
     use terrain::dem::{Heightfield, PngScale};
-    let (first, last) = terrain::enhance::levels_for(input_res, output_res)?;
+    let (first, last) = terrain::enhance::levels_for(input_res, output_res).map_err(|e| e.to_string())?;
     let hf = Heightfield::read_path(input, Some(input_res), PngScale::default()).map_err(|e| format!("{}: {e}", input.display()))?;
-    terrain::enhance::output_size(hf.width, hf.height, last - first + 1)?;
+    terrain::enhance::output_size(hf.width, hf.height, last - first + 1).map_err(|e| e.to_string())?;
     let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(weights), &terrain::models::tem::Exec::cpu())?;
     let t = std::time::Instant::now();
     let mut last_report = (usize::MAX, 0);
@@ -445,7 +445,7 @@ fn enhance(input: &std::path::Path, input_res: f64, output_res: f64, out: &std::
             last_report = (level, done * 10 / total.max(1));
             eprintln!("level {level} ({} m): {done}/{total} patches", terrain::models::tem::LEVEL_SPACING_M[level]);
         }
-    })?;
+    }).map_err(|e| e.to_string())?;
     let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     result.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
     eprintln!(

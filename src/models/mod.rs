@@ -82,6 +82,16 @@ pub enum WeightError {
         /// Why.
         source: cpu::LayerError,
     },
+    /// A set of networks was given the wrong number of models or files.
+    #[error("{given} {what} given, {needed} needed")]
+    Count {
+        /// What was counted ("TEM models", "TEM weight files").
+        what: &'static str,
+        /// How many were given.
+        given: usize,
+        /// How many the set needs.
+        needed: usize,
+    },
     /// One of the above, in the named file.
     #[error("{file}: {source}")]
     InFile {

@@ -166,29 +166,29 @@ impl TemSet {
     }
 
     /// Wraps trained burn models (on the CPU their weights are copied into its kernels).
-    pub fn from_models(models: Vec<Tem>, exec: &Exec) -> Result<Self, String> {
+    pub fn from_models(models: Vec<Tem>, exec: &Exec) -> Result<Self, super::WeightError> {
         if models.len() != LEVELS {
-            return Err(format!("{} TEM models given, {LEVELS} needed", models.len()));
+            return Err(super::WeightError::Count { what: "TEM models", given: models.len(), needed: LEVELS });
         }
         Ok(match exec {
-            Exec::Cpu { threads } => Self::cpu(models.iter().map(TemCpu::from_model).collect::<Result<_, _>>()?, *threads),
+            Exec::Cpu { threads } => Self::cpu(models.iter().map(TemCpu::from_model).collect::<Result<_, _>>().map_err(super::WeightError::Unreadable)?, *threads),
             Exec::Burn(device) => Self { engine: Engine::Burn { models: models.into_iter().map(|m| m.to_device(device)).collect(), device: device.clone() } },
         })
     }
 
     /// Wraps CPU models on `threads` threads.
-    pub fn from_cpu(models: Vec<TemCpu>, threads: usize) -> Result<Self, String> {
+    pub fn from_cpu(models: Vec<TemCpu>, threads: usize) -> Result<Self, super::WeightError> {
         if models.len() != LEVELS {
-            return Err(format!("{} TEM models given, {LEVELS} needed", models.len()));
+            return Err(super::WeightError::Count { what: "TEM models", given: models.len(), needed: LEVELS });
         }
         Ok(Self::cpu(models, threads.max(1)))
     }
 
     /// Loads the five models from burnpack bytes (level order). A broken or mismatching file
     /// is a clear error naming it.
-    pub fn from_bytes(files: Vec<Vec<u8>>, exec: &Exec) -> Result<Self, String> {
+    pub fn from_bytes(files: Vec<Vec<u8>>, exec: &Exec) -> Result<Self, super::WeightError> {
         if files.len() != LEVELS {
-            return Err(format!("{} TEM weight files given, {LEVELS} needed", files.len()));
+            return Err(super::WeightError::Count { what: "TEM weight files", given: files.len(), needed: LEVELS });
         }
         Ok(match exec {
             Exec::Cpu { threads } => {
@@ -204,7 +204,7 @@ impl TemSet {
 
     /// Loads the five models from `dir/tem_{k}_{s}m.bpk`.
     #[cfg(not(target_arch = "wasm32"))]
-    pub fn load_dir(dir: &std::path::Path, exec: &Exec) -> Result<Self, String> {
+    pub fn load_dir(dir: &std::path::Path, exec: &Exec) -> Result<Self, super::WeightError> {
         let files = (0..LEVELS).map(|k| read_weight_file(dir, k)).collect::<Result<Vec<_>, _>>()?;
         Self::from_bytes(files, exec)
     }
@@ -569,12 +569,14 @@ mod tests {
                 let r = r.unwrap_or_else(|_| panic!("{what} weights panicked on {exec:?}"));
                 if what != "flipped" {
                     let e = r.unwrap_err();
-                    assert!(e.contains(&weight_file(2)), "{what}: {e}");
+                    assert!(matches!(&e, crate::models::WeightError::InFile { file, .. } if *file == weight_file(2)), "{what}: {e}");
                 } else if let Err(e) = r {
-                    assert!(e.contains(&weight_file(2)), "{what}: {e}");
+                    assert!(matches!(&e, crate::models::WeightError::InFile { file, .. } if *file == weight_file(2)), "{what}: {e}");
                 }
             }
-            assert!(TemSet::from_bytes(good[..4].to_vec(), &exec).err().unwrap().contains("4 TEM weight files"));
+            let e = TemSet::from_bytes(good[..4].to_vec(), &exec).err().unwrap();
+            assert!(matches!(e, crate::models::WeightError::Count { given: 4, needed: LEVELS, .. }), "{e}");
+            assert!(e.to_string().contains("4 TEM weight files"));
         }
     }
 

@@ -334,7 +334,7 @@ pub fn eval_chained(tem: &crate::models::tem::TemSet, windows: &[crate::dem::Hei
             let down = |hf: &Heightfield, times: usize| (0..times).fold(hf.clone(), |a, _| a.downsample2());
             let input = down(w, levels);
             let truth = down(w, levels - n);
-            let (out, _) = crate::enhance::enhance(&input, input_m, output_m, tem, 8, &mut |_, _, _| ())?;
+            let (out, _) = crate::enhance::enhance(&input, input_m, output_m, tem, 8, &mut |_, _, _| ()).map_err(|e| e.to_string())?;
             let bic = input.upsample_bicubic(1 << n);
             let side = truth.width;
             let (mut st, mut sb) = (0f64, 0f64);

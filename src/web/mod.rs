@@ -337,20 +337,20 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, cho
         set_loading_note(&format!("Loading the learned detail models {}/{LEVELS}…", k + 1));
     }
     ml.borrow_mut().loading = None;
-    let broken = |e: String| format!("TEM weights are broken ({e}); showing the 32 m world");
+    let broken = |e: &dyn std::fmt::Display| format!("TEM weights are broken ({e}); showing the 32 m world");
     let tem = match gpu {
-        Ok(d) if chosen.is_gpu() => TemSet::from_bytes(files, &Exec::Burn(d)).map(TemEngine::Gpu).map_err(broken),
+        Ok(d) if chosen.is_gpu() => TemSet::from_bytes(files, &Exec::Burn(d)).map(TemEngine::Gpu).map_err(|e| broken(&e)),
         _ => match worker {
             Ok(w) => match w.load_tem(&files).await {
                 Ok(()) => Ok(TemEngine::Worker(w)),
                 // Broken weights fail alike on any thread: no second try on the main thread.
-                Err(worker::WorkerError::Failed(e)) => Err(broken(e)),
+                Err(worker::WorkerError::Failed(e)) => Err(broken(&e)),
                 Err(worker::WorkerError::Unavailable(e)) => Err(format!("the CPU worker stopped ({e}); showing the 32 m world")),
             },
             Err(e) => {
                 web_sys::console::warn_1(&format!("CPU worker unavailable ({e}); the TEM runs on the main thread").into());
                 backend = format!("{backend} on the main thread");
-                TemSet::from_bytes(files, &Exec::cpu()).map(TemEngine::MainThread).map_err(broken)
+                TemSet::from_bytes(files, &Exec::cpu()).map(TemEngine::MainThread).map_err(|e| broken(&e))
             }
         },
     };
