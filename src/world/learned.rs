@@ -72,7 +72,7 @@ pub const COARSE_CACHE_TILES: usize = 4096;
 
 /// How far below its spill height a closed depression may stay and be drained by a carved
 /// channel instead (metres): deeper parts become level lakes ([`drainage::breach_depressions`]).
-/// eval-tcm, 4 seeds, realism ratio at 128 / 256 px: 0.258 / 0.258 with 50 m; 0.272 / 0.273
+/// eval-tcm, 4 seeds, weights 9f5cbd83, realism ratio at 128 / 256 px: 0.258 / 0.258 with 50 m; 0.272 / 0.273
 /// with 40 m, 0.262 / 0.262 with 65 m; 0.348 / 0.321 filling every depression (0 m); carving
 /// without a limit makes crack-like gorges (0.59 / 0.58).
 pub const BREACH_DEPTH_M: f32 = 50.0;
