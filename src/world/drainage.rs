@@ -8,8 +8,11 @@
 //! lake becomes a surface rising by [`FLAT_GRADIENT_M`] per sample away from its outlet, so
 //! every sample has a strictly descending 4-connected path to the border.
 //!
-//! The border is never changed, so filling one tile changes nothing along the edges it shares
-//! with its neighbours, and a filled tile is still a pure function of its input.
+//! [`breach_depressions`] drains mostly by carving instead: a channel along each pit's spill
+//! path, its sides opened to a V ([`open_channels`]), lakes only for the deepest parts.
+//!
+//! The border is never changed, so draining one tile changes nothing along the edges it shares
+//! with its neighbours, and a drained tile is still a pure function of its input.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -26,45 +29,75 @@ impl Ord for Height {
     }
 }
 
+/// The priority-flood walk over an `n`×`n` field: samples come out lowest first, starting
+/// from the border (the outlets); each one's unvisited 4-neighbours are then taken in. A
+/// sequence number keeps the order of equal heights fixed (first in, first out), so the
+/// result does not depend on the heap's tie-breaking. NaN samples are never visited.
+struct Flood {
+    n: usize,
+    done: Vec<bool>,
+    heap: BinaryHeap<Reverse<(Height, u64, usize)>>,
+    seq: u64,
+}
+
+impl Flood {
+    /// The walk with every border sample of `h` queued at its height.
+    fn from_border(h: &[f32], n: usize) -> Self {
+        let mut f = Self { n, done: vec![false; n * n], heap: BinaryHeap::new(), seq: 0 };
+        for i in 0..n {
+            for p in [i, (n - 1) * n + i, i * n, i * n + n - 1] {
+                if !f.done[p] && !h[p].is_nan() {
+                    f.done[p] = true;
+                    f.push(p, h[p]);
+                }
+            }
+        }
+        f
+    }
+
+    /// Queues sample `p` at height `z`.
+    fn push(&mut self, p: usize, z: f32) {
+        self.heap.push(Reverse((Height(z), self.seq, p)));
+        self.seq += 1;
+    }
+
+    /// The lowest queued sample, if any.
+    fn pop(&mut self) -> Option<usize> {
+        self.heap.pop().map(|Reverse((_, _, p))| p)
+    }
+
+    /// The 4-neighbours of `p` not visited yet and not NaN in `h`, now marked visited
+    /// (`usize::MAX` for none).
+    fn take_neighbours(&mut self, p: usize, h: &[f32]) -> [usize; 4] {
+        let (n, x, y) = (self.n, p % self.n, p / self.n);
+        let mut out = [usize::MAX; 4];
+        for (k, (qx, qy)) in [(x.wrapping_sub(1), y), (x + 1, y), (x, y.wrapping_sub(1)), (x, y + 1)].into_iter().enumerate() {
+            if qx < n && qy < n && !self.done[qy * n + qx] && !h[qy * n + qx].is_nan() {
+                self.done[qy * n + qx] = true;
+                out[k] = qy * n + qx;
+            }
+        }
+        out
+    }
+}
+
 /// Fills the closed depressions of the `n`×`n` heightfield `h` (metres, row-major) in place,
 /// its border fixed. Each filled sample is raised to at least `gradient_m` (rounded up to the
 /// next representable height) above the sample it drains to; 0 makes level lakes. NaN samples
 /// are left as they are and do not drain. Returns the number of samples raised.
 pub fn fill_depressions(h: &mut [f32], n: usize, gradient_m: f32) -> usize {
     assert_eq!(h.len(), n * n, "a {n}×{n} field has {} samples, not {}", n * n, h.len());
-    let mut done = vec![false; n * n];
-    let mut heap = BinaryHeap::new();
-    // The sequence number keeps the order of equal heights fixed (first in, first out), so
-    // the ε surface does not depend on the heap's tie-breaking.
-    let mut seq = 0u64;
-    for i in 0..n {
-        for p in [i, (n - 1) * n + i, i * n, i * n + n - 1] {
-            if !done[p] && !h[p].is_nan() {
-                done[p] = true;
-                heap.push(Reverse((Height(h[p]), seq, p)));
-                seq += 1;
-            }
-        }
-    }
+    let mut flood = Flood::from_border(h, n);
     let mut raised = 0;
-    while let Some(Reverse((Height(z), _, p))) = heap.pop() {
-        let (x, y) = (p % n, p / n);
-        for (qx, qy) in [(x.wrapping_sub(1), y), (x + 1, y), (x, y.wrapping_sub(1)), (x, y + 1)] {
-            if qx >= n || qy >= n {
-                continue;
-            }
-            let q = qy * n + qx;
-            if done[q] || h[q].is_nan() {
-                continue;
-            }
-            done[q] = true;
+    while let Some(p) = flood.pop() {
+        let z = h[p];
+        for q in flood.take_neighbours(p, h).into_iter().filter(|&q| q != usize::MAX) {
             let floor = if gradient_m > 0.0 { above(z, gradient_m) } else { z };
             if h[q] < floor {
                 h[q] = floor;
                 raised += 1;
             }
-            heap.push(Reverse((Height(h[q]), seq, q)));
-            seq += 1;
+            flood.push(q, h[q]);
         }
     }
     raised
@@ -97,31 +130,11 @@ pub fn breach_depressions(h: &mut [f32], n: usize, max_depth_m: f32, wall_m: f32
     }
     const BORDER: usize = usize::MAX;
     let mut parent = vec![BORDER; n * n];
-    let mut done = vec![false; n * n];
-    let mut heap = BinaryHeap::new();
-    let mut seq = 0u64;
-    for i in 0..n {
-        for p in [i, (n - 1) * n + i, i * n, i * n + n - 1] {
-            if !done[p] && !h[p].is_nan() {
-                done[p] = true;
-                heap.push(Reverse((Height(h[p]), seq, p)));
-                seq += 1;
-            }
-        }
-    }
+    let mut flood = Flood::from_border(h, n);
     let mut lowered = vec![false; n * n];
     let mut path = Vec::new();
-    while let Some(Reverse((_, _, p))) = heap.pop() {
-        let (x, y) = (p % n, p / n);
-        for (qx, qy) in [(x.wrapping_sub(1), y), (x + 1, y), (x, y.wrapping_sub(1)), (x, y + 1)] {
-            if qx >= n || qy >= n {
-                continue;
-            }
-            let q = qy * n + qx;
-            if done[q] || h[q].is_nan() {
-                continue;
-            }
-            done[q] = true;
+    while let Some(p) = flood.pop() {
+        for q in flood.take_neighbours(p, h).into_iter().filter(|&q| q != usize::MAX) {
             parent[q] = p;
             if h[q] <= h[p] {
                 // The path from q down to the first sample already low enough (or the border).
@@ -154,8 +167,7 @@ pub fn breach_depressions(h: &mut [f32], n: usize, max_depth_m: f32, wall_m: f32
                     }
                 }
             }
-            heap.push(Reverse((Height(h[q]), seq, q)));
-            seq += 1;
+            flood.push(q, h[q]);
         }
     }
     let cut: Vec<f32> = (0..n * n).map(|p| if lowered[p] { original[p] - h[p] } else { 0.0 }).collect();
