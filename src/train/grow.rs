@@ -76,9 +76,7 @@ pub fn cell_position_gap(h: Tensor<4>) -> Tensor<1> {
     let cells = (rows - 1) / f;
     let dy = (h.clone().narrow(2, 1, cells * f) - h.narrow(2, 0, cells * f)).abs();
     let py = dy.reshape([b, c, cells, f, cols]).mean_dim(0).mean_dim(2).mean_dim(4).reshape([f]);
-    let profile = Tensor::cat(vec![px, py], 0);
-    let mean = profile.clone().mean();
-    (profile / (mean + 1e-6) - 1.0).abs().mean()
+    super::tcm::profile_gap(Tensor::cat(vec![px, py], 0))
 }
 
 /// A run of the ×4 network in progress.

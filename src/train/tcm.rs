@@ -297,7 +297,12 @@ pub fn position_gap(made: Tensor<4>) -> Tensor<1> {
     let d2y = made.clone().narrow(2, 2, h - 2) - made.clone().narrow(2, 1, h - 2) * 2.0 + made.narrow(2, 0, h - 2);
     let px = d2x.abs().mean_dim(0).mean_dim(2).reshape([w - 2]);
     let py = d2y.abs().mean_dim(0).mean_dim(3).reshape([h - 2]);
-    let profile = Tensor::cat(vec![px, py], 0);
+    profile_gap(Tensor::cat(vec![px, py], 0))
+}
+
+/// How far a profile of positive values (e.g. roughness by position) is from flat: each
+/// value divided by their mean, the mean |ratio − 1|. [1]; 0 for a flat profile.
+pub fn profile_gap(profile: Tensor<1>) -> Tensor<1> {
     let mean = profile.clone().mean();
     (profile / (mean + 1e-6) - 1.0).abs().mean()
 }

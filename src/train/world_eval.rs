@@ -71,30 +71,21 @@ pub fn stats_of(windows: &[Vec<f32>], side: usize) -> Vec<Stats> {
     windows.iter().filter_map(|w| geomorph::measure(w, side, BASE_SPACING_M).ok()).collect()
 }
 
-/// The seam figure of a region made of whole tiles: for every interior tile edge, the mean
-/// |height step| across the edge divided by the mean |step| between the neighbouring rows
-/// (or columns) inside the two tiles (the 4 on either side); returns (mean, p95) over edges.
-pub fn seam_ratio(hf: &Heightfield) -> (f64, f64) {
-    mean_p95(&seam_ratios(hf))
-}
-
-/// [`seam_ratio`]'s figure for each interior tile edge (128 samples long) of `hf`. Real
-/// terrain, which has no seams, scores about 1 on average but spreads widely from edge to
-/// edge: over the validation DEMs cut into 128-sample tiles the 95th percentile is about 1.4.
+/// The seam figure of a region made of whole tiles, for each interior tile edge (128 samples
+/// long): the mean |height step| across the edge divided by the mean |step| between the
+/// neighbouring rows (or columns) inside the two tiles (the 4 on either side). Real terrain,
+/// which has no seams, scores about 1 on average but spreads widely from edge to edge: over
+/// the validation DEMs cut into 128-sample tiles the 95th percentile is about 1.4. Summed up
+/// over edges by [`mean_p95`].
 pub fn seam_ratios(hf: &Heightfield) -> Vec<f64> {
     edge_ratios(hf, |get, c| (get(c) - get(c - 1)).abs(), 1..=4)
 }
 
-/// The crease figure of a region made of whole tiles: as [`seam_ratio`] with the change of
-/// slope (|second difference|, centred between two samples) instead of the step, so a tile
-/// edge whose heights meet but whose slopes do not (a fold, a ridge or a gully along the
-/// edge) counts too. The second differences straddling each edge against those 2–5 samples
-/// inside the two tiles; (mean, p95) over edges; 1 for a field without tile edges.
-pub fn crease_ratio(hf: &Heightfield) -> (f64, f64) {
-    mean_p95(&crease_ratios(hf))
-}
-
-/// [`crease_ratio`]'s figure for each interior tile edge of `hf`.
+/// The crease figure of a region made of whole tiles, for each interior tile edge: as
+/// [`seam_ratios`] with the change of slope (|second difference|, centred between two
+/// samples) instead of the step, so a tile edge whose heights meet but whose slopes do not (a
+/// fold, a ridge or a gully along the edge) counts too. The second differences straddling
+/// each edge against those 2–5 samples inside the two tiles; 1 for a field without seams.
 pub fn crease_ratios(hf: &Heightfield) -> Vec<f64> {
     edge_ratios(hf, |get, c| (get(c + 1) - get(c) - get(c - 1) + get(c - 2)).abs(), 2..=5)
 }
@@ -133,21 +124,14 @@ pub fn seam_steps(fields: &[Heightfield]) -> (f64, f64) {
             }
         }
     }
-    if edge.is_empty() {
-        return (f64::NAN, f64::NAN);
-    }
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-    let p95 = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[((v.len() - 1) as f64 * 0.95).round() as usize]
-    };
-    (mean(&edge) / mean(&inner), p95(&mut edge) / p95(&mut inner))
+    let ((edge_mean, edge_p95), (inner_mean, inner_p95)) = (mean_p95(&edge), mean_p95(&inner));
+    (edge_mean / inner_mean, edge_p95 / inner_p95)
 }
 
 /// Samples of 32 m per 128 m sample (the TCM's scale) for [`edge_strip_ratio`].
 const STRIP_POOL: usize = 4;
 /// The strip along each tile edge that [`edge_strip_ratio`] measures: 128 m samples 1 to 4
-/// inside the edge (the edge sample itself is what [`crease_ratio`] sees).
+/// inside the edge (the edge sample itself is what [`crease_ratios`] sees).
 const STRIP: std::ops::RangeInclusive<usize> = 1..=4;
 /// Where [`edge_strip_ratio`]'s interior starts: 128 m samples from the tile edge.
 const STRIP_INTERIOR_FROM: usize = 8;
@@ -234,10 +218,10 @@ mod tests {
     fn seam_ratio_is_one_for_continuous_fields_and_large_for_steps() {
         let n = TILE_SAMPLES;
         let smooth = Heightfield::new(2 * n, 2 * n, 32.0, (0..4 * n * n).map(|p| ((p % (2 * n)) as f32 * 0.1).sin() * 5.0 + (p / (2 * n)) as f32 * 0.7).collect());
-        let (mean, _) = seam_ratio(&smooth);
+        let (mean, _) = mean_p95(&seam_ratios(&smooth));
         assert!((mean - 1.0).abs() < 0.1, "{mean}");
         let stepped = Heightfield::new(2 * n, 2 * n, 32.0, smooth.data.iter().enumerate().map(|(p, v)| v + if p % (2 * n) >= n { 10.0 } else { 0.0 }).collect());
-        let (_, p95) = seam_ratio(&stepped);
+        let (_, p95) = mean_p95(&seam_ratios(&stepped));
         assert!(p95 > 5.0, "{p95}");
     }
 
@@ -278,12 +262,12 @@ mod tests {
         let n = TILE_SAMPLES;
         let bowl = |p: usize| 0.002 * ((p % (2 * n)) as f32).powi(2) + 0.003 * ((p / (2 * n)) as f32).powi(2);
         let smooth = Heightfield::new(2 * n, 2 * n, 32.0, (0..4 * n * n).map(bowl).collect());
-        let (mean, p95) = crease_ratio(&smooth);
+        let (mean, p95) = mean_p95(&crease_ratios(&smooth));
         assert!((mean - 1.0).abs() < 0.01 && (p95 - 1.0).abs() < 0.01, "{mean} {p95}");
         let folded = Heightfield::new(2 * n, 2 * n, 32.0, (0..4 * n * n).map(|p| bowl(p) + 3.0 * ((p % (2 * n)) as f32 - n as f32 + 0.5).abs()).collect());
-        let (seam, _) = seam_ratio(&folded);
+        let (seam, _) = mean_p95(&seam_ratios(&folded));
         assert!(seam < 1.1, "seam {seam}");
-        let (_, p95) = crease_ratio(&folded);
+        let (_, p95) = mean_p95(&crease_ratios(&folded));
         assert!(p95 > 100.0, "crease {p95}");
     }
 }

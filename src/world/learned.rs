@@ -394,7 +394,7 @@ mod tests {
         }
     }
 
-    /// A basin cut by tile edges inside a second-stage block is filled as one: the 2×2 world
+    /// A basin cut by tile edges inside a second-stage block is drained as one: the 2×2 world
     /// tiles of the block with corner (−1, 1), put together, have no closed depression of any
     /// depth.
     #[test]
