@@ -3,10 +3,12 @@
 pub mod camera;
 pub mod gpu;
 pub mod mesh;
+pub mod pacing;
 pub mod resident;
 
 pub use camera::{Camera, CameraController, CameraMode, ControlInput};
 pub use gpu::{FrameParams, RenderStats, TerrainRenderer};
+pub use pacing::FramePacer;
 
 /// Fraction of the screen's resolution (per axis) at which the 3-D view is drawn on a
 /// software adapter (SwiftShader, llvmpipe): those rasterise on the same CPU cores as the

@@ -128,10 +128,9 @@ impl Overlay {
             }
             if stats.tiles_pending > 0 {
                 let total = stats.tiles_pending + stats.tiles_cached.min(1000);
-                ui.horizontal(|ui| {
-                    ui.spinner();
-                    ui.add(egui::ProgressBar::new(1.0 - stats.tiles_pending as f32 / total.max(1) as f32).text(format!("generating {} tiles", stats.tiles_pending)));
-                });
+                // No spinner: it asks for a repaint on every animation frame, which would draw
+                // the overlay between the paced frames of the 3-D view (render::pacing).
+                ui.add(egui::ProgressBar::new(1.0 - stats.tiles_pending as f32 / total.max(1) as f32).text(format!("generating {} tiles", stats.tiles_pending)));
             }
             ui.separator();
             ui.horizontal(|ui| {

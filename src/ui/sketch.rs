@@ -140,7 +140,8 @@ impl SketchPanel {
                     act.import = true;
                 }
                 if busy {
-                    ui.spinner();
+                    // Text, not a spinner, which would repaint between paced frames.
+                    ui.label("making terrain…");
                 }
             });
             ui.horizontal_wrapped(|ui| {

@@ -44,6 +44,9 @@ thread_local! {
     /// The tile the end-to-end test asked for ([`terrain_request_tile`]) and its heights once
     /// the world has it.
     static TILE_PROBE: RefCell<(Option<TileCoord>, Option<Vec<f32>>)> = const { RefCell::new((None, None)) };
+    /// Intervals (ms) between the 3-D view's frames since [`terrain_frame_intervals`] was last
+    /// called (at most [`MAX_FRAME_INTERVALS`]).
+    static FRAME_INTERVALS: RefCell<Vec<f64>> = const { RefCell::new(Vec::new()) };
     /// How many times the page replaced a lost GPU device.
     static RESTARTS: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
 }
@@ -105,10 +108,12 @@ impl TemEngine {
     /// Runs level `level` on `n` windows of side `side` (see [`TemSet::enhance_async`]);
     /// returns the heights and, where the backend measures it (the CPU worker, on its own
     /// clock), its compute time in milliseconds.
-    async fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<(Vec<f32>, Option<f64>), String> {
+    /// The worker rests `rest_per_work` ms per ms of work between windows
+    /// ([`worker::CpuWorker::enhance`]).
+    async fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize, rest_per_work: f64) -> Result<(Vec<f32>, Option<f64>), String> {
         match self {
             TemEngine::Gpu(tem) | TemEngine::MainThread(tem) => tem.enhance_async(level, inputs, n, side).await.map(|out| (out, None)),
-            TemEngine::Worker(w) => w.enhance(level, inputs, n, side).await.map(|(out, ms)| (out, Some(ms))).map_err(|e| e.to_string()),
+            TemEngine::Worker(w) => w.enhance(level, inputs, n, side, rest_per_work).await.map(|(out, ms)| (out, Some(ms))).map_err(|e| e.to_string()),
         }
     }
 }
@@ -232,7 +237,7 @@ pub async fn terrain_tem_probe() -> Result<String, JsValue> {
     let mut compute_ms = None;
     let t0 = web_time::Instant::now();
     for k in 0..LEVELS {
-        let (raw, ms) = tem.enhance(k, probe_input(k), 1, PROBE_SIDE).await.map_err(|e| JsValue::from_str(&e))?;
+        let (raw, ms) = tem.enhance(k, probe_input(k), 1, PROBE_SIDE, 0.0).await.map_err(|e| JsValue::from_str(&e))?;
         // The worker's own clock too: the kernels' time without the round trip.
         if let Some(ms) = ms {
             compute_ms = Some(compute_ms.unwrap_or(0.0) + ms);
@@ -364,7 +369,7 @@ async fn start_ml(gpu: Result<burn::tensor::Device, String>, software: bool, cho
     set_loading_note("Preparing the learned detail models…");
     let t0 = now_ms();
     for k in 0..if chosen.is_gpu() { LEVELS } else { 0 } {
-        if let Err(e) = tem.enhance(k, probe_input(k), 1, PROBE_SIDE).await {
+        if let Err(e) = tem.enhance(k, probe_input(k), 1, PROBE_SIDE, 0.0).await {
             ml.borrow_mut().error = Some(format!("TEM failed on {backend} ({e}); showing the 32 m world"));
             return;
         }
@@ -392,11 +397,28 @@ async fn browser_adapter_info() -> Option<(String, bool)> {
     Some((text, software))
 }
 
+/// Asks for one more frame. egui answers `request_repaint()` with two (to let frame-delayed
+/// responses settle); the second would draw the overlay again while the GPU works on the
+/// paced 3-D view. A non-zero delay asks for exactly one, at the next animation frame.
+fn repaint_once(ctx: &egui::Context) {
+    ctx.request_repaint_after(std::time::Duration::from_micros(1));
+}
+
 /// Replaces the text of the page's loading note (shown until the renderer starts).
 fn set_loading_note(text: &str) {
     if let Some(el) = web_sys::window().and_then(|w| w.document()).and_then(|d| d.query_selector("#loading p").ok().flatten()) {
         el.set_text_content(Some(text));
     }
+}
+
+/// Most frame intervals kept for [`terrain_frame_intervals`] (over half an hour at 60 fps).
+const MAX_FRAME_INTERVALS: usize = 120_000;
+
+/// The intervals (milliseconds) between the frames of the 3-D view drawn since the previous
+/// call, oldest first: the frame times a person sees (the end-to-end test reads them).
+#[wasm_bindgen]
+pub fn terrain_frame_intervals() -> Vec<f64> {
+    FRAME_INTERVALS.with(|f| std::mem::take(&mut *f.borrow_mut()))
 }
 
 /// The latest frame statistics as JSON (read by the end-to-end test and usable from the
@@ -562,6 +584,9 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
                     last_cpu_quad_ms: 0.0,
                     message,
                     last_frame_ms: None,
+                    pacer: Default::default(),
+                    gpu_done: Default::default(),
+                    complete_epoch: None,
                     frame_work: Default::default(),
                     last_hash: hash,
                     last_url_write_ms: 0.0,
@@ -595,6 +620,12 @@ struct WebApp {
     last_cpu_quad_ms: f64,
     message: Option<String>,
     last_frame_ms: Option<f64>,
+    /// Draws a frame of the 3-D view only once the GPU has finished the previous one.
+    pacer: crate::render::FramePacer,
+    /// The newest frame whose GPU work is done (set by the queue's callback).
+    gpu_done: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    /// The world epoch whose view was last complete (no tile pending).
+    complete_epoch: Option<u64>,
     /// The main thread's work per frame over the last 120 frames: total, tiles, nodes and
     /// drawing milliseconds, the upload and submit parts of the drawing (ms), and the meshes
     /// uploaded.
@@ -803,9 +834,19 @@ impl WebApp {
             self.overlay.reset(s);
         }
     }
+    /// How long the CPU worker rests per ms of work ([`runtime::worker_rest_per_work`]); the
+    /// view is complete once the world of this epoch had no tile pending.
+    fn worker_rest_per_work(&mut self) -> f64 {
+        if self.app.stats().tiles_pending == 0 {
+            self.complete_epoch = Some(self.app.epoch());
+        }
+        runtime::worker_rest_per_work(self.env.software_adapter, self.complete_epoch == Some(self.app.epoch()))
+    }
+
     /// Tells the app when the learned world's models are ready or failed, hands it finished
     /// tiles, and starts the tile jobs it asks for in the CPU worker.
     fn pump_world(&mut self) {
+        let rest = self.worker_rest_per_work();
         let mut ml = self.ml.borrow_mut();
         match (ml.world.clone(), self.app.learned().clone()) {
             (Some(Ok(hash)), LearnedStatus::Loading) => {
@@ -845,7 +886,7 @@ impl WebApp {
         for job in self.app.tile_jobs() {
             let (w, shared) = (w.clone(), self.ml.clone());
             wasm_bindgen_futures::spawn_local(async move {
-                let out = w.tile(seed, job.key, noise).await.map_err(|e| e.to_string());
+                let out = w.tile(seed, job.key, noise, rest).await.map_err(|e| e.to_string());
                 shared.borrow_mut().tiles.push((job, out));
             });
         }
@@ -904,12 +945,15 @@ impl WebApp {
             self.last_cpu_quad_ms = now;
         }
         let shared = self.ml.clone();
+        let rest = self.worker_rest_per_work();
         wasm_bindgen_futures::spawn_local(async move {
             let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
             let (level, epoch) = (keys[0].level as usize, jobs[0].epoch);
             let t0 = now_ms();
-            let out = tem.enhance(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE).await.map(|(out, _ms)| out);
-            let ms = now_ms() - t0;
+            let out = tem.enhance(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE, rest).await;
+            // The worker's own milliseconds of work (without its rests), else the wall time.
+            let ms = out.as_ref().ok().and_then(|(_, ms)| *ms).unwrap_or(now_ms() - t0);
+            let out = out.map(|(out, _)| out);
             let mut m = shared.borrow_mut();
             m.results.push((epoch, keys, out, ms));
             m.busy = false;
@@ -1000,7 +1044,10 @@ impl eframe::App for WebApp {
         let now = now_ms();
         let dt_ms = self.last_frame_ms.map(|t| now - t).unwrap_or(16.0);
         self.last_frame_ms = Some(now);
-        self.app.record_frame_time(dt_ms);
+        self.pacer.gpu_done(self.gpu_done.load(SeqCst));
+        // An input event may run this while the GPU still draws the previous frame: the app
+        // moves on (camera, tiles) and the view keeps the previous picture until it is done.
+        let draw = self.pacer.may_draw(now);
         self.follow_hash();
 
         let Some(rs) = frame.wgpu_render_state() else { return };
@@ -1028,16 +1075,37 @@ impl eframe::App for WebApp {
                     None => self.texture = Some(r.register_native_texture(&rs.device, view, wgpu::FilterMode::Linear)),
                 }
             }
-            let render_start = now_ms();
-            let stats = self.renderer.render(&rs.device, &rs.queue, &nodes, &params, MESH_KEEP_FRAMES);
-            let render_ms = now_ms() - render_start;
-            self.env.uploads = stats.uploads;
-            self.env.triangles = stats.triangles;
-            self.env.cpu_ms = now_ms() - cpu_start;
-            let s = self.app.stats();
-            self.frame_work.push_back([self.env.cpu_ms, s.world_ms, s.nodes_ms, render_ms, stats.upload_ms, stats.submit_ms, stats.uploads as f64]);
-            if self.frame_work.len() > 120 {
-                self.frame_work.pop_front();
+            if draw {
+                let render_start = now_ms();
+                let stats = self.renderer.render(&rs.device, &rs.queue, &nodes, &params, MESH_KEEP_FRAMES);
+                let render_ms = now_ms() - render_start;
+                self.env.uploads = stats.uploads;
+                self.env.triangles = stats.triangles;
+                self.env.cpu_ms = now_ms() - cpu_start;
+                let s = self.app.stats();
+                self.frame_work.push_back([self.env.cpu_ms, s.world_ms, s.nodes_ms, render_ms, stats.upload_ms, stats.submit_ms, stats.uploads as f64]);
+                if self.frame_work.len() > 120 {
+                    self.frame_work.pop_front();
+                }
+                let (frame, interval) = self.pacer.drawn(now);
+                if let Some(ms) = interval {
+                    self.app.record_frame_time(ms);
+                    FRAME_INTERVALS.with(|f| {
+                        let mut f = f.borrow_mut();
+                        if f.len() < MAX_FRAME_INTERVALS {
+                            f.push(ms);
+                        }
+                    });
+                }
+                // eframe paints the overlay (one more submit) after this returns, in the same
+                // task; a microtask asks for "work done" after that paint.
+                let (queue, done, ctx) = (rs.queue.clone(), self.gpu_done.clone(), ctx.clone());
+                wasm_bindgen_futures::spawn_local(async move {
+                    queue.on_submitted_work_done(move || {
+                        done.fetch_max(frame, SeqCst);
+                        repaint_once(&ctx);
+                    });
+                });
             }
             if let Some(id) = self.texture {
                 ui.painter().image(id, rect, egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)), egui::Color32::WHITE);
@@ -1129,10 +1197,17 @@ impl eframe::App for WebApp {
             "link_too_long": self.link_too_long,
             "copy_link_button": self.overlay.copy_link_rect.map(|r| [r.min.x, r.min.y, r.width(), r.height()]),
             "software_adapter": self.env.software_adapter,
+            // The CPU worker's rest per ms of work (runtime::worker_rest_per_work).
+            "worker_rest_per_work": runtime::worker_rest_per_work(self.env.software_adapter, self.complete_epoch == Some(self.app.epoch())),
             "sketch_buttons": self.sketch_panel.buttons.iter().map(|(k, r)| (k.clone(), [r.min.x, r.min.y, r.width(), r.height()])).collect::<std::collections::BTreeMap<_, _>>(),
         });
         STATS_JSON.with(|s| *s.borrow_mut() = json.to_string());
-        ctx.request_repaint();
+        if self.pacer.waiting() {
+            // The GPU's "work done" asks for the next frame; this is the fallback.
+            ctx.request_repaint_after(std::time::Duration::from_millis(crate::render::pacing::GPU_STALL_MS as u64));
+        } else {
+            repaint_once(&ctx);
+        }
     }
 }
 

@@ -2,7 +2,10 @@
 //! module worker, which runs the learned world's networks and the TEM on the CPU kernels
 //! ([`crate::models::cpu`]), so the main thread never waits on inference. The main thread
 //! ([`CpuWorker`]) posts requests with an id and awaits the matching reply; the worker
-//! ([`terrain_worker_message`]) answers them in order.
+//! ([`terrain_worker_message`]) answers them in order, except learned tiles and TEM batches
+//! sent with a rest: those it works on in pieces, one request after the other, resting
+//! between pieces (and answering other requests meanwhile), so that beside a software
+//! rasteriser it leaves the CPU's cores to the frames ([`crate::models::runtime::worker_rest_per_work`]).
 
 use std::cell::{Cell, RefCell};
 use std::collections::HashMap;
@@ -167,10 +170,13 @@ impl CpuWorker {
     }
 
     /// Makes tile `c` of world `seed` in the worker — procedural with `noise`, else learned —:
-    /// its heights (metres) and the worker's milliseconds.
-    pub async fn tile(&self, seed: u64, c: TileCoord, noise: Option<NoiseParams>) -> Result<(Vec<f32>, f64), WorkerError> {
+    /// its heights (metres) and the worker's milliseconds of work. A learned tile is made in
+    /// pieces ([`LearnedSource::prepare`]) with `rest_per_work` ms of rest per ms of work
+    /// after each (see [`crate::models::runtime::worker_rest_per_work`]); 0 makes it in one go.
+    pub async fn tile(&self, seed: u64, c: TileCoord, noise: Option<NoiseParams>, rest_per_work: f64) -> Result<(Vec<f32>, f64), WorkerError> {
         let msg = Object::new();
         set(&msg, "kind", &"tile".into());
+        set(&msg, "rest", &rest_per_work.into());
         set(&msg, "seed", &seed.to_string().into());
         if let Some(n) = noise {
             set(&msg, "noise", &serde_json::to_string(&n).expect("noise parameters serialise").into());
@@ -251,10 +257,13 @@ impl CpuWorker {
     }
 
     /// Runs TEM level `level` on `n` windows of side `side` in the worker (as
-    /// [`TemSet::enhance_blocking`]) and returns the heights and the worker's milliseconds.
-    pub async fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize) -> Result<(Vec<f32>, f64), WorkerError> {
+    /// [`TemSet::enhance_blocking`]) and returns the heights and the worker's milliseconds of
+    /// work. With `rest_per_work` > 0 the windows are run one at a time with that much rest
+    /// per ms of work after each (see [`crate::models::runtime::worker_rest_per_work`]).
+    pub async fn enhance(&self, level: usize, inputs: Vec<f32>, n: usize, side: usize, rest_per_work: f64) -> Result<(Vec<f32>, f64), WorkerError> {
         let msg = Object::new();
         set(&msg, "kind", &"enhance".into());
+        set(&msg, "rest", &rest_per_work.into());
         set(&msg, "level", &(level as u32).into());
         set(&msg, "n", &(n as u32).into());
         set(&msg, "side", &(side as u32).into());
@@ -301,7 +310,94 @@ thread_local! {
     static WORKER_WORLD: RefCell<Option<LearnedSource>> = const { RefCell::new(None) };
     /// The sketch generator and VAE (set by the "load-sketch" request).
     static WORKER_SKETCH: RefCell<Option<SketchModels>> = const { RefCell::new(None) };
+    /// Requests to answer in pieces with rests, oldest first, and whether they are being
+    /// worked on ([`run_paced`]).
+    static PACED: RefCell<std::collections::VecDeque<(JsValue, Paced)>> = const { RefCell::new(std::collections::VecDeque::new()) };
+    static PACED_RUNNING: Cell<bool> = const { Cell::new(false) };
 }
+
+/// A request answered after its pieces of work, with a rest of `rest_per_work` times each
+/// piece's length after it.
+enum Paced {
+    /// A learned tile: its pieces are [`LearnedSource::prepare`]'s.
+    Tile { seed: u64, c: TileCoord, rest_per_work: f64 },
+    /// TEM level `level` on `n` windows of side `side`, one window per piece.
+    Enhance { level: usize, input: Vec<f32>, n: usize, side: usize, rest_per_work: f64 },
+}
+
+/// Works through the queued paced requests one after the other: a piece of work, then a rest
+/// (other requests are answered meanwhile), until the request is done; then replies with its
+/// heights and the milliseconds of work.
+async fn run_paced() {
+    while let Some((id, job)) = PACED.with(|q| q.borrow_mut().pop_front()) {
+        let mut work_ms = 0.0;
+        let mut timed = |f: &mut dyn FnMut()| {
+            let t0 = web_time::Instant::now();
+            f();
+            let ms = t0.elapsed().as_secs_f64() * 1000.0;
+            work_ms += ms;
+            ms
+        };
+        let answer = match job {
+            Paced::Tile { seed, c, rest_per_work } => loop {
+                let mut more = None;
+                let ms = timed(&mut || more = WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.prepare(seed, c))));
+                match more {
+                    Some(true) => rest(ms * rest_per_work).await,
+                    Some(false) => {
+                        let mut tile = None;
+                        timed(&mut || tile = WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.generate(seed, c, &Neighbourhood::default()))));
+                        break tile.map(|tile| Answer::Heights(tile.heights, work_ms)).ok_or_else(|| NO_WORLD.to_string());
+                    }
+                    None => break Err(NO_WORLD.to_string()),
+                }
+            },
+            Paced::Enhance { level, input, n, side, rest_per_work } => {
+                let per = input.len() / n.max(1);
+                let mut out = Vec::new();
+                let mut failed = None;
+                for window in input.chunks(per.max(1)) {
+                    let mut r = Err(String::new());
+                    let ms = timed(&mut || r = enhance_in_worker(level, window.to_vec(), 1, side));
+                    match r {
+                        Ok(o) => out.extend(o),
+                        Err(e) => {
+                            failed = Some(e);
+                            break;
+                        }
+                    }
+                    rest(ms * rest_per_work).await;
+                }
+                match failed {
+                    Some(e) => Err(e),
+                    None => Ok(Answer::Heights(out, work_ms)),
+                }
+            }
+        };
+        reply(id, answer);
+    }
+    PACED_RUNNING.set(false);
+}
+
+/// Runs TEM level `level` of the worker's models on `n` windows of side `side`.
+fn enhance_in_worker(level: usize, input: Vec<f32>, n: usize, side: usize) -> Result<Vec<f32>, String> {
+    WORKER_TEM.with(|t| match t.borrow().as_ref() {
+        Some(tem) if level < crate::models::tem::LEVELS => tem.enhance_blocking(level, input, n, side),
+        Some(_) => Err(format!("no TEM level {level}")),
+        None => Err("the CPU worker has no models loaded".into()),
+    })
+}
+
+/// Resolves after `ms` milliseconds (a timer of the worker's global scope).
+async fn rest(ms: f64) {
+    let wait = js_sys::Promise::new(&mut |resolve, _| {
+        let scope: web_sys::DedicatedWorkerGlobalScope = js_sys::global().unchecked_into();
+        let _ = scope.set_timeout_with_callback_and_timeout_and_arguments_0(&resolve, ms.round() as i32);
+    });
+    let _ = JsFuture::from(wait).await;
+}
+
+const NO_WORLD: &str = "the CPU worker has no learned world loaded";
 
 /// Runs `f` with the worker's sketch models.
 fn with_sketch<T>(f: impl FnOnce(&SketchGenCpu, &SketchVaeCpu) -> T) -> Result<T, String> {
@@ -382,7 +478,7 @@ fn handle(msg: &JsValue) -> Result<Answer, String> {
                     let noise: NoiseParams = serde_json::from_str(&json).map_err(|e| format!("the request's noise parameters are broken ({e})"))?;
                     ProceduralSource::new(noise).generate(seed, c, &Neighbourhood::default())
                 }
-                None => WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.generate(seed, c, &Neighbourhood::default()))).ok_or("the CPU worker has no learned world loaded")?,
+                None => WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.generate(seed, c, &Neighbourhood::default()))).ok_or(NO_WORLD)?,
             };
             Ok(Answer::Heights(tile.heights, t0.elapsed().as_secs_f64() * 1000.0))
         }
@@ -391,11 +487,7 @@ fn handle(msg: &JsValue) -> Result<Answer, String> {
             let (level, n, side) = (num("level")?, num("n")?, num("side")?);
             let input: Float32Array = get(msg, "input").dyn_into().map_err(|_| "the request has no heights".to_string())?;
             let t0 = web_time::Instant::now();
-            let out = WORKER_TEM.with(|t| match t.borrow().as_ref() {
-                Some(tem) if level < crate::models::tem::LEVELS => tem.enhance_blocking(level, input.to_vec(), n, side),
-                Some(_) => Err(format!("no TEM level {level}")),
-                None => Err("the CPU worker has no models loaded".into()),
-            })?;
+            let out = enhance_in_worker(level, input.to_vec(), n, side)?;
             Ok(Answer::Heights(out, t0.elapsed().as_secs_f64() * 1000.0))
         }
         other => Err(format!("the CPU worker does not know the request {other:?}")),
@@ -403,13 +495,46 @@ fn handle(msg: &JsValue) -> Result<Answer, String> {
 }
 
 /// The worker's entry point for one request (called by the worker script, never by the page):
-/// loads models or runs inference, and posts the reply `{id, out, ms}` or `{id, error}`.
+/// loads models or runs inference, and posts the reply `{id, out, ms}` or `{id, error}`. A
+/// learned tile with a rest ([`CpuWorker::tile`]) is queued and answered once made.
 #[wasm_bindgen]
 pub fn terrain_worker_message(msg: JsValue) {
+    if let Some(job) = paced(&msg) {
+        PACED.with(|q| q.borrow_mut().push_back((get(&msg, "id"), job)));
+        if !PACED_RUNNING.replace(true) {
+            wasm_bindgen_futures::spawn_local(run_paced());
+        }
+        return;
+    }
+    reply(get(&msg, "id"), handle(&msg));
+}
+
+/// The paced request in `msg`: a learned tile or a TEM batch with a rest above 0 and every
+/// field it needs (else `None`, and [`handle`] answers it at once or says what is wrong).
+fn paced(msg: &JsValue) -> Option<Paced> {
+    let rest_per_work = get(msg, "rest").as_f64().filter(|r| r.is_finite() && *r > 0.0)?;
+    let int = |k: &str| get(msg, k).as_f64().filter(|v| v.fract() == 0.0 && v.abs() < 1e9);
+    match get(msg, "kind").as_string().as_deref() {
+        Some("tile") if get(msg, "noise").is_undefined() => {
+            let seed = get(msg, "seed").as_string().and_then(|s| s.parse().ok())?;
+            Some(Paced::Tile { seed, c: TileCoord::new(int("i")? as i32, int("j")? as i32), rest_per_work })
+        }
+        Some("enhance") => {
+            let (level, n, side) = (int("level")? as usize, int("n")? as usize, int("side")? as usize);
+            let input: Float32Array = get(msg, "input").dyn_into().ok()?;
+            (n > 0 && input.length() as usize % n == 0).then(|| Paced::Enhance { level, input: input.to_vec(), n, side, rest_per_work })
+        }
+        _ => None,
+    }
+}
+
+/// Posts the reply to request `id`: `{id, out, ms}`, `{id, hash}`, `{id, out, codes}` or
+/// `{id, error}`.
+fn reply(id: JsValue, answer: Result<Answer, String>) {
     let reply = Object::new();
-    set(&reply, "id", &get(&msg, "id"));
+    set(&reply, "id", &id);
     let transfer = Array::new();
-    match handle(&msg) {
+    match answer {
         Ok(Answer::Heights(out, ms)) => {
             let heights = Float32Array::from(out.as_slice());
             transfer.push(&heights.buffer());

@@ -88,6 +88,11 @@ pub const FILL_BLOCK_TILES: i32 = 2;
 /// Filled blocks kept in the cache of each stage (each 256 KiB).
 pub const FILL_CACHE_BLOCKS: usize = 64;
 
+/// 32 m network tiles (before drainage) kept between [`LearnedSource::prepare`] steps: the
+/// four of each of the four first-stage blocks that one second-stage block needs (64 KiB
+/// each).
+pub const RAW_CACHE_TILES: usize = 16;
+
 /// The corner tile (even i and j) of the first-stage fill block that holds tile `c`.
 pub fn fill_block_corner(c: TileCoord) -> TileCoord {
     let corner = |v: i32| v.div_euclid(FILL_BLOCK_TILES) * FILL_BLOCK_TILES;
@@ -165,6 +170,8 @@ pub struct LearnedSource {
     coarse: Mutex<HashMap<(u64, TileCoord), Arc<Vec<f32>>>>,
     filled: Mutex<BlockCache>,
     drained: Mutex<BlockCache>,
+    /// 32 m tiles as the networks made them, before drainage (see [`LearnedSource::prepare`]).
+    raw: Mutex<BlockCache>,
     scratch: Mutex<(TcmScratch, GrowScratch)>,
     threads: usize,
 }
@@ -172,7 +179,7 @@ pub struct LearnedSource {
 impl LearnedSource {
     /// A source running `models` on `threads` threads.
     pub fn new(models: Arc<LearnedModels>, threads: usize) -> Self {
-        Self { models, coarse: Mutex::default(), filled: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), drained: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), scratch: Mutex::default(), threads: threads.max(1) }
+        Self { models, coarse: Mutex::default(), filled: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), drained: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), raw: Mutex::new(BlockCache::new(RAW_CACHE_TILES)), scratch: Mutex::default(), threads: threads.max(1) }
     }
 
     /// The same source keeping at most `blocks` filled blocks per stage (tests of eviction).
@@ -226,6 +233,51 @@ impl LearnedSource {
         field
     }
 
+    /// Does one piece of the work that tile `coord` of world `seed` still needs and returns
+    /// `true`, or returns `false` when none is left ([`TileSource::generate`] then only cuts
+    /// the tile from a cached block). A piece is one 128 m network tile, one ×4 step to a
+    /// 32 m tile, or the drainage of one block: tens of milliseconds where a whole tile can
+    /// take a second. A caller that rests between pieces (the page's CPU worker beside a
+    /// software rasteriser) spreads a tile's work out; the tile is the same.
+    pub fn prepare(&self, seed: u64, coord: TileCoord) -> bool {
+        let second = second_block_corner(coord);
+        if self.drained.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, second)).is_some() {
+            return false;
+        }
+        let k = FILL_BLOCK_TILES;
+        for c in (0..k * k).map(|t| second.offset(t % k, t / k)) {
+            let first = fill_block_corner(c);
+            if self.filled.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, first)).is_some() {
+                continue;
+            }
+            for t in (0..k * k).map(|t| first.offset(t % k, t / k)) {
+                if self.raw.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, t)).is_some() {
+                    continue;
+                }
+                let around = (0..9).map(|n| t.offset(n % 3 - 1, n / 3 - 1));
+                if let Some(m) = around.filter_map(|a| self.missing_coarse(seed, a)).next() {
+                    self.coarse_tile(seed, m);
+                } else {
+                    self.raw_tile(seed, t);
+                }
+                return true;
+            }
+            self.filled_block(seed, first);
+            return true;
+        }
+        self.drained_block(seed, second);
+        true
+    }
+
+    /// A 128 m tile that tile `c` of world `seed` needs (itself or a schedule dependency,
+    /// deepest first) and that is not cached yet, with all its own dependencies cached.
+    fn missing_coarse(&self, seed: u64, c: TileCoord) -> Option<TileCoord> {
+        if self.coarse.lock().unwrap_or_else(|p| p.into_inner()).contains_key(&(seed, c)) {
+            return None;
+        }
+        dependencies(c).find_map(|d| self.missing_coarse(seed, d)).or(Some(c))
+    }
+
     /// The ruggedness ([`tcm::tile_ruggedness`]) of the 128 m tile `c` of world `seed` as the
     /// TCM made it, to compare with the ruggedness the world asked for ([`ruggedness`]).
     pub fn made_ruggedness(&self, seed: u64, c: TileCoord) -> f32 {
@@ -254,7 +306,7 @@ impl LearnedSource {
     /// `seed`: the networks' tiles, closed depressions drained with the block's border fixed
     /// ([`TILE_SAMPLES`]·2 samples square, metres).
     fn filled_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
-        Self::fill_cached(&self.filled, seed, corner, |c| self.raw_tile(seed, c))
+        Self::fill_cached(&self.filled, seed, corner, |c| self.raw_tile(seed, c).to_vec())
     }
 
     /// The second-stage block (corner tile `corner`, [`second_block_corner`]) of world `seed`:
@@ -286,8 +338,19 @@ impl LearnedSource {
         h
     }
 
+    /// The 32 m tile `coord` of world `seed` as the networks make it, before the fill, from
+    /// the cache or made and kept there.
+    fn raw_tile(&self, seed: u64, coord: TileCoord) -> Arc<Vec<f32>> {
+        if let Some(t) = self.raw.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, coord)) {
+            return t;
+        }
+        let t = Arc::new(self.make_raw_tile(seed, coord));
+        self.raw.lock().unwrap_or_else(|p| p.into_inner()).insert((seed, coord), t.clone());
+        t
+    }
+
     /// The 32 m tile `coord` of world `seed` as the networks make it, before the fill.
-    fn raw_tile(&self, seed: u64, coord: TileCoord) -> Vec<f32> {
+    fn make_raw_tile(&self, seed: u64, coord: TileCoord) -> Vec<f32> {
         // The 128 m field of the 3×3 tiles, then the window of the tile plus the margin.
         let n3 = tcm::CONTEXT_PX;
         let field = self.coarse_context(seed, coord);
@@ -352,6 +415,37 @@ mod tests {
 
     fn random_models() -> Arc<LearnedModels> {
         Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), GrowCpu::randomized(2, 0.05), "test"))
+    }
+
+    /// A tile prepared piece by piece is bit-identical to one made in one go; the pieces are
+    /// exactly one per 128 m network tile needed (with its schedule dependencies), one per
+    /// 32 m ×4 step (16) and one per drained block (4 + 1); a tile of the same block then
+    /// needs none.
+    #[test]
+    fn prepare_makes_a_tile_in_one_piece_per_network_tile_and_drained_block() {
+        let models = random_models();
+        let (seed, c) = (9, TileCoord::new(3, -2));
+        let whole = LearnedSource::new(models.clone(), 1).generate(seed, c, &Neighbourhood::default());
+        let src = LearnedSource::new(models, 1);
+        let mut steps = 0;
+        while src.prepare(seed, c) {
+            steps += 1;
+            assert!(steps < 1000, "prepare never finishes");
+        }
+        // The 128 m tiles: the 3×3 around each of the 16 network tiles, with their dependencies.
+        let second = second_block_corner(c);
+        let mut coarse = std::collections::HashSet::new();
+        let mut todo: Vec<TileCoord> = (0..16).flat_map(|t| (0..9).map(move |n| second.offset(t % 4 - 1 + n % 3 - 1, t / 4 - 1 + n / 3 - 1))).collect();
+        while let Some(t) = todo.pop() {
+            if coarse.insert(t) {
+                todo.extend(dependencies(t));
+            }
+        }
+        assert_eq!(steps, coarse.len() + 16 + 4 + 1);
+        let made = src.generate(seed, c, &Neighbourhood::default());
+        assert_eq!(made.heights, whole.heights);
+        let same = (0..9).map(|n| c.offset(n % 3 - 1, n / 3 - 1)).find(|&d| d != c && second_block_corner(d) == second).expect("a 2×2 block has a tile beside c");
+        assert!(!src.prepare(seed, same));
     }
 
     /// Three visit orders of a 6×6 region (shuffled, each with a fresh source and cache) make
