@@ -17,6 +17,9 @@ pub struct Environment {
     /// Whether the adapter rasterises on the CPU (the 3-D view is then drawn at
     /// [`crate::render::SOFTWARE_VIEW_SCALE`]).
     pub software_adapter: bool,
+    /// How long the CPU worker rests per ms of work
+    /// ([`crate::models::runtime::worker_rest_per_work`]; 0: it works at full speed).
+    pub worker_rest_per_work: f64,
     /// State of the neural-network backend (burn), e.g. "burn wgpu ready (3.1 ms self-check)".
     pub ml_status: String,
     /// Name of the tile source.
@@ -101,6 +104,9 @@ impl Overlay {
             ui.label(format!("GPU: {}", env.adapter));
             if env.software_adapter {
                 ui.label(format!("software GPU: 3-D view at {:.0} % resolution", crate::render::SOFTWARE_VIEW_SCALE * 100.0));
+                if env.worker_rest_per_work > 0.0 {
+                    ui.label(format!("CPU worker at 1/{:.0} of a core while flying (smooth frames)", 1.0 + env.worker_rest_per_work));
+                }
             }
             ui.label(format!("ML: {}", env.ml_status));
             ui.label(format!("Source: {}", env.source));

@@ -840,7 +840,8 @@ impl WebApp {
         if self.app.stats().tiles_pending == 0 {
             self.complete_epoch = Some(self.app.epoch());
         }
-        runtime::worker_rest_per_work(self.env.software_adapter, self.complete_epoch == Some(self.app.epoch()))
+        self.env.worker_rest_per_work = runtime::worker_rest_per_work(self.env.software_adapter, self.complete_epoch == Some(self.app.epoch()));
+        self.env.worker_rest_per_work
     }
 
     /// Tells the app when the learned world's models are ready or failed, hands it finished
@@ -1198,7 +1199,7 @@ impl eframe::App for WebApp {
             "copy_link_button": self.overlay.copy_link_rect.map(|r| [r.min.x, r.min.y, r.width(), r.height()]),
             "software_adapter": self.env.software_adapter,
             // The CPU worker's rest per ms of work (runtime::worker_rest_per_work).
-            "worker_rest_per_work": runtime::worker_rest_per_work(self.env.software_adapter, self.complete_epoch == Some(self.app.epoch())),
+            "worker_rest_per_work": self.env.worker_rest_per_work,
             "sketch_buttons": self.sketch_panel.buttons.iter().map(|(k, r)| (k.clone(), [r.min.x, r.min.y, r.width(), r.height()])).collect::<std::collections::BTreeMap<_, _>>(),
         });
         STATS_JSON.with(|s| *s.borrow_mut() = json.to_string());

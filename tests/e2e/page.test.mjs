@@ -208,6 +208,7 @@ test('the learned world: tiles from the CPU worker match the native CLI within 0
     page_ms_per_tile_worker: s1.stats.ms_per_tile, tiles_generated: s1.stats.tiles_generated, tile_jobs: s1.stats.tile_jobs,
     flight_s: LEARNED_FLIGHT_S, frames: frames.length, frame_ms_median: median, frame_ms_p95: frames[Math.floor(frames.length * 0.95)],
     frame_ms_worst: frames[frames.length - 1], worst_over_median: frames[frames.length - 1] / median,
+    frames_over_twice_median: frames.filter((f) => f > 2 * median).length, frame_ms_slowest_5: frames.slice(-5).map((f) => +f.toFixed(1)),
     cpu_ms_worst_samples: cpuWorst.map((w) => w && w.map((v) => +v.toFixed(1))),
   };
   console.log('LEARNED ' + JSON.stringify(report.learned_world));
