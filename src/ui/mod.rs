@@ -132,12 +132,12 @@ impl Overlay {
                 let depth_m = crate::world::TILE_SIZE_M / f64::from(1u32 << stats.max_depth_drawn) / crate::world::quadtree::NODE_QUADS as f64;
                 ui.monospace(format!("depth {} ({depth_m} m)  {:.1} ms/quad  {} quads", stats.max_depth_drawn, stats.ms_per_quad, stats.quads_made));
             }
-            if stats.tiles_pending > 0 {
-                let total = stats.tiles_pending + stats.tiles_cached.min(1000);
-                // No spinner: it asks for a repaint on every animation frame, which would draw
-                // the overlay between the paced frames of the 3-D view (render::pacing).
-                ui.add(egui::ProgressBar::new(1.0 - stats.tiles_pending as f32 / total.max(1) as f32).text(format!("generating {} tiles", stats.tiles_pending)));
-            }
+            // Always shown, and no spinner: a widget that appears, or a spinner, asks egui for
+            // repaints, which would draw the overlay between the paced frames of the 3-D view
+            // (render::pacing) and delay the next one.
+            let total = stats.tiles_pending + stats.tiles_cached.min(1000);
+            let text = if stats.tiles_pending > 0 { format!("generating {} tiles", stats.tiles_pending) } else { "every tile in view made".to_string() };
+            ui.add(egui::ProgressBar::new(1.0 - stats.tiles_pending as f32 / total.max(1) as f32).text(text));
             ui.separator();
             ui.horizontal(|ui| {
                 let mut m = mode;
