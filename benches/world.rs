@@ -73,6 +73,31 @@ fn learned(c: &mut Criterion) {
             let mut s = TcmScratch::default();
             g.bench_function(format!("TCM 128 m tile, phase {phase}, {threads} thread(s)"), |b| b.iter(|| black_box(tcm.forward(&x, &mut s, threads))));
         }
+        // A phase's batch as the job queue hands it: the 4 tiles of that phase in a 4×4 area
+        // (phase 3, three neighbours given), one after another with every thread on each tile.
+        let mask = phase_mask(3);
+        let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
+        let batch: Vec<Vec<f32>> = (0..4).map(|k| assemble_input(&tiles, &[500.0; 9], &[0.5; 9], 7 + k)).collect();
+        let mut s = TcmScratch::default();
+        g.bench_function(format!("TCM phase batch of 4 tiles, one after another, {threads} thread(s) each"), |b| {
+            b.iter(|| batch.iter().map(|x| black_box(tcm.forward(x, &mut s, threads))).count())
+        });
+        if threads > 1 {
+            // The same batch split between the threads, one tile per thread at a time.
+            g.bench_function(format!("TCM phase batch of 4 tiles, {threads} at a time, 1 thread each"), |b| {
+                b.iter(|| {
+                    std::thread::scope(|sc| {
+                        for part in batch.chunks(batch.len().div_ceil(threads)) {
+                            let tcm = &tcm;
+                            sc.spawn(move || {
+                                let mut s = TcmScratch::default();
+                                part.iter().map(|x| black_box(tcm.forward(x, &mut s, 1))).count()
+                            });
+                        }
+                    })
+                })
+            });
+        }
         let window = vec![500.0f32; grow::WINDOW * grow::WINDOW];
         let (x, n64, n32) = grow::assemble(&window, 7, 0, 0);
         let mut s = GrowScratch::default();
