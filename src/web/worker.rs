@@ -330,53 +330,53 @@ enum Paced {
 /// heights and the milliseconds of work.
 async fn run_paced() {
     while let Some((id, job)) = PACED.with(|q| q.borrow_mut().pop_front()) {
-        let mut work_ms = 0.0;
-        let mut timed = |f: &mut dyn FnMut()| {
-            let t0 = web_time::Instant::now();
-            f();
-            let ms = t0.elapsed().as_secs_f64() * 1000.0;
-            work_ms += ms;
-            ms
-        };
         let answer = match job {
-            Paced::Tile { seed, c, rest_per_work } => loop {
-                let mut more = None;
-                let ms = timed(&mut || more = WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.prepare(seed, c))));
-                match more {
-                    Some(true) => rest(ms * rest_per_work).await,
-                    Some(false) => {
-                        let mut tile = None;
-                        timed(&mut || tile = WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.generate(seed, c, &Neighbourhood::default()))));
-                        break tile.map(|tile| Answer::Heights(tile.heights, work_ms)).ok_or_else(|| NO_WORLD.to_string());
-                    }
-                    None => break Err(NO_WORLD.to_string()),
-                }
-            },
-            Paced::Enhance { level, input, n, side, rest_per_work } => {
-                let per = input.len() / n.max(1);
-                let mut out = Vec::new();
-                let mut failed = None;
-                for window in input.chunks(per.max(1)) {
-                    let mut r = Err(String::new());
-                    let ms = timed(&mut || r = enhance_in_worker(level, window.to_vec(), 1, side));
-                    match r {
-                        Ok(o) => out.extend(o),
-                        Err(e) => {
-                            failed = Some(e);
-                            break;
-                        }
-                    }
-                    rest(ms * rest_per_work).await;
-                }
-                match failed {
-                    Some(e) => Err(e),
-                    None => Ok(Answer::Heights(out, work_ms)),
-                }
-            }
+            Paced::Tile { seed, c, rest_per_work } => paced_tile(seed, c, rest_per_work).await,
+            Paced::Enhance { level, input, n, side, rest_per_work } => paced_enhance(level, &input, n, side, rest_per_work).await,
         };
         reply(id, answer);
     }
     PACED_RUNNING.set(false);
+}
+
+/// Learned tile `c` of world `seed`, one [`LearnedSource::prepare`] piece at a time with
+/// `rest_per_work` ms of rest per ms of work after each: its heights and the ms of work.
+async fn paced_tile(seed: u64, c: TileCoord, rest_per_work: f64) -> Result<Answer, String> {
+    let mut work_ms = 0.0;
+    loop {
+        let (more, ms) = timed(|| with_world(|src| src.prepare(seed, c)));
+        work_ms += ms;
+        if !more? {
+            let (tile, ms) = timed(|| with_world(|src| src.generate(seed, c, &Neighbourhood::default())));
+            return Ok(Answer::Heights(tile?.heights, work_ms + ms));
+        }
+        rest(ms * rest_per_work).await;
+    }
+}
+
+/// TEM level `level` on the `n` windows of side `side` in `input`, one window at a time with
+/// `rest_per_work` ms of rest per ms of work after each: the heights and the ms of work.
+async fn paced_enhance(level: usize, input: &[f32], n: usize, side: usize, rest_per_work: f64) -> Result<Answer, String> {
+    let (mut out, mut work_ms) = (Vec::with_capacity(input.len()), 0.0);
+    for window in input.chunks((input.len() / n.max(1)).max(1)) {
+        let (heights, ms) = timed(|| enhance_in_worker(level, window.to_vec(), 1, side));
+        out.extend(heights?);
+        work_ms += ms;
+        rest(ms * rest_per_work).await;
+    }
+    Ok(Answer::Heights(out, work_ms))
+}
+
+/// `f`'s result and how long it took (milliseconds).
+fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
+    let t0 = web_time::Instant::now();
+    let out = f();
+    (out, t0.elapsed().as_secs_f64() * 1000.0)
+}
+
+/// Runs `f` with the worker's learned world.
+fn with_world<T>(f: impl FnOnce(&LearnedSource) -> T) -> Result<T, String> {
+    WORKER_WORLD.with(|w| w.borrow().as_ref().map(f)).ok_or_else(|| NO_WORLD.to_string())
 }
 
 /// Runs TEM level `level` of the worker's models on `n` windows of side `side`.
@@ -445,9 +445,8 @@ fn handle(msg: &JsValue) -> Result<Answer, String> {
         }
         Some("sketch") => {
             let sketch = sketch_arg(msg, "code")?;
-            let t0 = web_time::Instant::now();
-            let h = with_sketch(|g, _| g.generate(&sketch, &mut Default::default(), 1))?;
-            Ok(Answer::Heights(h, t0.elapsed().as_secs_f64() * 1000.0))
+            let (h, ms) = timed(|| with_sketch(|g, _| g.generate(&sketch, &mut Default::default(), 1)));
+            Ok(Answer::Heights(h?, ms))
         }
         Some("variants") => {
             let sketch = sketch_arg(msg, "code")?;
@@ -469,26 +468,20 @@ fn handle(msg: &JsValue) -> Result<Answer, String> {
             })
         }
         Some("tile") => {
-            let seed: u64 = get(msg, "seed").as_string().and_then(|s| s.parse().ok()).ok_or("the request has no seed")?;
-            let coord = |k: &str| get(msg, k).as_f64().filter(|v| v.fract() == 0.0 && v.abs() < 1e9).map(|v| v as i32).ok_or(format!("the request has no tile {k}"));
-            let c = TileCoord::new(coord("i")?, coord("j")?);
-            let t0 = web_time::Instant::now();
-            let tile = match get(msg, "noise").as_string() {
+            let (seed, c) = tile_request(msg)?;
+            let (tile, ms) = timed(|| match get(msg, "noise").as_string() {
                 Some(json) => {
                     let noise: NoiseParams = serde_json::from_str(&json).map_err(|e| format!("the request's noise parameters are broken ({e})"))?;
-                    ProceduralSource::new(noise).generate(seed, c, &Neighbourhood::default())
+                    Ok(ProceduralSource::new(noise).generate(seed, c, &Neighbourhood::default()))
                 }
-                None => WORKER_WORLD.with(|w| w.borrow().as_ref().map(|src| src.generate(seed, c, &Neighbourhood::default()))).ok_or(NO_WORLD)?,
-            };
-            Ok(Answer::Heights(tile.heights, t0.elapsed().as_secs_f64() * 1000.0))
+                None => with_world(|src| src.generate(seed, c, &Neighbourhood::default())),
+            });
+            Ok(Answer::Heights(tile?.heights, ms))
         }
         Some("enhance") => {
-            let num = |k: &str| get(msg, k).as_f64().map(|v| v as usize).ok_or(format!("the request has no {k}"));
-            let (level, n, side) = (num("level")?, num("n")?, num("side")?);
-            let input: Float32Array = get(msg, "input").dyn_into().map_err(|_| "the request has no heights".to_string())?;
-            let t0 = web_time::Instant::now();
-            let out = enhance_in_worker(level, input.to_vec(), n, side)?;
-            Ok(Answer::Heights(out, t0.elapsed().as_secs_f64() * 1000.0))
+            let (level, n, side, input) = enhance_request(msg)?;
+            let (out, ms) = timed(|| enhance_in_worker(level, input.to_vec(), n, side));
+            Ok(Answer::Heights(out?, ms))
         }
         other => Err(format!("the CPU worker does not know the request {other:?}")),
     }
@@ -496,7 +489,8 @@ fn handle(msg: &JsValue) -> Result<Answer, String> {
 
 /// The worker's entry point for one request (called by the worker script, never by the page):
 /// loads models or runs inference, and posts the reply `{id, out, ms}` or `{id, error}`. A
-/// learned tile with a rest ([`CpuWorker::tile`]) is queued and answered once made.
+/// learned tile or a TEM batch with a rest ([`CpuWorker::tile`], [`CpuWorker::enhance`]) is
+/// queued and answered once made.
 #[wasm_bindgen]
 pub fn terrain_worker_message(msg: JsValue) {
     if let Some(job) = paced(&msg) {
@@ -513,19 +507,32 @@ pub fn terrain_worker_message(msg: JsValue) {
 /// field it needs (else `None`, and [`handle`] answers it at once or says what is wrong).
 fn paced(msg: &JsValue) -> Option<Paced> {
     let rest_per_work = get(msg, "rest").as_f64().filter(|r| r.is_finite() && *r > 0.0)?;
-    let int = |k: &str| get(msg, k).as_f64().filter(|v| v.fract() == 0.0 && v.abs() < 1e9);
     match get(msg, "kind").as_string().as_deref() {
         Some("tile") if get(msg, "noise").is_undefined() => {
-            let seed = get(msg, "seed").as_string().and_then(|s| s.parse().ok())?;
-            Some(Paced::Tile { seed, c: TileCoord::new(int("i")? as i32, int("j")? as i32), rest_per_work })
+            let (seed, c) = tile_request(msg).ok()?;
+            Some(Paced::Tile { seed, c, rest_per_work })
         }
         Some("enhance") => {
-            let (level, n, side) = (int("level")? as usize, int("n")? as usize, int("side")? as usize);
-            let input: Float32Array = get(msg, "input").dyn_into().ok()?;
+            let (level, n, side, input) = enhance_request(msg).ok()?;
             (n > 0 && input.length() as usize % n == 0).then(|| Paced::Enhance { level, input: input.to_vec(), n, side, rest_per_work })
         }
         _ => None,
     }
+}
+
+/// The world seed and tile of a "tile" request.
+fn tile_request(msg: &JsValue) -> Result<(u64, TileCoord), String> {
+    let seed: u64 = get(msg, "seed").as_string().and_then(|s| s.parse().ok()).ok_or("the request has no seed")?;
+    let coord = |k: &str| get(msg, k).as_f64().filter(|v| v.fract() == 0.0 && v.abs() < 1e9).map(|v| v as i32).ok_or(format!("the request has no tile {k}"));
+    Ok((seed, TileCoord::new(coord("i")?, coord("j")?)))
+}
+
+/// The TEM level, window count, window side and input heights of an "enhance" request.
+fn enhance_request(msg: &JsValue) -> Result<(usize, usize, usize, Float32Array), String> {
+    let num = |k: &str| get(msg, k).as_f64().map(|v| v as usize).ok_or(format!("the request has no {k}"));
+    let (level, n, side) = (num("level")?, num("n")?, num("side")?);
+    let input: Float32Array = get(msg, "input").dyn_into().map_err(|_| "the request has no heights".to_string())?;
+    Ok((level, n, side, input))
 }
 
 /// Posts the reply to request `id`: `{id, out, ms}`, `{id, hash}`, `{id, out, codes}` or

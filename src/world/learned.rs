@@ -93,6 +93,18 @@ pub const FILL_CACHE_BLOCKS: usize = 64;
 /// each).
 pub const RAW_CACHE_TILES: usize = 16;
 
+/// The tiles of the drainage block with corner tile `corner` ([`FILL_BLOCK_TILES`] square),
+/// row-major.
+fn block_tiles(corner: TileCoord) -> impl Iterator<Item = TileCoord> {
+    let k = FILL_BLOCK_TILES;
+    (0..k * k).map(move |t| corner.offset(t % k, t / k))
+}
+
+/// The 3×3 tiles centred on `c`, row-major like [`tcm::phase_mask`].
+fn around(c: TileCoord) -> [TileCoord; 9] {
+    std::array::from_fn(|t| c.offset(t as i32 % 3 - 1, t as i32 / 3 - 1))
+}
+
 /// The corner tile (even i and j) of the first-stage fill block that holds tile `c`.
 pub fn fill_block_corner(c: TileCoord) -> TileCoord {
     let corner = |v: i32| v.div_euclid(FILL_BLOCK_TILES) * FILL_BLOCK_TILES;
@@ -196,8 +208,7 @@ impl LearnedSource {
             return t.clone();
         }
         let deps: HashMap<TileCoord, Arc<Vec<f32>>> = dependencies(c).map(|d| (d, self.coarse_tile(seed, d))).collect();
-        // The 3×3 block around c, row-major like tcm::phase_mask.
-        let block: [TileCoord; 9] = std::array::from_fn(|t| c.offset(t as i32 % 3 - 1, t as i32 / 3 - 1));
+        let block = around(c);
         let tiles: [Option<&[f32]>; 9] = block.map(|b| deps.get(&b).map(|v| v.as_slice()));
         let centres: [f32; 9] = block.map(|b| macro_height(seed, b));
         let rugged: [f32; 9] = block.map(|b| ruggedness(seed, b));
@@ -225,10 +236,9 @@ impl LearnedSource {
     pub fn coarse_context(&self, seed: u64, c: TileCoord) -> Vec<f32> {
         let n3 = tcm::CONTEXT_PX;
         let mut field = vec![0f32; n3 * n3];
-        for t in 0..9 {
-            let (di, dj) = (t % 3, t / 3);
-            let tile = self.coarse_tile(seed, c.offset(di as i32 - 1, dj as i32 - 1));
-            paste(&mut field, n3, &tile, TILE_PX, di * TILE_PX, dj * TILE_PX);
+        for (t, b) in around(c).into_iter().enumerate() {
+            let tile = self.coarse_tile(seed, b);
+            paste(&mut field, n3, &tile, TILE_PX, t % 3 * TILE_PX, t / 3 * TILE_PX);
         }
         field
     }
@@ -244,18 +254,16 @@ impl LearnedSource {
         if self.drained.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, second)).is_some() {
             return false;
         }
-        let k = FILL_BLOCK_TILES;
-        for c in (0..k * k).map(|t| second.offset(t % k, t / k)) {
+        for c in block_tiles(second) {
             let first = fill_block_corner(c);
             if self.filled.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, first)).is_some() {
                 continue;
             }
-            for t in (0..k * k).map(|t| first.offset(t % k, t / k)) {
+            for t in block_tiles(first) {
                 if self.raw.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, t)).is_some() {
                     continue;
                 }
-                let around = (0..9).map(|n| t.offset(n % 3 - 1, n / 3 - 1));
-                if let Some(m) = around.filter_map(|a| self.missing_coarse(seed, a)).next() {
+                if let Some(m) = around(t).into_iter().find_map(|a| self.missing_coarse(seed, a)) {
                     self.coarse_tile(seed, m);
                 } else {
                     self.raw_tile(seed, t);
@@ -328,8 +336,7 @@ impl LearnedSource {
         let (n, k) = (TILE_SAMPLES, FILL_BLOCK_TILES as usize);
         let m = n * k;
         let mut h = vec![0f32; m * m];
-        for t in 0..k * k {
-            let c = corner.offset((t % k) as i32, (t / k) as i32);
+        for (t, c) in block_tiles(corner).enumerate() {
             paste(&mut h, m, &tile(c), n, (t % k) * n, (t / k) * n);
         }
         drainage::breach_depressions(&mut h, m, BREACH_DEPTH_M, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
