@@ -165,9 +165,8 @@ impl SketchVaeCpu {
         (out[..n].to_vec(), out[n..2 * n].iter().map(|v| v.clamp(-12.0, 6.0)).collect())
     }
 
-    /// The sketch of code `z`: the most likely band per pixel, strokes where their
-    /// probability exceeds one half.
-    pub fn decode(&self, z: &[f32], s: &mut VaeScratch, threads: usize) -> Sketch {
+    /// The decoder's reading of code `z` as a [`Soft`] sketch.
+    pub fn soft(&self, z: &[f32], s: &mut VaeScratch, threads: usize) -> Soft {
         s.a.set_chw(z, LATENT_CHANNELS, CODE_PX, CODE_PX);
         cpu::conv(&self.convs[7], &s.a, &mut s.b, Post::Relu, threads);
         for k in 0..6 {
@@ -175,36 +174,133 @@ impl SketchVaeCpu {
             cpu::conv(&self.convs[8 + k], &s.a, &mut s.b, Post::Relu, threads);
         }
         cpu::conv(&self.convs[14], &s.b, &mut s.a, Post::None, threads);
-        let mut sk = Sketch::filled(0);
-        for p in 0..SKETCH_PX * SKETCH_PX {
+        let n = SKETCH_PX * SKETCH_PX;
+        let mut out = Soft { band: Vec::with_capacity(n), likeliest: Vec::with_capacity(n), ridge: Vec::with_capacity(n), valley: Vec::with_capacity(n) };
+        for p in 0..n {
             let l = s.a.pixel(p / SKETCH_PX, p % SKETCH_PX);
-            sk.band[p] = (0..BANDS).max_by(|&a, &b| l[a].total_cmp(&l[b])).unwrap_or(0) as u8;
-            sk.ridge[p] = l[BANDS] > 0.0;
-            sk.valley[p] = l[BANDS + 1] > 0.0;
+            let top = l[..BANDS].iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            let e: Vec<f32> = l[..BANDS].iter().map(|v| (v - top).exp()).collect();
+            let sum: f32 = e.iter().sum();
+            out.band.push(e.iter().enumerate().map(|(k, w)| k as f32 * w).sum::<f32>() / sum);
+            out.likeliest.push((0..BANDS).max_by(|&a, &b| l[a].total_cmp(&l[b])).unwrap_or(0) as u8);
+            out.ridge.push(l[BANDS]);
+            out.valley.push(l[BANDS + 1]);
         }
-        sk
+        out
     }
 
-    /// `n` codes around `sketch`'s own (its mean plus [`VARIANT_SPREAD`] × seeded normal
-    /// noise), decoded: variants of the sketch. The same seed gives the same variants.
+    /// The sketch of code `z` on its own: the likeliest band per pixel, and as many ridge and
+    /// valley pixels as `strokes` asks for at the highest stroke logits (the stroke layers
+    /// score a rare class and seldom pass one half, so a fixed threshold would draw none).
+    /// Validation scores reconstructions with it.
+    pub fn decode(&self, z: &[f32], strokes: StrokeCount, s: &mut VaeScratch, threads: usize) -> Sketch {
+        let soft = self.soft(z, s, threads);
+        Sketch { band: soft.likeliest, ridge: strongest(&soft.ridge, strokes.ridge), valley: strongest(&soft.valley, strokes.valley) }
+    }
+
+    /// `n` variants of `sketch`: codes around its own (its mean plus [`VARIANT_SPREAD`] ×
+    /// seeded normal noise), each applied as the change the decoder sees between the new code
+    /// and the sketch's own ([`edit`]), so a variant keeps the sketch's detail — its strokes
+    /// and band borders — wherever the code's change does not reach. The same seed gives the
+    /// same variants.
     pub fn variants(&self, sketch: &Sketch, n: usize, seed: u64, s: &mut VaeScratch, threads: usize) -> Vec<Sketch> {
         let (mu, _) = self.encode(sketch, s, threads);
+        let own = self.soft(&mu, s, threads);
         (0..n)
             .map(|k| {
                 let z: Code = mu.iter().enumerate().map(|(i, m)| m + VARIANT_SPREAD * crate::models::tcm::gauss(mix64(seed ^ mix64((k * LATENT + i) as u64 + 1)))).collect();
-                self.decode(&z, s, threads)
+                edit(&[(sketch, 1.0)], &[(&self.soft(&z, s, threads), 1.0), (&own, -1.0)])
             })
             .collect()
     }
 
-    /// The sketch between `a` (α = 1) and `b` (α = 0): the decoded α·z_a + (1 − α)·z_b of
-    /// their mean codes.
+    /// The sketch between `a` (α = 1, exactly `a`) and `b` (α = 0, exactly `b`): the
+    /// α-blend of the two sketches plus the change the decoder sees between the code
+    /// α·z_a + (1 − α)·z_b and the α-blend of the two codes' own readings ([`edit`]).
     pub fn interpolate(&self, a: &Sketch, b: &Sketch, alpha: f32, s: &mut VaeScratch, threads: usize) -> Sketch {
+        let alpha = alpha.clamp(0.0, 1.0);
         let (za, _) = self.encode(a, s, threads);
         let (zb, _) = self.encode(b, s, threads);
         let z: Code = za.iter().zip(&zb).map(|(x, y)| alpha * x + (1.0 - alpha) * y).collect();
-        self.decode(&z, s, threads)
+        let (ra, rb, rz) = (self.soft(&za, s, threads), self.soft(&zb, s, threads), self.soft(&z, s, threads));
+        edit(&[(a, alpha), (b, 1.0 - alpha)], &[(&rz, 1.0), (&ra, -alpha), (&rb, alpha - 1.0)])
     }
+}
+
+/// A decoded code before rounding: per pixel ([`SKETCH_PX`]², row-major) the expected band
+/// (0–3, the softmax-weighted mean), the likeliest band, and the ridge and valley logits.
+#[derive(Clone, Debug)]
+pub struct Soft {
+    /// Expected band (0.0–3.0).
+    pub band: Vec<f32>,
+    /// Likeliest band.
+    pub likeliest: Vec<u8>,
+    /// Ridge logit.
+    pub ridge: Vec<f32>,
+    /// Valley logit.
+    pub valley: Vec<f32>,
+}
+
+/// A weighted sum of sketches plus a weighted sum of decoder readings, rounded back to a
+/// sketch: per pixel the band is Σ wᵢ·bandᵢ + Σ vⱼ·expected bandⱼ, rounded and kept in 0–3;
+/// a stroke is drawn where Σ wᵢ·strokeᵢ (1 or 0) + Σ vⱼ·probabilityⱼ reaches one half (halfway
+/// through a blend both sketches' strokes show). The
+/// readings' weights sum to zero in every use, so an unchanged code leaves the sketches'
+/// blend as it is.
+pub fn edit(sketches: &[(&Sketch, f32)], readings: &[(&Soft, f32)]) -> Sketch {
+    let n = SKETCH_PX * SKETCH_PX;
+    let sigmoid = |x: f32| 1.0 / (1.0 + (-x).exp());
+    let mut out = Sketch::filled(0);
+    for p in 0..n {
+        let mut band = 0.0;
+        let (mut ridge, mut valley) = (0.0, 0.0);
+        for (sk, w) in sketches {
+            band += w * sk.band[p] as f32;
+            ridge += if sk.ridge[p] { *w } else { 0.0 };
+            valley += if sk.valley[p] { *w } else { 0.0 };
+        }
+        for (r, v) in readings {
+            band += v * r.band[p];
+            ridge += v * sigmoid(r.ridge[p]);
+            valley += v * sigmoid(r.valley[p]);
+        }
+        out.band[p] = band.round().clamp(0.0, (BANDS - 1) as f32) as u8;
+        out.ridge[p] = ridge >= 0.5;
+        out.valley[p] = valley >= 0.5;
+    }
+    out
+}
+
+/// How many ridge and valley pixels a decoded sketch gets (validation reconstructs a sketch
+/// with its own counts).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct StrokeCount {
+    /// Ridge pixels.
+    pub ridge: usize,
+    /// Valley pixels.
+    pub valley: usize,
+}
+
+impl StrokeCount {
+    /// The stroke pixels of `sketch`.
+    pub fn of(sketch: &Sketch) -> Self {
+        let count = |v: &[bool]| v.iter().filter(|&&x| x).count();
+        Self { ridge: count(&sketch.ridge), valley: count(&sketch.valley) }
+    }
+}
+
+/// The `k` pixels with the highest `scores` (ties by position), as a mask.
+fn strongest(scores: &[f32], k: usize) -> Vec<bool> {
+    let mut mask = vec![false; scores.len()];
+    let mut order: Vec<usize> = (0..scores.len()).collect();
+    let k = k.min(scores.len());
+    if k > 0 {
+        order.select_nth_unstable_by(k - 1, |&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
+        for &p in &order[..k] {
+            mask[p] = true;
+        }
+    }
+    mask
 }
 
 /// The sketch models the page and `terrain sketch-variants` use together: the generator, the
@@ -239,6 +335,57 @@ mod tests {
         assert!(err.to_string().starts_with(crate::models::sketch::WEIGHT_FILE), "{err}");
     }
 
+    #[test]
+    fn strongest_marks_exactly_the_k_highest_scores_and_none_for_k_0() {
+        let scores = [0.3, -2.0, 5.0, 0.31, -0.5, 5.0];
+        let pick = |k| strongest(&scores, k).iter().enumerate().filter(|&(_, &m)| m).map(|(i, _)| i).collect::<Vec<_>>();
+        assert_eq!(pick(0), Vec::<usize>::new());
+        assert_eq!(pick(2), vec![2, 5]);
+        assert_eq!(pick(3), vec![2, 3, 5]);
+        assert_eq!(pick(99).len(), 6);
+    }
+
+    fn test_sketch() -> Sketch {
+        let mut sk = Sketch::filled(1);
+        for p in 0..sk.band.len() {
+            sk.band[p] = ((p % SKETCH_PX) / 64) as u8;
+            sk.ridge[p] = (p / SKETCH_PX) % 50 == 7 && p % SKETCH_PX < 100;
+            sk.valley[p] = p % SKETCH_PX == 30;
+        }
+        sk
+    }
+
+    #[test]
+    fn a_blend_is_exactly_sketch_a_at_alpha_1_and_exactly_b_at_alpha_0() {
+        let vae = SketchVaeCpu::randomized(5, 0.05);
+        let a = test_sketch();
+        let mut b = Sketch::filled(2);
+        b.valley[SKETCH_PX * 9 + 9] = true;
+        let mut s = VaeScratch::default();
+        assert_eq!(vae.interpolate(&a, &b, 1.0, &mut s, 2), a);
+        assert_eq!(vae.interpolate(&a, &b, 0.0, &mut s, 2), b);
+        // Halfway, both sketches' strokes show.
+        let mid = vae.interpolate(&a, &b, 0.5, &mut s, 2);
+        assert!(mid.ridge[7 * SKETCH_PX] && mid.valley[SKETCH_PX * 9 + 9] && mid.valley[30]);
+    }
+
+    #[test]
+    fn an_edit_by_a_reading_one_band_higher_raises_every_band_by_one_up_to_3_and_adds_strokes_where_likely() {
+        let sk = test_sketch();
+        let n = SKETCH_PX * SKETCH_PX;
+        let flat = Soft { band: vec![1.0; n], likeliest: vec![1; n], ridge: vec![-9.0; n], valley: vec![-9.0; n] };
+        let mut up = flat.clone();
+        up.band = vec![2.0; n];
+        up.ridge[5] = 9.0;
+        assert_eq!(edit(&[(&sk, 1.0)], &[(&flat, 1.0), (&flat, -1.0)]), sk);
+        let e = edit(&[(&sk, 1.0)], &[(&up, 1.0), (&flat, -1.0)]);
+        for p in 0..n {
+            assert_eq!(e.band[p], (sk.band[p] + 1).min(3));
+        }
+        assert!(e.ridge[5] && !sk.ridge[5]);
+        assert_eq!(StrokeCount::of(&e), StrokeCount { ridge: 501, valley: 256 });
+    }
+
     /// Codes have 128 numbers; the VAE stays under 1 M parameters; the CPU kernels compute the
     /// burn encoder and decoder (random weights ±0.1: means within 1e-4, and the decoded
     /// sketch equal to the argmax/threshold of burn's logits on all but tie pixels).
@@ -265,12 +412,14 @@ mod tests {
         let worst = mu_b.iter().chain(&lv_b).zip(mu_c.iter().chain(&lv_c)).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
         assert!(worst < 1e-4, "encoder differs by {worst}");
         let logits: Vec<f32> = m.decode(mu).into_data().try_to_vec().unwrap();
-        let dec = c.decode(&mu_c, &mut s, 1);
         let n = SKETCH_PX * SKETCH_PX;
+        // As many stroke pixels as burn's logits have above zero: the same pixels.
+        let positive = |layer: usize| (0..n).filter(|&p| logits[layer * n + p] > 0.0).count();
+        let dec = c.decode(&mu_c, StrokeCount { ridge: positive(BANDS), valley: positive(BANDS + 1) }, &mut s, 1);
         let mut differ = 0;
         for p in 0..n {
             let band = (0..BANDS).max_by(|&a, &b| logits[a * n + p].total_cmp(&logits[b * n + p])).unwrap() as u8;
-            if band != dec.band[p] || (logits[BANDS * n + p] > 0.0) != dec.ridge[p] {
+            if band != dec.band[p] || (logits[BANDS * n + p] > 0.0) != dec.ridge[p] || (logits[(BANDS + 1) * n + p] > 0.0) != dec.valley[p] {
                 differ += 1;
             }
         }

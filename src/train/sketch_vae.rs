@@ -190,11 +190,11 @@ pub fn validate(vae: &SketchVaeCpu, pairs: &[Pair]) -> VaeValidation {
     for p in pairs {
         let sk = sketch_of(p);
         let (mu, _) = vae.encode(&sk, &mut s, threads);
-        let rec = vae.decode(&mu, &mut s, threads);
+        let rec = vae.decode(&mu, crate::models::sketch_vae::StrokeCount::of(&sk), &mut s, threads);
         let a = score::Agreement::between(&rec, &sk);
         (band, rf, vf) = (band + a.band, rf + a.ridge_f1(), vf + a.valley_f1());
         let v = vae.variants(&sk, 2, 7, &mut s, threads);
-        change += v.iter().map(|x| 1.0 - score::Agreement::between(x, &rec).band).sum::<f64>() / 2.0;
+        change += v.iter().map(|x| 1.0 - score::Agreement::between(x, &sk).band).sum::<f64>() / 2.0;
     }
     let n = pairs.len().max(1) as f64;
     VaeValidation { sketches: pairs.len(), band_agreement: band / n, ridge_f1: rf / n, valley_f1: vf / n, variant_band_change: change / n }
