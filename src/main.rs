@@ -284,6 +284,14 @@ enum Command {
         /// (the format's tiles are 512 m; a new run only).
         #[arg(long)]
         max_extent_m: Option<f64>,
+        /// Train (and validate) only on windows whose ground extent is at least this many
+        /// metres (a new run only).
+        #[arg(long)]
+        min_extent_m: Option<f64>,
+        /// Train (and validate) only on these DEMs of the manifest (ids, comma-separated; a
+        /// new run only). Default: every DEM.
+        #[arg(long, value_delimiter = ',')]
+        dems: Vec<String>,
         /// Also train on the pairs in this folder (the format's 512×256 files, e.g. the sketch
         /// authors' pairs), in their 8 rotations/flips (a new run only).
         #[arg(long)]
@@ -804,8 +812,10 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
     if !(0.0..=1.0).contains(&cfg.format_share) {
         return Err(format!("--format-share must be between 0 and 1, not {}", cfg.format_share));
     }
-    if cfg.max_extent_m.is_some_and(|m| !(m.is_finite() && m > 0.0)) {
-        return Err(format!("--max-extent-m must be a positive number of metres, not {:?}", cfg.max_extent_m));
+    for (flag, m) in [("--max-extent-m", cfg.max_extent_m), ("--min-extent-m", cfg.min_extent_m)] {
+        if m.is_some_and(|m| !(m.is_finite() && m > 0.0)) {
+            return Err(format!("{flag} must be a positive number of metres, not {m:?}"));
+        }
     }
     let init = match init {
         Some(dir) => {
@@ -816,13 +826,16 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
         None => None,
     };
     let dems = pairs::load_dems(dem_dir)?;
+    if let Some(id) = cfg.dems.iter().find(|id| !dems.iter().any(|d| &d.id == *id)) {
+        return Err(format!("--dems: {id} is not in {}", dem_dir.join("manifest.json").display()));
+    }
     let device = burn::tensor::Device::flex().autodiff();
     let t = std::time::Instant::now();
     if let SketchModel::Vae = model {
         return train_sketch_vae(&dems, steps, resume, checkpoint, every, terrain::train::sketch_vae::VaeConfig { batch: cfg.batch, pool: cfg.pool, crop: cfg.crop, ..Default::default() }, validation, &device);
     }
     let mut run = sketch::SketchRun::start(cfg, &dems, &device, resume.then_some(checkpoint), init.as_ref())?;
-    let val = sketch::pairs(&dems, pairs::Split::Validation, validation, run.cfg.max_extent_m, 0x5EED);
+    let val = sketch::pairs(&dems, pairs::Split::Validation, validation, &run.cfg.windows(), 0x5EED);
     // The held-out files of the format's own pairs, scored beside the extracted validation pairs.
     let held_out = match &run.cfg.format_pairs {
         Some(dir) if !run.cfg.format_exclude.is_empty() => {
@@ -890,7 +903,7 @@ fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: b
     use terrain::train::{pairs, sketch, sketch_vae};
     let t = std::time::Instant::now();
     let mut run = sketch_vae::VaeRun::start(cfg, dems, device, resume.then_some(checkpoint))?;
-    let val = sketch::pairs(dems, pairs::Split::Validation, validation, None, 0x5EED);
+    let val = sketch::pairs(dems, pairs::Split::Validation, validation, &sketch::WindowChoice::ALL, 0x5EED);
     eprintln!("sketch VAE: {} parameters; {:?}; from step {}; pool and {} validation sketches made in {:.1} s", run.m.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
     let end = run.progress.step + steps;
     let mut last = None;
@@ -1005,9 +1018,9 @@ fn main() -> ExitCode {
         Command::Sketch { input, out, weights } => sketch(&input, &out, weights),
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
-        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, format_pairs, format_exclude, format_share } => {
+        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share } => {
             let format_share = if format_pairs.is_some() { format_share } else { 0.0 };
-            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, max_extent_m, format_pairs, format_exclude, format_share, ..Default::default() };
+            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share, ..Default::default() };
             train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
         }
         Command::SketchVariants { input, n, out_dir, seed, weights } => sketch_variants(&input, n as usize, &out_dir, seed, weights),

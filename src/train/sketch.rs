@@ -33,13 +33,39 @@ pub struct Pair {
     pub target: Vec<f32>,
 }
 
-/// A pair cut from a random window of one of `dems` in `split` whose ground extent is at most
-/// `max_extent_m` metres (any extent if `None`); `None` if the drawn window did not fit, had
-/// no-data or was too flat, or the DEM has no window that small.
-pub fn random_pair(dems: &[Dem], split: Split, max_extent_m: Option<f64>, rng: &mut Rng) -> Option<Pair> {
-    let hf = &dems[rng.below(dems.len())].hf;
-    let small_enough = |s: usize| max_extent_m.is_none_or(|m| s as f64 * hf.spacing_m <= m);
-    let sides: Vec<usize> = WINDOW_SIDES.iter().copied().filter(|&s| small_enough(s) && fits_square(hf, split, s)).collect();
+/// Which windows pairs are cut from: the DEMs (by manifest id; every DEM if empty) and the
+/// range of a window's ground extent (metres; unbounded where `None`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WindowChoice {
+    /// Manifest ids of the DEMs drawn from; empty: all.
+    pub dems: Vec<String>,
+    /// Least ground extent of a window (metres).
+    pub min_extent_m: Option<f64>,
+    /// Largest ground extent of a window (metres).
+    pub max_extent_m: Option<f64>,
+}
+
+impl WindowChoice {
+    /// Every window of every DEM.
+    pub const ALL: Self = Self { dems: Vec::new(), min_extent_m: None, max_extent_m: None };
+
+    /// Whether a window `side` samples wide at `spacing_m` has an extent in range.
+    fn extent_fits(&self, side: usize, spacing_m: f64) -> bool {
+        let e = side as f64 * spacing_m;
+        self.min_extent_m.is_none_or(|m| e >= m) && self.max_extent_m.is_none_or(|m| e <= m)
+    }
+}
+
+/// A pair cut from a random window of one of `dems` in `split` that `choice` allows; `None` if
+/// the drawn window did not fit, had no-data or was too flat, or the DEM drawn has no window
+/// of an allowed extent (or none of `dems` is allowed).
+pub fn random_pair(dems: &[Dem], split: Split, choice: &WindowChoice, rng: &mut Rng) -> Option<Pair> {
+    let allowed: Vec<&Dem> = dems.iter().filter(|d| choice.dems.is_empty() || choice.dems.contains(&d.id)).collect();
+    if allowed.is_empty() {
+        return None;
+    }
+    let hf = &allowed[rng.below(allowed.len())].hf;
+    let sides: Vec<usize> = WINDOW_SIDES.iter().copied().filter(|&s| choice.extent_fits(s, hf.spacing_m) && fits_square(hf, split, s)).collect();
     if sides.is_empty() {
         return None;
     }
@@ -91,9 +117,9 @@ pub fn format_pairs(dir: &Path, exclude: &[String], augment: bool) -> Result<(Ve
     Ok((out, names))
 }
 
-/// `n` pairs from `split` (windows up to `max_extent_m`, see [`random_pair`]), drawn with a
+/// `n` pairs from `split` (windows `choice` allows, see [`random_pair`]), drawn with a
 /// sampler seeded by `seed`, made on every core.
-pub fn pairs(dems: &[Dem], split: Split, n: usize, max_extent_m: Option<f64>, seed: u64) -> Vec<Pair> {
+pub fn pairs(dems: &[Dem], split: Split, n: usize, choice: &WindowChoice, seed: u64) -> Vec<Pair> {
     let threads = crate::models::cpu::default_threads().max(1);
     let per = n.div_ceil(threads);
     let mut out: Vec<Pair> = std::thread::scope(|s| {
@@ -105,7 +131,7 @@ pub fn pairs(dems: &[Dem], split: Split, n: usize, max_extent_m: Option<f64>, se
                     let mut tries = 0;
                     while v.len() < per && tries < per * 50 {
                         tries += 1;
-                        if let Some(p) = random_pair(dems, split, max_extent_m, &mut rng) {
+                        if let Some(p) = random_pair(dems, split, choice, &mut rng) {
                             v.push(p);
                         }
                     }
@@ -137,6 +163,12 @@ pub struct SketchConfig {
     /// Largest ground extent (metres) of a training window; `None`: every window side.
     #[serde(default)]
     pub max_extent_m: Option<f64>,
+    /// Least ground extent (metres) of a training window; `None`: any.
+    #[serde(default)]
+    pub min_extent_m: Option<f64>,
+    /// Manifest ids of the DEMs trained on; empty: every DEM.
+    #[serde(default)]
+    pub dems: Vec<String>,
     /// Folder of pairs in the format's own files trained on beside the extracted ones (see
     /// [`format_pairs`]); `None`: extracted pairs only.
     #[serde(default)]
@@ -151,7 +183,14 @@ pub struct SketchConfig {
 
 impl Default for SketchConfig {
     fn default() -> Self {
-        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1, max_extent_m: None, format_pairs: None, format_exclude: Vec::new(), format_share: 0.0 }
+        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1, max_extent_m: None, min_extent_m: None, dems: Vec::new(), format_pairs: None, format_exclude: Vec::new(), format_share: 0.0 }
+    }
+}
+
+impl SketchConfig {
+    /// The windows this run trains on.
+    pub fn windows(&self) -> WindowChoice {
+        WindowChoice { dems: self.dems.clone(), min_extent_m: self.min_extent_m, max_extent_m: self.max_extent_m }
     }
 }
 
@@ -201,7 +240,7 @@ impl SketchRun {
             progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("sketch_state.json: {e}"))?;
             cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("sketch_state.json: {e}"))?;
         }
-        let pool = pairs(dems, Split::Train, cfg.pool, cfg.max_extent_m, cfg.seed ^ progress.step as u64);
+        let pool = pairs(dems, Split::Train, cfg.pool, &cfg.windows(), cfg.seed ^ progress.step as u64);
         if pool.is_empty() {
             return Err("no DEM gives a NaN-free training window with relief".into());
         }
@@ -262,7 +301,7 @@ impl SketchRun {
         let gp = GradientsParams::from_grads(loss.backward(), &self.g);
         self.g = self.og.step(self.cfg.lr, self.g.clone(), gp);
         for k in 0..REFRESH_PER_STEP {
-            if let Some(p) = random_pair(dems, Split::Train, self.cfg.max_extent_m, &mut rng) {
+            if let Some(p) = random_pair(dems, Split::Train, &self.cfg.windows(), &mut rng) {
                 let slot = (self.progress.step * REFRESH_PER_STEP + k) % self.pool.len();
                 self.pool[slot] = p;
             }
@@ -343,7 +382,7 @@ mod tests {
         assert_eq!(p.step, 3);
         assert!(p.l1.is_finite() && p.l1 > 0.0 && p.disc > 0.0 && p.adv.is_finite(), "{p:?}");
         let generator = SketchGenCpu::from_burnpack(&std::fs::read(dir.join(WEIGHT_FILE)).unwrap()).unwrap();
-        let val = pairs(&dems, Split::Validation, 1, None, 5);
+        let val = pairs(&dems, Split::Validation, 1, &WindowChoice::ALL, 5);
         assert_eq!(val.len(), 1);
         let v = validate(&generator, &val);
         assert!(v.rmse.is_finite() && v.rmse_baseline.is_finite() && v.rmse_baseline > 0.0, "{v:?}");
@@ -386,8 +425,23 @@ mod tests {
     #[test]
     fn no_pair_is_cut_from_a_window_wider_than_the_extent_limit() {
         let dems = vec![synthetic(420, 200, 30.0)];
-        assert_eq!(pairs(&dems, Split::Train, 4, Some(900.0), 3).len(), 0);
-        assert_eq!(pairs(&dems, Split::Train, 4, Some(1000.0), 3).len(), 4);
+        let upto = |m: f64| WindowChoice { max_extent_m: Some(m), ..WindowChoice::ALL };
+        assert_eq!(pairs(&dems, Split::Train, 4, &upto(900.0), 3).len(), 0);
+        assert_eq!(pairs(&dems, Split::Train, 4, &upto(1000.0), 3).len(), 4);
+    }
+
+    /// The window choice keeps to its DEMs and its least extent: a 30 m DEM's train split
+    /// (about 400 samples wide) has windows of 32–256 samples (960–7,680 m); asking for at
+    /// least 8,000 m leaves none, and naming only another DEM leaves none of this one.
+    #[test]
+    fn pairs_come_only_from_the_named_dems_and_windows_at_least_the_least_extent() {
+        let mut dems = vec![synthetic(620, 420, 30.0)];
+        dems[0].id = "a".into();
+        let choice = |ids: &[&str], min: f64| WindowChoice { dems: ids.iter().map(|s| s.to_string()).collect(), min_extent_m: Some(min), max_extent_m: None };
+        assert_eq!(pairs(&dems, Split::Train, 3, &choice(&["a"], 7000.0), 3).len(), 3);
+        assert_eq!(pairs(&dems, Split::Train, 3, &choice(&["a"], 8000.0), 3).len(), 0);
+        assert_eq!(pairs(&dems, Split::Train, 3, &choice(&["b"], 100.0), 3).len(), 0);
+        assert_eq!(pairs(&dems, Split::Train, 3, &choice(&[], 100.0), 3).len(), 3);
     }
 
     /// A run started from given weights generates what those weights generate on the CPU
@@ -398,7 +452,7 @@ mod tests {
         let init = SketchGenCpu::randomized(11, 0.05);
         let cfg = SketchConfig { batch: 1, crop: 32, pool: 1, ..Default::default() };
         let run = SketchRun::start(cfg, &dems, &Device::flex().autodiff(), None, Some(&init)).unwrap();
-        let x = &pairs(&dems, Split::Validation, 1, None, 5)[0].input;
+        let x = &pairs(&dems, Split::Validation, 1, &WindowChoice::ALL, 5)[0].input;
         let mut s = SketchScratch::default();
         let (a, b) = (init.forward(x, SKETCH_PX, &mut s, 1), run.cpu().unwrap().forward(x, SKETCH_PX, &mut s, 1));
         let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);

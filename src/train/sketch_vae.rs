@@ -12,7 +12,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 
 use super::gan;
 use super::pairs::{Dem, Rng, Split};
-use super::sketch::{Pair, pairs, random_pair};
+use super::sketch::{Pair, WindowChoice, pairs, random_pair};
 use super::tcm::TcmProgress as Progress;
 use crate::models::sketch_vae::{CODE_PX, LATENT_CHANNELS, SketchVae, SketchVaeCpu, VaeScratch, WEIGHT_FILE};
 use crate::sketch::{BANDS, INPUT_CHANNELS, SKETCH_PX, Sketch, score};
@@ -95,7 +95,7 @@ impl VaeRun {
             progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("sketch_vae_state.json: {e}"))?;
             cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("sketch_vae_state.json: {e}"))?;
         }
-        let pool = pairs(dems, Split::Train, cfg.pool, None, cfg.seed ^ progress.step as u64);
+        let pool = pairs(dems, Split::Train, cfg.pool, &WindowChoice::ALL, cfg.seed ^ progress.step as u64);
         if pool.is_empty() {
             return Err("no DEM gives a NaN-free training window with relief".into());
         }
@@ -142,7 +142,7 @@ impl VaeRun {
         let gp = GradientsParams::from_grads(loss.backward(), &self.m);
         self.m = self.opt.step(self.cfg.lr, self.m.clone(), gp);
         for k in 0..REFRESH_PER_STEP {
-            if let Some(p) = random_pair(dems, Split::Train, None, &mut rng) {
+            if let Some(p) = random_pair(dems, Split::Train, &WindowChoice::ALL, &mut rng) {
                 let slot = (self.progress.step * REFRESH_PER_STEP + k) % self.pool.len();
                 self.pool[slot] = p;
             }
@@ -225,7 +225,7 @@ mod tests {
         let p = &run.progress;
         assert!(p.l1.is_finite() && p.l1 > 0.0 && p.adv.is_finite() && p.adv >= 0.0, "{p:?}");
         let vae = SketchVaeCpu::from_burnpack(&std::fs::read(dir.join(WEIGHT_FILE)).unwrap()).unwrap();
-        let v = validate(&vae, &pairs(&dems, Split::Validation, 1, None, 3));
+        let v = validate(&vae, &pairs(&dems, Split::Validation, 1, &WindowChoice::ALL, 3));
         assert_eq!(v.sketches, 1);
         assert!((0.0..=1.0).contains(&v.band_agreement), "{v:?}");
         let _ = std::fs::remove_dir_all(&dir);
