@@ -119,9 +119,10 @@ fn learned(c: &mut Criterion) {
 }
 
 /// The sketch models with the shipped weights: one sketch → 256² terrain (the generator), four
-/// variants (the VAE's encoder once, its decoder and the generator four times: what the
-/// page's Variants button and `terrain sketch-variants` do) and one blend of two sketches, on
-/// 1 thread and on every core.
+/// variants (the VAE's encoder once, its decoder five times — the sketch's own code and four
+/// near it — and the generator four times: what the page's Variants button and `terrain
+/// sketch-variants` do) and one blend of two sketches (encoder twice, decoder three times,
+/// generator once), on 1 thread and on every core.
 fn sketch(c: &mut Criterion) {
     use terrain::models::cpu::default_threads;
     use terrain::models::sketch::{self as generator, SketchScratch};

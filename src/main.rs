@@ -112,6 +112,16 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Average weight files of one network (e.g. a run's last checkpoints) into one float32
+    /// file.
+    AverageWeights {
+        /// Weight files (burnpack) to average (repeat the flag).
+        #[arg(long, required = true)]
+        input: Vec<PathBuf>,
+        /// Weight file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Time TEM inference on the CPU: prints JSON with the median milliseconds per quad
     /// (input 100² incl. margin → 200²).
     TemBench {
@@ -476,6 +486,14 @@ fn half_weights(input: &std::path::Path, out: &std::path::Path) -> Result<(), St
     let half = terrain::models::cpu::to_half_burnpack(&bytes).map_err(|e| format!("{}: {e}", input.display()))?;
     std::fs::write(out, &half).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
     eprintln!("{}: {} → {} bytes", out.display(), bytes.len(), half.len());
+    Ok(())
+}
+
+fn average_weights(inputs: &[PathBuf], out: &std::path::Path) -> Result<(), String> {
+    let files = inputs.iter().map(|p| std::fs::read(p).map_err(|e| format!("cannot read {}: {e}", p.display()))).collect::<Result<Vec<_>, _>>()?;
+    let avg = terrain::models::cpu::average_burnpacks(&files)?;
+    std::fs::write(out, &avg).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    eprintln!("{}: the mean of {} weight files", out.display(), files.len());
     Ok(())
 }
 
@@ -1011,6 +1029,7 @@ fn main() -> ExitCode {
         Command::TemProbe { weights } => tem_probe(weights),
         Command::TemExport { weights, out } => tem_export(weights, &out),
         Command::HalfWeights { input, out } => half_weights(&input, &out),
+        Command::AverageWeights { input, out } => average_weights(&input, &out),
         Command::TemBench { level, batch, repeats, threads, weights } => tem_bench(level as usize, batch as usize, repeats as usize, threads, weights),
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),

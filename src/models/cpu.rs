@@ -903,6 +903,50 @@ pub fn to_half_burnpack(bytes: &[u8]) -> Result<Vec<u8>, String> {
     Ok(burn_pack::Writer::new(out).into_bytes().map_err(|e| format!("writing the weight file: {e}"))?.to_vec())
 }
 
+/// The element-wise mean of weight files (burnpack) of one network, e.g. the checkpoints at
+/// the end of a training run (weight averaging: a smoother model than any one of them).
+/// Every file must hold the same float32 tensors (names and shapes) in the same order.
+pub fn average_burnpacks(files: &[Vec<u8>]) -> Result<Vec<u8>, String> {
+    let read = |bytes: &Vec<u8>| -> Result<Vec<_>, String> {
+        let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.clone())).map_err(|e| format!("not a weight file ({e})"))?;
+        reader.into_tensors().map_err(|e| format!("unreadable tensors ({e})"))?.into_iter().map(|t| t.into_parts().map_err(|e| format!("unreadable tensor ({e})"))).collect()
+    };
+    let Some((first, rest)) = files.split_first() else { return Err("no weight file to average".into()) };
+    let mut sum: Vec<_> = read(first)?
+        .into_iter()
+        .map(|(name, dtype, shape, id, data)| {
+            if dtype != burn_pack::DType::F32 {
+                return Err(format!("tensor {name} is {dtype:?}, not float32"));
+            }
+            let v: Vec<f64> = data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64).collect();
+            Ok((name, shape, id, v))
+        })
+        .collect::<Result<_, _>>()?;
+    for (k, file) in rest.iter().enumerate() {
+        let tensors = read(file)?;
+        if tensors.len() != sum.len() {
+            return Err(format!("file {} has {} tensors, the first {}", k + 2, tensors.len(), sum.len()));
+        }
+        for ((name, dtype, shape, _, data), (n0, s0, _, acc)) in tensors.into_iter().zip(sum.iter_mut()) {
+            if name != *n0 || shape != *s0 || dtype != burn_pack::DType::F32 {
+                return Err(format!("file {}: tensor {name} {shape:?} {dtype:?} does not match {n0} {s0:?} float32", k + 2));
+            }
+            for (a, c) in acc.iter_mut().zip(data.chunks_exact(4)) {
+                *a += f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64;
+            }
+        }
+    }
+    let n = files.len() as f64;
+    let out = sum
+        .into_iter()
+        .map(|(name, shape, id, acc)| {
+            let bytes: Vec<u8> = acc.iter().flat_map(|v| ((v / n) as f32).to_le_bytes()).collect();
+            burn_pack::Tensor::new(name, burn_pack::DType::F32, shape, id, burn_pack::Bytes::from_bytes_vec(bytes))
+        })
+        .collect();
+    Ok(burn_pack::Writer::new(out).into_bytes().map_err(|e| format!("writing the weight file: {e}"))?.to_vec())
+}
+
 /// Runs `a` and `b` and returns both results: side by side on the kernels' thread pool where
 /// `parallel` (natively), else one after the other (and always so in the page).
 pub fn join<A: Send, B: Send>(parallel: bool, a: impl FnOnce() -> A + Send, b: impl FnOnce() -> B + Send) -> (A, B) {
@@ -929,6 +973,26 @@ pub fn default_threads() -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The average of two weight files is their midpoint, weight by weight; files of another
+    /// network (other shapes) or an empty list are refused.
+    #[test]
+    fn the_average_of_two_weight_files_is_their_midpoint_and_other_shapes_are_refused() {
+        let layers: Vec<(String, usize, usize)> = vec![("a".into(), 8, 4), ("b".into(), 4, 8)];
+        let (x, y) = (random_convs(&layers, 1, 0.5), random_convs(&layers, 2, 0.5));
+        let avg = average_burnpacks(&[convs_to_burnpack(&layers, &x), convs_to_burnpack(&layers, &y)]).unwrap();
+        let back = convs_from_burnpack(&avg, &layers).unwrap();
+        for ((p, q), m) in x.iter().zip(&y).zip(&back) {
+            let ((wp, bp), (wq, bq), (wm, bm)) = (p.to_oihw(), q.to_oihw(), m.to_oihw());
+            for ((a, b), c) in wp.iter().chain(&bp).zip(wq.iter().chain(&bq)).zip(wm.iter().chain(&bm)) {
+                assert!((c - (a + b) / 2.0).abs() < 1e-6, "{c} vs {a} and {b}");
+            }
+        }
+        let other: Vec<(String, usize, usize)> = vec![("a".into(), 8, 4), ("b".into(), 4, 9)];
+        let z = convs_to_burnpack(&other, &random_convs(&other, 3, 0.5));
+        assert!(average_burnpacks(&[convs_to_burnpack(&layers, &x), z]).is_err());
+        assert!(average_burnpacks(&[]).is_err());
+    }
 
     /// Weight files round-trip: written as float32 they read back bit for bit; halved, every
     /// weight and bias is within half a float16 step (relative 2⁻¹¹) of the original and the
