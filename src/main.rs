@@ -830,7 +830,7 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
     if !(0.0..=1.0).contains(&cfg.format_share) {
         return Err(format!("--format-share must be between 0 and 1, not {}", cfg.format_share));
     }
-    for (flag, m) in [("--max-extent-m", cfg.max_extent_m), ("--min-extent-m", cfg.min_extent_m)] {
+    for (flag, m) in [("--max-extent-m", cfg.windows.max_extent_m), ("--min-extent-m", cfg.windows.min_extent_m)] {
         if m.is_some_and(|m| !(m.is_finite() && m > 0.0)) {
             return Err(format!("{flag} must be a positive number of metres, not {m:?}"));
         }
@@ -844,7 +844,7 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
         None => None,
     };
     let dems = pairs::load_dems(dem_dir)?;
-    if let Some(id) = cfg.dems.iter().find(|id| !dems.iter().any(|d| &d.id == *id)) {
+    if let Some(id) = cfg.windows.dems.iter().find(|id| !dems.iter().any(|d| &d.id == *id)) {
         return Err(format!("--dems: {id} is not in {}", dem_dir.join("manifest.json").display()));
     }
     let device = burn::tensor::Device::flex().autodiff();
@@ -853,7 +853,7 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
         return train_sketch_vae(&dems, steps, resume, checkpoint, every, terrain::train::sketch_vae::VaeConfig { batch: cfg.batch, pool: cfg.pool, crop: cfg.crop, ..Default::default() }, validation, &device);
     }
     let mut run = sketch::SketchRun::start(cfg, &dems, &device, resume.then_some(checkpoint), init.as_ref())?;
-    let val = sketch::pairs(&dems, pairs::Split::Validation, validation, &run.cfg.windows(), 0x5EED);
+    let val = sketch::pairs(&dems, pairs::Split::Validation, validation, &run.cfg.windows, 0x5EED);
     // The held-out files of the format's own pairs, scored beside the extracted validation pairs.
     let held_out = match &run.cfg.format_pairs {
         Some(dir) if !run.cfg.format_exclude.is_empty() => {
@@ -1039,7 +1039,7 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share } => {
             let format_share = if format_pairs.is_some() { format_share } else { 0.0 };
-            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share, ..Default::default() };
+            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, ..Default::default() };
             train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
         }
         Command::SketchVariants { input, n, out_dir, seed, weights } => sketch_variants(&input, n as usize, &out_dir, seed, weights),

@@ -883,15 +883,22 @@ pub fn convs_to_burnpack(layers: &[(String, usize, usize)], convs: &[Conv3]) -> 
     burn_pack::Writer::new(tensors).into_bytes().expect("an in-memory weight file").to_vec()
 }
 
+/// One tensor of a weight file: (name, dtype, shape, id, data).
+type TensorParts = (String, burn_pack::DType, burn_pack::Shape, Option<u64>, burn_pack::Bytes);
+
+/// The tensors of weight file `bytes` (burnpack), for the functions that rewrite weight files.
+fn tensor_parts(bytes: &[u8]) -> Result<Vec<TensorParts>, String> {
+    let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.to_vec())).map_err(|e| format!("not a weight file ({e})"))?;
+    reader.into_tensors().map_err(|e| format!("unreadable tensors ({e})"))?.into_iter().map(|t| t.into_parts().map_err(|e| format!("unreadable tensor ({e})"))).collect()
+}
+
 /// The weight file `bytes` (burnpack) with every float32 tensor stored as float16 (IEEE half,
 /// rounded to nearest): half the download of every shipped network, whose outputs move by
 /// about 1e-3 of their range. [`convs_from_burnpack`] reads it back to float32, and so does
 /// burn with a float-cast adapter (the TEM on WebGPU). Other tensors are kept as they are.
 pub fn to_half_burnpack(bytes: &[u8]) -> Result<Vec<u8>, String> {
-    let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.to_vec())).map_err(|e| format!("not a weight file ({e})"))?;
     let mut out = Vec::new();
-    for t in reader.into_tensors().map_err(|e| format!("unreadable tensors ({e})"))? {
-        let (name, dtype, shape, id, data) = t.into_parts().map_err(|e| format!("unreadable tensor ({e})"))?;
+    for (name, dtype, shape, id, data) in tensor_parts(bytes)? {
         let t = if dtype == burn_pack::DType::F32 {
             let half: Vec<u8> = data.chunks_exact(4).flat_map(|c| half::f16::from_f32(f32::from_le_bytes([c[0], c[1], c[2], c[3]])).to_le_bytes()).collect();
             burn_pack::Tensor::new(name, burn_pack::DType::F16, shape, id, burn_pack::Bytes::from_bytes_vec(half))
@@ -907,12 +914,8 @@ pub fn to_half_burnpack(bytes: &[u8]) -> Result<Vec<u8>, String> {
 /// the end of a training run (weight averaging: a smoother model than any one of them).
 /// Every file must hold the same float32 tensors (names and shapes) in the same order.
 pub fn average_burnpacks(files: &[Vec<u8>]) -> Result<Vec<u8>, String> {
-    let read = |bytes: &Vec<u8>| -> Result<Vec<_>, String> {
-        let reader = burn_pack::Reader::from_bytes(burn_pack::Bytes::from_bytes_vec(bytes.clone())).map_err(|e| format!("not a weight file ({e})"))?;
-        reader.into_tensors().map_err(|e| format!("unreadable tensors ({e})"))?.into_iter().map(|t| t.into_parts().map_err(|e| format!("unreadable tensor ({e})"))).collect()
-    };
     let Some((first, rest)) = files.split_first() else { return Err("no weight file to average".into()) };
-    let mut sum: Vec<_> = read(first)?
+    let mut sum: Vec<_> = tensor_parts(first)?
         .into_iter()
         .map(|(name, dtype, shape, id, data)| {
             if dtype != burn_pack::DType::F32 {
@@ -923,7 +926,7 @@ pub fn average_burnpacks(files: &[Vec<u8>]) -> Result<Vec<u8>, String> {
         })
         .collect::<Result<_, _>>()?;
     for (k, file) in rest.iter().enumerate() {
-        let tensors = read(file)?;
+        let tensors = tensor_parts(file)?;
         if tensors.len() != sum.len() {
             return Err(format!("file {} has {} tensors, the first {}", k + 2, tensors.len(), sum.len()));
         }

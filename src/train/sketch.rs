@@ -35,13 +35,17 @@ pub struct Pair {
 
 /// Which windows pairs are cut from: the DEMs (by manifest id; every DEM if empty) and the
 /// range of a window's ground extent (metres; unbounded where `None`).
-#[derive(Clone, Debug, Default, PartialEq)]
+/// A run's checkpoint stores its fields beside the other settings ([`SketchConfig::windows`]).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct WindowChoice {
     /// Manifest ids of the DEMs drawn from; empty: all.
+    #[serde(default)]
     pub dems: Vec<String>,
     /// Least ground extent of a window (metres).
+    #[serde(default)]
     pub min_extent_m: Option<f64>,
     /// Largest ground extent of a window (metres).
+    #[serde(default)]
     pub max_extent_m: Option<f64>,
 }
 
@@ -160,15 +164,9 @@ pub struct SketchConfig {
     pub adversarial: f32,
     /// Seed of the sampler.
     pub seed: u64,
-    /// Largest ground extent (metres) of a training window; `None`: every window side.
-    #[serde(default)]
-    pub max_extent_m: Option<f64>,
-    /// Least ground extent (metres) of a training window; `None`: any.
-    #[serde(default)]
-    pub min_extent_m: Option<f64>,
-    /// Manifest ids of the DEMs trained on; empty: every DEM.
-    #[serde(default)]
-    pub dems: Vec<String>,
+    /// The DEMs and window extents trained (and validated) on.
+    #[serde(flatten)]
+    pub windows: WindowChoice,
     /// Folder of pairs in the format's own files trained on beside the extracted ones (see
     /// [`format_pairs`]); `None`: extracted pairs only.
     #[serde(default)]
@@ -183,14 +181,7 @@ pub struct SketchConfig {
 
 impl Default for SketchConfig {
     fn default() -> Self {
-        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1, max_extent_m: None, min_extent_m: None, dems: Vec::new(), format_pairs: None, format_exclude: Vec::new(), format_share: 0.0 }
-    }
-}
-
-impl SketchConfig {
-    /// The windows this run trains on.
-    pub fn windows(&self) -> WindowChoice {
-        WindowChoice { dems: self.dems.clone(), min_extent_m: self.min_extent_m, max_extent_m: self.max_extent_m }
+        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1, windows: WindowChoice::ALL, format_pairs: None, format_exclude: Vec::new(), format_share: 0.0 }
     }
 }
 
@@ -240,7 +231,7 @@ impl SketchRun {
             progress = serde_json::from_value(state["progress"].clone()).map_err(|e| format!("sketch_state.json: {e}"))?;
             cfg = serde_json::from_value(state["config"].clone()).map_err(|e| format!("sketch_state.json: {e}"))?;
         }
-        let pool = pairs(dems, Split::Train, cfg.pool, &cfg.windows(), cfg.seed ^ progress.step as u64);
+        let pool = pairs(dems, Split::Train, cfg.pool, &cfg.windows, cfg.seed ^ progress.step as u64);
         if pool.is_empty() {
             return Err("no DEM gives a NaN-free training window with relief".into());
         }
@@ -301,7 +292,7 @@ impl SketchRun {
         let gp = GradientsParams::from_grads(loss.backward(), &self.g);
         self.g = self.og.step(self.cfg.lr, self.g.clone(), gp);
         for k in 0..REFRESH_PER_STEP {
-            if let Some(p) = random_pair(dems, Split::Train, &self.cfg.windows(), &mut rng) {
+            if let Some(p) = random_pair(dems, Split::Train, &self.cfg.windows, &mut rng) {
                 let slot = (self.progress.step * REFRESH_PER_STEP + k) % self.pool.len();
                 self.pool[slot] = p;
             }
@@ -428,6 +419,21 @@ mod tests {
         let upto = |m: f64| WindowChoice { max_extent_m: Some(m), ..WindowChoice::ALL };
         assert_eq!(pairs(&dems, Split::Train, 4, &upto(900.0), 3).len(), 0);
         assert_eq!(pairs(&dems, Split::Train, 4, &upto(1000.0), 3).len(), 4);
+    }
+
+    /// A checkpoint keeps the window choice beside the other settings: written and read back
+    /// it is the same, and a checkpoint from before the DEM and least-extent settings (only
+    /// max_extent_m) reads as every DEM with no least extent.
+    #[test]
+    fn a_checkpoint_config_round_trips_its_window_choice_and_older_ones_read_as_every_dem() {
+        let cfg = SketchConfig { windows: WindowChoice { dems: vec!["a".into(), "b".into()], min_extent_m: Some(400.0), max_extent_m: Some(3100.0) }, ..Default::default() };
+        let json = serde_json::to_value(&cfg).unwrap();
+        assert_eq!(json["min_extent_m"], 400.0);
+        let back: SketchConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(back.windows, cfg.windows);
+        let old = serde_json::json!({ "batch": 8, "crop": 128, "pool": 384, "lr": 2e-4, "adversarial": 0.01, "seed": 1, "max_extent_m": 1000.0 });
+        let old: SketchConfig = serde_json::from_value(old).unwrap();
+        assert_eq!(old.windows, WindowChoice { max_extent_m: Some(1000.0), ..WindowChoice::ALL });
     }
 
     /// The window choice keeps to its DEMs and its least extent: a 30 m DEM's train split
