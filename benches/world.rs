@@ -118,11 +118,12 @@ fn learned(c: &mut Criterion) {
     g.finish();
 }
 
-/// The sketch models with the shipped weights: one sketch → 256² terrain (the generator), four
-/// variants (the VAE's encoder once, its decoder five times — the sketch's own code and four
-/// near it — and the generator four times: what the page's Variants button and `terrain
-/// sketch-variants` do) and one blend of two sketches (encoder twice, decoder three times,
-/// generator once), on 1 thread and on every core.
+/// The sketch models with the shipped weights: one sketch → 256² terrain (the generator, one
+/// view as the page draws it, and the 8 views `terrain sketch` averages), four variants (the
+/// VAE's encoder once, its decoder five times — the sketch's own code and four near it — and
+/// the generator four times, one view each: what the page's Variants button and `terrain
+/// sketch-variants --views 1` do) and one blend of two sketches (encoder twice, decoder three
+/// times, generator once), on 1 thread and on every core.
 fn sketch(c: &mut Criterion) {
     use terrain::models::cpu::default_threads;
     use terrain::models::sketch::{self as generator, SketchScratch};
@@ -139,6 +140,8 @@ fn sketch(c: &mut Criterion) {
     for t in threads {
         let mut s = SketchScratch::default();
         g.bench_function(format!("generator, one sketch -> 256² terrain, {t} thread(s)"), |bn| bn.iter(|| black_box(m.generator.generate(a, &mut s, t))));
+        let views = generator::CLI_VIEWS;
+        g.bench_function(format!("generator, {views} views averaged (terrain sketch's default), {t} thread(s)"), |bn| bn.iter(|| black_box(m.generator.generate_views(a, views, &mut s, t))));
         g.bench_function(format!("4 variants with their terrains, {t} thread(s)"), |bn| {
             bn.iter(|| {
                 let v = m.vae.variants(a, 4, 7, &mut Default::default(), t);

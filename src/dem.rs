@@ -503,6 +503,38 @@ fn georeference(scale: Option<&[f64]>, tie: Option<&[f64]>, keys: &[u16], rows: 
     Ok((s[0] * unit_m, geo))
 }
 
+/// Applies dihedral transform `t` (0..8: 4 rotations × optional flip) to a square grid of side
+/// `n` (row-major); [`dihedral_inverse`] undoes it.
+pub fn dihedral(src: &[f32], n: usize, t: usize) -> Vec<f32> {
+    let mut out = vec![0f32; n * n];
+    for y in 0..n {
+        for x in 0..n {
+            let (mut u, mut v) = (x, y);
+            if t & 4 != 0 {
+                u = n - 1 - u;
+            }
+            (u, v) = match t & 3 {
+                0 => (u, v),
+                1 => (n - 1 - v, u),
+                2 => (n - 1 - u, n - 1 - v),
+                _ => (v, n - 1 - u),
+            };
+            out[y * n + x] = src[v * n + u];
+        }
+    }
+    out
+}
+
+/// The transform that undoes [`dihedral`] transform `t`: quarter turns swap, the half turn and the
+/// four mirrorings undo themselves.
+pub fn dihedral_inverse(t: usize) -> usize {
+    match t {
+        1 => 3,
+        3 => 1,
+        t => t,
+    }
+}
+
 /// Keys cubic convolution weights (a = −0.75) for the 4 taps around fractional offset `t`.
 pub fn cubic_weights(t: f32) -> [f32; 4] {
     let a = -0.75f32;
@@ -521,6 +553,18 @@ mod tests {
         let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("shared").join(rel);
         assert!(p.exists(), "missing {}: the tests read ../shared", p.display());
         p
+    }
+
+    #[test]
+    fn dihedral_transforms_are_eight_distinct_symmetries_each_undone_by_its_inverse() {
+        let src: Vec<f32> = (0..9).map(|k| k as f32).collect();
+        let all: std::collections::HashSet<Vec<u32>> = (0..8).map(|t| dihedral(&src, 3, t).iter().map(|v| *v as u32).collect()).collect();
+        assert_eq!(all.len(), 8);
+        assert_eq!(dihedral(&src, 3, 0), src);
+        assert_eq!(dihedral(&dihedral(&src, 3, 2), 3, 2), src, "two half-turns are the identity");
+        for t in 0..8 {
+            assert_eq!(dihedral(&dihedral(&src, 3, t), 3, dihedral_inverse(t)), src, "transform {t}");
+        }
     }
 
     #[test]

@@ -246,7 +246,11 @@ enum Command {
         out: PathBuf,
         /// Folder of the sketch generator's weights (default: ./weights, else the crate's).
         #[arg(long)]
-        weights: Option<PathBuf>,
+        weights: Option<PathBuf>,        /// Views averaged: the generator runs on this many rotations/flips of the sketch (1–8)
+        /// and the outputs, turned back, are averaged (8: the most accurate; 1: what the page
+        /// shows while drawing, 8× faster).
+        #[arg(long, default_value_t = terrain::models::sketch::CLI_VIEWS as u32, value_parser = clap::value_parser!(u32).range(1..=8))]
+        views: u32,
     },
     /// Train the sketch generator on the CPU from sketches extracted from real DEMs, resumable
     /// (feature `train`).
@@ -332,7 +336,11 @@ enum Command {
         seed: u64,
         /// Folder of the sketch models' weights (default: ./weights, else the crate's).
         #[arg(long)]
-        weights: Option<PathBuf>,
+        weights: Option<PathBuf>,        /// Views averaged: the generator runs on this many rotations/flips of the sketch (1–8)
+        /// and the outputs, turned back, are averaged (8: the most accurate; 1: what the page
+        /// shows while drawing, 8× faster).
+        #[arg(long, default_value_t = terrain::models::sketch::CLI_VIEWS as u32, value_parser = clap::value_parser!(u32).range(1..=8))]
+        views: u32,
     },
     /// Make a sketch from a window of a DEM with the project's extractor (bands = height
     /// quarters, ridges and valleys from drainage): a 256×256 sketch PNG, and optionally the
@@ -361,7 +369,11 @@ enum Command {
         pairs: PathBuf,
         /// Folder of the sketch generator's weights (default: ./weights, else the crate's).
         #[arg(long)]
-        weights: Option<PathBuf>,
+        weights: Option<PathBuf>,        /// Views averaged: the generator runs on this many rotations/flips of the sketch (1–8)
+        /// and the outputs, turned back, are averaged (8: the most accurate; 1: what the page
+        /// shows while drawing, 8× faster).
+        #[arg(long, default_value_t = terrain::models::sketch::CLI_VIEWS as u32, value_parser = clap::value_parser!(u32).range(1..=8))]
+        views: u32,
     },
     /// Evaluate the TEM on the held-out east third of every DEM (feature `train`).
     #[cfg(feature = "train")]
@@ -807,16 +819,16 @@ fn sketch_generator(weights: Option<PathBuf>) -> Result<terrain::models::sketch:
     SketchGenCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBuf>) -> Result<(), String> {
+fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
     use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
     let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
     let generator = sketch_generator(weights)?;
     let t = std::time::Instant::now();
-    let h = generator.generate(&sk, &mut Default::default(), terrain::models::cpu::default_threads());
+    let h = generator.generate_views(&sk, views, &mut Default::default(), terrain::models::cpu::default_threads());
     let ms = t.elapsed().as_secs_f64() * 1e3;
     let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     write_dem_png16(std::io::BufWriter::new(file), SKETCH_PX, &h).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
-    eprintln!("wrote {}: {SKETCH_PX}×{SKETCH_PX} 16-bit relative heights ({ms:.0} ms)", out.display());
+    eprintln!("wrote {}: {SKETCH_PX}×{SKETCH_PX} 16-bit relative heights ({views} views, {ms:.0} ms)", out.display());
     Ok(())
 }
 
@@ -888,7 +900,7 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
     Ok(())
 }
 
-fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::path::Path, seed: u64, weights: Option<PathBuf>) -> Result<(), String> {
+fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::path::Path, seed: u64, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
     use terrain::models::sketch_vae::SketchModels;
     use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
     let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
@@ -900,7 +912,7 @@ fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::path::Path,
     let t = std::time::Instant::now();
     let variants = vae.variants(&sk, n, seed, &mut Default::default(), threads);
     let mut scratch = Default::default();
-    let dems: Vec<Vec<f32>> = variants.iter().map(|v| generator.generate(v, &mut scratch, threads)).collect();
+    let dems: Vec<Vec<f32>> = variants.iter().map(|v| generator.generate_views(v, views, &mut scratch, threads)).collect();
     let ms = t.elapsed().as_secs_f64() * 1e3;
     for (k, (v, h)) in variants.iter().zip(&dems).enumerate() {
         let write = |name: String, f: &dyn Fn(std::io::BufWriter<std::fs::File>) -> Result<(), terrain::sketch::SketchError>| -> Result<(), String> {
@@ -981,7 +993,7 @@ fn sketch_extract(dem: &std::path::Path, window: &[u32], out: &std::path::Path, 
     Ok(())
 }
 
-fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>) -> Result<(), String> {
+fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
     use terrain::sketch::{self, baseline, extract, score};
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png"))).collect();
     files.sort();
@@ -1000,7 +1012,7 @@ fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>) -> Result<(), St
         let base = baseline::interpolate(&sk);
         let rmse = score::rmse(&base, &target);
         let t = std::time::Instant::now();
-        let ours = generator.generate(&sk, &mut scratch, threads);
+        let ours = generator.generate_views(&sk, views, &mut scratch, threads);
         ms.push(t.elapsed().as_secs_f64() * 1e3);
         let e = score::rmse(&ours, &target);
         let ex = extract::extract(&target).ok_or_else(|| format!("{}: flat DEM half", f.display()))?;
@@ -1017,7 +1029,7 @@ fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>) -> Result<(), St
     ms.sort_by(f64::total_cmp);
     println!("{}", serde_json::json!({ "pairs": rows.len(), "mean": { "rmse": mean("rmse"), "psnr": mean("psnr"), "rmse_baseline": mean("rmse_baseline"), "psnr_baseline": mean("psnr_baseline"),
         "extractor_band_agreement": mean_ex("band_agreement"), "extractor_ridge_precision": mean_ex("ridge_precision"), "extractor_ridge_recall": mean_ex("ridge_recall"),
-        "extractor_valley_precision": mean_ex("valley_precision"), "extractor_valley_recall": mean_ex("valley_recall") }, "generator_ms_median": ms[ms.len() / 2], "per_pair": rows }));
+        "extractor_valley_precision": mean_ex("valley_precision"), "extractor_valley_recall": mean_ex("valley_recall") }, "views": views, "generator_ms_median": ms[ms.len() / 2], "per_pair": rows }));
     Ok(())
 }
 
@@ -1033,8 +1045,8 @@ fn main() -> ExitCode {
         Command::TemBench { level, batch, repeats, threads, weights } => tem_bench(level as usize, batch as usize, repeats as usize, threads, weights),
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
-        Command::EvalSketch { pairs, weights } => eval_sketch(&pairs, weights),
-        Command::Sketch { input, out, weights } => sketch(&input, &out, weights),
+        Command::EvalSketch { pairs, weights, views } => eval_sketch(&pairs, weights, views as usize),
+        Command::Sketch { input, out, weights, views } => sketch(&input, &out, weights, views as usize),
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
         Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share } => {
@@ -1042,7 +1054,7 @@ fn main() -> ExitCode {
             let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, ..Default::default() };
             train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
         }
-        Command::SketchVariants { input, n, out_dir, seed, weights } => sketch_variants(&input, n as usize, &out_dir, seed, weights),
+        Command::SketchVariants { input, n, out_dir, seed, weights, views } => sketch_variants(&input, n as usize, &out_dir, seed, weights, views as usize),
         #[cfg(feature = "train")]
         Command::EvalTem { dem_dir, weights, windows } => eval_tem(dem_dir, weights, windows),
         #[cfg(feature = "train")]

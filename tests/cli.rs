@@ -250,6 +250,30 @@ fn sketch_makes_a_full_range_16_bit_dem_whose_height_quarters_follow_the_bands()
     assert!(agree as f64 / v.len() as f64 >= 0.9, "{agree} of {} pixels in their band", v.len());
 }
 
+/// `terrain sketch` (8 views by default): the terrain of the mirrored sketch is the mirrored
+/// terrain within 3 of 65535 (0.01 on the 0–255 scale); `--views 9` is refused.
+#[test]
+fn sketch_terrain_of_a_mirrored_sketch_is_the_mirrored_terrain_and_nine_views_are_refused() {
+    let e = synthetic_sketch();
+    let rgb = e.sketch.to_rgb();
+    let mirrored: Vec<u8> = (0..256 * 256).flat_map(|p| {
+        let (y, x) = (p / 256, 255 - p % 256);
+        rgb[(y * 256 + x) * 3..(y * 256 + x) * 3 + 3].to_vec()
+    }).collect();
+    let (a, b, out_a, out_b) = (tmp("views_a.png"), tmp("views_b.png"), tmp("views_a_dem.png"), tmp("views_b_dem.png"));
+    terrain::sketch::write_rgb_png(std::fs::File::create(&a).unwrap(), 256, 256, &rgb).unwrap();
+    terrain::sketch::write_rgb_png(std::fs::File::create(&b).unwrap(), 256, 256, &mirrored).unwrap();
+    for (i, o) in [(&a, &out_a), (&b, &out_b)] {
+        let r = run(&["sketch", "--input", i.to_str().unwrap(), "--out", o.to_str().unwrap()]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    let (va, vb) = (read_png16(&out_a).2, read_png16(&out_b).2);
+    let worst = (0..256 * 256).map(|p| (i32::from(va[p]) - i32::from(vb[p / 256 * 256 + 255 - p % 256])).abs()).max().unwrap();
+    assert!(worst <= 3, "mirrored terrain differs by {worst} of 65535");
+    let r = run(&["sketch", "--input", a.to_str().unwrap(), "--out", out_a.to_str().unwrap(), "--views", "9"]);
+    assert_eq!(r.status.code(), Some(2), "clap refuses --views 9");
+}
+
 #[test]
 fn sketch_refuses_wrong_sizes_and_images_that_are_not_sketches() {
     let out = tmp("never.png");

@@ -14,12 +14,19 @@ use burn::module::Module;
 use burn::nn::conv::Conv2d;
 use burn::tensor::{Device, Tensor};
 
+use crate::dem::{dihedral, dihedral_inverse};
 use crate::models::cpu::{self, Conv3, Map, Post};
 use crate::models::tcm::{Stage, conv3, pool2, up2};
 use crate::sketch::{self, SKETCH_PX, Sketch, baseline};
 
 /// Input channels: the sketch's three ([`sketch::INPUT_CHANNELS`]) and the baseline.
 pub const IN_CHANNELS: usize = sketch::INPUT_CHANNELS + 1;
+/// The sketch's rotations and flips ([`dihedral`] transforms) in the order
+/// [`SketchGenCpu::generate_views`] adds them: the sketch itself, the half turn, the two
+/// diagonal mirrorings, then the quarter turns and the axis mirrorings.
+pub const VIEW_ORDER: [usize; 8] = [0, 2, 5, 7, 1, 3, 4, 6];
+/// Views the CLI averages unless told otherwise (`terrain sketch --views`): all of them.
+pub const CLI_VIEWS: usize = VIEW_ORDER.len();
 /// Channels per scale, full size to 1/16.
 pub const WIDTHS: [usize; 5] = [12, 24, 48, 64, 96];
 /// Scales (the input side must be divisible by 2^(SCALES−1)).
@@ -168,10 +175,31 @@ impl SketchGenCpu {
     }
 
     /// The terrain of a sketch on the format's 0–255 scale (stretched to span it, like the
-    /// targets), [`SKETCH_PX`]² row-major.
+    /// targets), [`SKETCH_PX`]² row-major: one view, as the page draws it while strokes land.
     pub fn generate(&self, sketch: &Sketch, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
+        self.generate_views(sketch, 1, s, threads)
+    }
+
+    /// [`Self::generate`] averaged over the first `views` (1 to [`VIEW_ORDER`]'s 8) rotations and
+    /// flips of the sketch, each output turned back before the mean, so the network's
+    /// orientation-dependent errors partly cancel; with 8 views the terrain turns exactly with
+    /// the sketch. Costs `views` forward passes.
+    pub fn generate_views(&self, sketch: &Sketch, views: usize, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
         let (x, _) = assemble_input(sketch);
-        to_format_scale(self.forward(&x, SKETCH_PX, s, threads))
+        let n = SKETCH_PX * SKETCH_PX;
+        let order = &VIEW_ORDER[..views.clamp(1, VIEW_ORDER.len())];
+        let mut sum = vec![0f32; n];
+        for &t in order {
+            let out = if t == 0 {
+                self.forward(&x, SKETCH_PX, s, threads)
+            } else {
+                let xt: Vec<f32> = x.chunks_exact(n).flat_map(|c| dihedral(c, SKETCH_PX, t)).collect();
+                dihedral(&self.forward(&xt, SKETCH_PX, s, threads), SKETCH_PX, dihedral_inverse(t))
+            };
+            sum.iter_mut().zip(out).for_each(|(a, b)| *a += b);
+        }
+        let k = order.len() as f32;
+        to_format_scale(sum.into_iter().map(|v| v / k).collect())
     }
 }
 
@@ -257,5 +285,50 @@ mod tests {
             let worst = ours.iter().zip(&burn_out).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
             assert!(worst < 1e-4, "{threads} threads: CPU and burn differ by {worst}");
         }
+    }
+
+    /// A sketch that no rotation or flip maps to itself: bands rising to the east, a ridge
+    /// along one row in the north-west, a valley down one column in the south.
+    fn lopsided_sketch() -> Sketch {
+        let mut sk = Sketch::filled(0);
+        for y in 0..SKETCH_PX {
+            for x in 0..SKETCH_PX {
+                let p = y * SKETCH_PX + x;
+                sk.band[p] = ((x * 4 / SKETCH_PX) as u8 + u8::from(y < 40)).min(3);
+                sk.ridge[p] = y == 60 && x < 100;
+                sk.valley[p] = x == 30 && y > 150;
+            }
+        }
+        sk
+    }
+
+    /// `sk` under dihedral transform `t`.
+    fn turned(sk: &Sketch, t: usize) -> Sketch {
+        let f = |v: Vec<f32>| dihedral(&v, SKETCH_PX, t);
+        let band = f(sk.band.iter().map(|&b| f32::from(b)).collect()).into_iter().map(|v| v as u8).collect();
+        let ridge = f(sk.ridge.iter().map(|&b| f32::from(u8::from(b))).collect()).into_iter().map(|v| v > 0.5).collect();
+        let valley = f(sk.valley.iter().map(|&b| f32::from(u8::from(b))).collect()).into_iter().map(|v| v > 0.5).collect();
+        Sketch { band, ridge, valley }
+    }
+
+    /// With all 8 views, the terrain of a turned (or mirrored) sketch is the turned terrain
+    /// within 0.01 (0–255 scale) for every transform; with 1 view a random network's terrain
+    /// differs by more than 0.5 somewhere, so the averaging is what makes it turn.
+    #[test]
+    fn eight_views_turn_the_terrain_with_the_sketch() {
+        let g = SketchGenCpu::randomized(5, 0.1);
+        let sk = lopsided_sketch();
+        let mut s = SketchScratch::default();
+        let all = g.generate_views(&sk, VIEW_ORDER.len(), &mut s, 2);
+        let one = g.generate(&sk, &mut s, 2);
+        let worst = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+        for t in [1, 4] {
+            let sk_t = turned(&sk, t);
+            let d8 = worst(&g.generate_views(&sk_t, 8, &mut s, 2), &dihedral(&all, SKETCH_PX, t));
+            assert!(d8 < 0.01, "transform {t}: 8 views differ from the turned terrain by {d8}");
+            let d1 = worst(&g.generate(&sk_t, &mut s, 2), &dihedral(&one, SKETCH_PX, t));
+            assert!(d1 > 0.5, "transform {t}: one view already turns with the sketch ({d1}), so the test shows nothing");
+        }
+        assert!(worst(&all, &one) > 0.5, "8 views equal 1 view");
     }
 }

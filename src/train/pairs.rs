@@ -5,7 +5,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use crate::dem::{Heightfield, PngScale};
+use crate::dem::{Heightfield, PngScale, dihedral};
 use crate::models::tem::LEVEL_SPACING_M;
 use crate::world::schedule::mix64;
 
@@ -92,27 +92,6 @@ impl Rng {
     pub fn below(&mut self, n: usize) -> usize {
         (self.next_u64() % n.max(1) as u64) as usize
     }
-}
-
-/// Applies dihedral transform `t` (0..8: 4 rotations × optional flip) to a square grid.
-pub fn dihedral(src: &[f32], n: usize, t: usize) -> Vec<f32> {
-    let mut out = vec![0f32; n * n];
-    for y in 0..n {
-        for x in 0..n {
-            let (mut u, mut v) = (x, y);
-            if t & 4 != 0 {
-                u = n - 1 - u;
-            }
-            (u, v) = match t & 3 {
-                0 => (u, v),
-                1 => (n - 1 - v, u),
-                2 => (n - 1 - u, n - 1 - v),
-                _ => (v, n - 1 - u),
-            };
-            out[y * n + x] = src[v * n + u];
-        }
-    }
-    out
 }
 
 /// One chained training sample over `levels` consecutive levels: the input window
@@ -226,15 +205,6 @@ pub fn finest_spacing(first: usize, levels: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn dihedral_transforms_are_the_eight_symmetries() {
-        let src: Vec<f32> = (0..9).map(|k| k as f32).collect();
-        let all: std::collections::HashSet<Vec<u32>> = (0..8).map(|t| dihedral(&src, 3, t).iter().map(|v| *v as u32).collect()).collect();
-        assert_eq!(all.len(), 8);
-        assert_eq!(dihedral(&src, 3, 0), src);
-        assert_eq!(dihedral(&dihedral(&src, 3, 2), 3, 2), src, "two half-turns are the identity");
-    }
 
     #[test]
     fn chains_nest_their_regions() {

@@ -12,7 +12,8 @@ use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::gan::{self, Disc};
-use super::pairs::{Dem, Rng, Split, dihedral, fits_square, random_window};
+use super::pairs::{Dem, Rng, Split, fits_square, random_window};
+use crate::dem::dihedral;
 use super::tcm::TcmProgress as Progress;
 use crate::dem::Heightfield;
 use crate::models::sketch::{IN_CHANNELS, SketchGen, SketchGenCpu, SketchScratch, WEIGHT_FILE, assemble_input};
