@@ -584,8 +584,9 @@ async function tileHeights(page, i, j) {
   throw new Error(`tile ${i}, ${j} never arrived`);
 }
 
-/** Largest |Δh| (m) between the page's four sketch tiles and the native CLI's `terrain sketch`
- * on the sketch of `link` (its 16-bit output scaled by the link's relief). */
+/** Largest |Δh| (m) between the page's four sketch tiles and the native CLI's `terrain sketch
+ * --views 1` (one view, as the page draws) on the sketch of `link` (its 16-bit output scaled by
+ * the link's relief). */
 async function nativeSketchDh(page, link, name) {
   const linked = path.join(out, `${name}_sketch.png`);
   const sk = decodeSketch(sketchCode(link));
@@ -593,7 +594,7 @@ async function nativeSketchDh(page, link, name) {
   sk.forEach((n, p) => { img.data.set([n & 4 ? 255 : 0, [63, 127, 191, 255][n & 3], n & 8 ? 255 : 0, 255], 4 * p); });
   fs.writeFileSync(linked, PNG.sync.write(img));
   const dem = path.join(out, `${name}_dem.png`);
-  execFileSync(nativeBin, ['sketch', '--input', linked, '--out', dem, '--weights', path.join(repo, 'weights')]);
+  execFileSync(nativeBin, ['sketch', '--input', linked, '--out', dem, '--views', '1', '--weights', path.join(repo, 'weights')]);
   const native = PNG.sync.read(fs.readFileSync(dem), { skipRescale: true });
   const relief = Number(new URLSearchParams(link).get('relief'));
   let worst = 0;
