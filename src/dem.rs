@@ -525,6 +525,12 @@ pub fn dihedral(src: &[f32], n: usize, t: usize) -> Vec<f32> {
     out
 }
 
+/// [`dihedral`] applied to each `n`² channel of a channel-first stack (`src.len()` a multiple
+/// of `n`²).
+pub fn dihedral_channels(src: &[f32], n: usize, t: usize) -> Vec<f32> {
+    src.chunks_exact(n * n).flat_map(|c| dihedral(c, n, t)).collect()
+}
+
 /// The transform that undoes [`dihedral`] transform `t`: quarter turns swap, the half turn and the
 /// four mirrorings undo themselves.
 pub fn dihedral_inverse(t: usize) -> usize {

@@ -44,6 +44,16 @@ enum Source {
     Tcm,
 }
 
+/// How many views of a sketch the generator averages (`--views`), shared by the sketch commands.
+#[derive(clap::Args, Debug)]
+struct Views {
+    /// Views averaged: the generator runs on this many rotations/flips of the sketch (1–8)
+    /// and the outputs, turned back, are averaged (8: the most accurate; 1: what the page
+    /// shows while drawing, 8× faster).
+    #[arg(long = "views", value_name = "N", default_value_t = terrain::models::sketch::CLI_VIEWS as u32, value_parser = clap::value_parser!(u32).range(1..=8))]
+    count: u32,
+}
+
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Write the 32 m heights (metres) of a rectangle of tiles as a float32 GeoTIFF.
@@ -246,11 +256,9 @@ enum Command {
         out: PathBuf,
         /// Folder of the sketch generator's weights (default: ./weights, else the crate's).
         #[arg(long)]
-        weights: Option<PathBuf>,        /// Views averaged: the generator runs on this many rotations/flips of the sketch (1–8)
-        /// and the outputs, turned back, are averaged (8: the most accurate; 1: what the page
-        /// shows while drawing, 8× faster).
-        #[arg(long, default_value_t = terrain::models::sketch::CLI_VIEWS as u32, value_parser = clap::value_parser!(u32).range(1..=8))]
-        views: u32,
+        weights: Option<PathBuf>,
+        #[command(flatten)]
+        views: Views,
     },
     /// Train the sketch generator on the CPU from sketches extracted from real DEMs, resumable
     /// (feature `train`).
@@ -336,11 +344,9 @@ enum Command {
         seed: u64,
         /// Folder of the sketch models' weights (default: ./weights, else the crate's).
         #[arg(long)]
-        weights: Option<PathBuf>,        /// Views averaged: the generator runs on this many rotations/flips of the sketch (1–8)
-        /// and the outputs, turned back, are averaged (8: the most accurate; 1: what the page
-        /// shows while drawing, 8× faster).
-        #[arg(long, default_value_t = terrain::models::sketch::CLI_VIEWS as u32, value_parser = clap::value_parser!(u32).range(1..=8))]
-        views: u32,
+        weights: Option<PathBuf>,
+        #[command(flatten)]
+        views: Views,
     },
     /// Make a sketch from a window of a DEM with the project's extractor (bands = height
     /// quarters, ridges and valleys from drainage): a 256×256 sketch PNG, and optionally the
@@ -369,11 +375,9 @@ enum Command {
         pairs: PathBuf,
         /// Folder of the sketch generator's weights (default: ./weights, else the crate's).
         #[arg(long)]
-        weights: Option<PathBuf>,        /// Views averaged: the generator runs on this many rotations/flips of the sketch (1–8)
-        /// and the outputs, turned back, are averaged (8: the most accurate; 1: what the page
-        /// shows while drawing, 8× faster).
-        #[arg(long, default_value_t = terrain::models::sketch::CLI_VIEWS as u32, value_parser = clap::value_parser!(u32).range(1..=8))]
-        views: u32,
+        weights: Option<PathBuf>,
+        #[command(flatten)]
+        views: Views,
     },
     /// Evaluate the TEM on the held-out east third of every DEM (feature `train`).
     #[cfg(feature = "train")]
@@ -1045,8 +1049,8 @@ fn main() -> ExitCode {
         Command::TemBench { level, batch, repeats, threads, weights } => tem_bench(level as usize, batch as usize, repeats as usize, threads, weights),
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
-        Command::EvalSketch { pairs, weights, views } => eval_sketch(&pairs, weights, views as usize),
-        Command::Sketch { input, out, weights, views } => sketch(&input, &out, weights, views as usize),
+        Command::EvalSketch { pairs, weights, views } => eval_sketch(&pairs, weights, views.count as usize),
+        Command::Sketch { input, out, weights, views } => sketch(&input, &out, weights, views.count as usize),
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
         Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share } => {
@@ -1054,7 +1058,7 @@ fn main() -> ExitCode {
             let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, ..Default::default() };
             train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
         }
-        Command::SketchVariants { input, n, out_dir, seed, weights, views } => sketch_variants(&input, n as usize, &out_dir, seed, weights, views as usize),
+        Command::SketchVariants { input, n, out_dir, seed, weights, views } => sketch_variants(&input, n as usize, &out_dir, seed, weights, views.count as usize),
         #[cfg(feature = "train")]
         Command::EvalTem { dem_dir, weights, windows } => eval_tem(dem_dir, weights, windows),
         #[cfg(feature = "train")]

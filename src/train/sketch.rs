@@ -13,9 +13,8 @@ use burn::tensor::{Device, Tensor, TensorData};
 
 use super::gan::{self, Disc};
 use super::pairs::{Dem, Rng, Split, fits_square, random_window};
-use crate::dem::dihedral;
 use super::tcm::TcmProgress as Progress;
-use crate::dem::Heightfield;
+use crate::dem::{Heightfield, dihedral, dihedral_channels};
 use crate::models::sketch::{IN_CHANNELS, SketchGen, SketchGenCpu, SketchScratch, WEIGHT_FILE, assemble_input};
 use crate::sketch::{SKETCH_PX, baseline, extract, score};
 
@@ -114,7 +113,7 @@ pub fn format_pairs(dir: &Path, exclude: &[String], augment: bool) -> Result<(Ve
         let (input, _) = assemble_input(&sketch);
         let target: Vec<f32> = dem.iter().map(|v| v / 255.0).collect();
         for t in 0..if augment { 8 } else { 1 } {
-            let input = (0..IN_CHANNELS).flat_map(|c| dihedral(&input[c * n * n..(c + 1) * n * n], n, t)).collect();
+            let input = dihedral_channels(&input, n, t);
             out.push(Pair { input, target: dihedral(&target, n, t) });
         }
         names.push(name);
