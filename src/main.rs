@@ -35,6 +35,16 @@ enum SketchModel {
     Vae,
 }
 
+/// The sketch generator's per-pixel loss (`terrain::train::sketch::PixelLoss`).
+#[cfg(feature = "train")]
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum PixelLossArg {
+    /// Mean absolute error (pix2pix).
+    L1,
+    /// Mean squared error.
+    L2,
+}
+
 /// Where tiles come from.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum Source {
@@ -111,6 +121,30 @@ enum Command {
         /// Output JSON file.
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Write the sketch generator's weights and a probe (an example sketch's input and our
+    /// output before the stretch) as JSON, for reference runtimes (tools/sketch_vs_onnx.py
+    /// rebuilds the network in ONNX Runtime).
+    SketchExport {
+        /// Folder of the sketch weights.
+        #[arg(long)]
+        weights: Option<PathBuf>,
+        /// Output JSON file.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Time the sketch generator on the CPU: prints JSON with the median milliseconds of one
+    /// forward pass (one view of a 256² sketch, without the input's baseline).
+    SketchBench {
+        /// Threads (default: every core).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
+        threads: Option<u32>,
+        /// Timed calls (after one warm-up call).
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+        repeats: u32,
+        /// Folder of the sketch weights.
+        #[arg(long)]
+        weights: Option<PathBuf>,
     },
     /// Write a weight file with its float32 tensors stored as float16 (every shipped weight
     /// file: half the download).
@@ -325,6 +359,13 @@ enum Command {
         /// Share (0–1) of each batch's crops taken from --format-pairs.
         #[arg(long, default_value_t = 0.5)]
         format_share: f32,
+        /// The generator's per-pixel loss: l1 (pix2pix) or l2 (least expected RMSE; a new
+        /// run only).
+        #[arg(long, value_enum, default_value_t = PixelLossArg::L1)]
+        loss: PixelLossArg,
+        /// Adam learning rate of the generator (the discriminator's is half; a new run only).
+        #[arg(long, default_value_t = 2e-4)]
+        lr: f64,
     },
     /// Propose variants of a sketch: sketches with codes near its own in the sketch VAE, each
     /// turned into terrain. Writes variant_K_sketch.png and variant_K_dem.png (16-bit) per
@@ -823,6 +864,47 @@ fn sketch_generator(weights: Option<PathBuf>) -> Result<terrain::models::sketch:
     SketchGenCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", path.display()))
 }
 
+/// The probe of `sketch-export` and `sketch-bench`: the first example sketch's network input.
+fn sketch_probe() -> Vec<f32> {
+    terrain::models::sketch::assemble_input(&terrain::sketch::examples::first().1).0
+}
+
+fn sketch_export(weights: Option<PathBuf>, out: &std::path::Path) -> Result<(), String> {
+    use terrain::models::sketch::{IN_CHANNELS, SketchScratch, WIDTHS, conv_layers};
+    use terrain::sketch::SKETCH_PX;
+    let generator = sketch_generator(weights)?;
+    let input = sketch_probe();
+    let output = generator.forward(&input, SKETCH_PX, &mut SketchScratch::default(), 1);
+    let layers: Vec<String> = conv_layers().into_iter().map(|(name, _, _)| name).collect();
+    let json = serde_json::json!({
+        "side": SKETCH_PX, "in_channels": IN_CHANNELS, "widths": WIDTHS, "layers": layers,
+        "convs": generator.convs_json(), "probe_input": input, "probe_output": output,
+    });
+    std::fs::write(out, json.to_string()).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    eprintln!("wrote {}", out.display());
+    Ok(())
+}
+
+fn sketch_bench(repeats: usize, threads: Option<u32>, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::models::sketch::SketchScratch;
+    use terrain::sketch::SKETCH_PX;
+    let generator = sketch_generator(weights)?;
+    let threads = threads.map_or_else(terrain::models::cpu::default_threads, |t| t as usize);
+    let input = sketch_probe();
+    let mut scratch = SketchScratch::default();
+    generator.forward(&input, SKETCH_PX, &mut scratch, threads);
+    let mut ms: Vec<f64> = (0..repeats)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            std::hint::black_box(generator.forward(&input, SKETCH_PX, &mut scratch, threads));
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    ms.sort_by(f64::total_cmp);
+    println!("{}", serde_json::json!({ "threads": threads, "repeats": repeats, "ms_per_sketch": ms[ms.len() / 2], "min_ms_per_sketch": ms[0] }));
+    Ok(())
+}
+
 fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
     use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
     let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
@@ -845,6 +927,9 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
     }
     if !(0.0..=1.0).contains(&cfg.format_share) {
         return Err(format!("--format-share must be between 0 and 1, not {}", cfg.format_share));
+    }
+    if !(cfg.lr.is_finite() && cfg.lr > 0.0) {
+        return Err(format!("--lr must be a positive number, not {}", cfg.lr));
     }
     for (flag, m) in [("--max-extent-m", cfg.windows.max_extent_m), ("--min-extent-m", cfg.windows.min_extent_m)] {
         if m.is_some_and(|m| !(m.is_finite() && m > 0.0)) {
@@ -1044,6 +1129,8 @@ fn main() -> ExitCode {
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),
         Command::TemExport { weights, out } => tem_export(weights, &out),
+        Command::SketchExport { weights, out } => sketch_export(weights, &out),
+        Command::SketchBench { repeats, threads, weights } => sketch_bench(repeats as usize, threads, weights),
         Command::HalfWeights { input, out } => half_weights(&input, &out),
         Command::AverageWeights { input, out } => average_weights(&input, &out),
         Command::TemBench { level, batch, repeats, threads, weights } => tem_bench(level as usize, batch as usize, repeats as usize, threads, weights),
@@ -1053,9 +1140,12 @@ fn main() -> ExitCode {
         Command::Sketch { input, out, weights, views } => sketch(&input, &out, weights, views.count as usize),
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
-        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share } => {
+        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share, loss, lr } => {
             let format_share = if format_pairs.is_some() { format_share } else { 0.0 };
-            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, ..Default::default() };
+            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, lr, loss: match loss {
+                PixelLossArg::L1 => terrain::train::sketch::PixelLoss::L1,
+                PixelLossArg::L2 => terrain::train::sketch::PixelLoss::L2,
+            }, ..Default::default() };
             train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
         }
         Command::SketchVariants { input, n, out_dir, seed, weights, views } => sketch_variants(&input, n as usize, &out_dir, seed, weights, views.count as usize),

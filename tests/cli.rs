@@ -90,7 +90,7 @@ fn help_and_version_describe_the_tool() {
     let o = run(&["--help"]);
     assert!(o.status.success());
     let out = String::from_utf8_lossy(&o.stdout);
-    for sub in ["world", "enhance", "tem-probe", "tem-export", "tem-bench", "train-tem", "eval-tem", "train-tcm", "eval-tcm"] {
+    for sub in ["world", "enhance", "tem-probe", "tem-export", "tem-bench", "sketch-export", "sketch-bench", "train-tem", "eval-tem", "train-tcm", "eval-tcm"] {
         assert!(out.contains(sub), "--help lacks {sub}: {out}");
     }
     for (sub, flags) in [
@@ -99,6 +99,8 @@ fn help_and_version_describe_the_tool() {
         ("tem-probe", &["--weights"][..]),
         ("tem-export", &["--weights", "--out"][..]),
         ("tem-bench", &["--level", "--batch", "--repeats", "--weights"][..]),
+        ("sketch-export", &["--weights", "--out"][..]),
+        ("sketch-bench", &["--threads", "--repeats", "--weights"][..]),
         ("train-tem", &["--dem-dir", "--steps", "--finetune", "--checkpoint-every", "--batch", "--chain", "--lr", "--seed", "--out"][..]),
         ("eval-tem", &["--dem-dir", "--weights", "--windows"][..]),
         ("train-tcm", &["--dem-dir", "--steps", "--resume", "--checkpoint", "--checkpoint-every", "--batch", "--adversarial", "--init", "--ruggedness", "--tcm-only"][..]),
@@ -154,6 +156,39 @@ fn tem_export_and_bench_describe_the_network() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(b["ms_per_quad"].as_f64().unwrap() > 0.0 && b["batch"] == 2);
+}
+
+/// `terrain sketch-export` writes the generator's 19 convolutions in their trained shapes
+/// (enc.0.a 4→12 … out 12→1) and a probe whose output, stretched to 0–255, is what `terrain
+/// sketch --views 1` makes of the same example sketch (within 0.01); `terrain sketch-bench`
+/// prints a positive time per sketch.
+#[test]
+fn sketch_export_and_bench_describe_the_generator() {
+    let p = tmp("sketch_export.json");
+    let o = run(&["sketch-export", "--out", p.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
+    let (side, cin) = (v["side"].as_u64().unwrap() as usize, v["in_channels"].as_u64().unwrap() as usize);
+    assert_eq!((side, cin), (256, 4));
+    assert_eq!(v["layers"].as_array().unwrap().len(), 19);
+    assert_eq!(v["convs"]["enc.0.a"]["shape"], serde_json::json!([12, 4, 3, 3]));
+    assert_eq!(v["convs"]["dec.0.a"]["shape"], serde_json::json!([12, 36, 3, 3]));
+    assert_eq!(v["convs"]["out"]["shape"], serde_json::json!([1, 12, 3, 3]));
+    assert_eq!(v["probe_input"].as_array().unwrap().len(), cin * side * side);
+    let mut probe: Vec<f32> = v["probe_output"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap() as f32 * 255.0).collect();
+    terrain::sketch::baseline::stretch(&mut probe);
+    let (name, sketch) = terrain::sketch::examples::first();
+    let (input, out) = (tmp("export_probe_sketch.png"), tmp("export_probe_dem.png"));
+    sketch.write_png(std::fs::File::create(&input).unwrap()).unwrap();
+    let o = run(&["sketch", "--input", input.to_str().unwrap(), "--out", out.to_str().unwrap(), "--views", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let cli = read_png16(&out).2;
+    let worst = probe.iter().zip(&cli).map(|(a, &b)| (a - b as f32 / 65535.0 * 255.0).abs()).fold(0f32, f32::max);
+    assert!(worst < 0.01, "{name}: the probe and terrain sketch differ by {worst}");
+    let o = run(&["sketch-bench", "--repeats", "1", "--threads", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(b["ms_per_sketch"].as_f64().unwrap() > 0.0 && b["threads"] == 1);
 }
 
 /// The exported GeoTIFF places its tiles in the world's metric frame: the tiepoint is the

@@ -112,14 +112,25 @@ impl Conv3 {
     /// portable kernel, about 7× slower (the sketch VAE's 6-channel output: 48 ms → 7 ms at
     /// 256²). The first `cout` channels of its output are unchanged.
     pub fn padded_for_simd(&self) -> Self {
-        let cout = self.cout.next_multiple_of(ROWS8_CH);
-        if cout == self.cout || self.cout == 1 {
+        if self.cout == 1 {
             return self.clone();
         }
-        let (mut w, mut b) = self.to_oihw();
-        w.resize(cout * self.cin * 9, 0.0);
+        self.widened(self.cout.next_multiple_of(ROWS8_CH), self.cin)
+    }
+
+    /// The same layer with zero output channels appended up to `cout` and zero-weighted input
+    /// channels appended up to `cin` (both at least the layer's own): a network whose widths
+    /// are not multiples of 8 runs on the vectorised kernels with its channels widened, and
+    /// the first channels of every output are unchanged.
+    pub fn widened(&self, cout: usize, cin: usize) -> Self {
+        assert!(cout >= self.cout && cin >= self.cin, "a layer is only widened");
+        let (w, mut b) = self.to_oihw();
+        let mut wide = vec![0.0; cout * cin * 9];
+        for o in 0..self.cout {
+            wide[o * cin * 9..][..self.cin * 9].copy_from_slice(&w[o * self.cin * 9..][..self.cin * 9]);
+        }
         b.resize(cout, 0.0);
-        Self::from_oihw(cout, self.cin, &w, Some(&b)).expect("zero-padded weights are finite and sized")
+        Self::from_oihw(cout, cin, &wide, Some(&b)).expect("zero-padded weights are finite and sized")
     }
 
     /// A layer with every weight and bias uniform in ±`amplitude`, drawn from `seed` with
@@ -867,6 +878,20 @@ pub fn convs_from_burnpack(bytes: &[u8], layers: &[(String, usize, usize)]) -> R
         convs.push(Conv3::from_oihw(cout, cin, &w, Some(&b)).map_err(|source| crate::models::WeightError::Layer { name: name.clone(), source })?);
     }
     Ok(convs)
+}
+
+/// Named 3×3 convolutions as a JSON object (`{name: {"shape": [cout, cin, 3, 3], "w": […],
+/// "b": […]}}`, weights row-major in that shape), for reference runtimes that rebuild a
+/// network (tools/tem_vs_onnx.py, tools/sketch_vs_onnx.py).
+pub fn convs_json<'a>(named: impl IntoIterator<Item = (String, &'a Conv3)>) -> serde_json::Value {
+    let m: serde_json::Map<String, serde_json::Value> = named
+        .into_iter()
+        .map(|(name, c)| {
+            let (w, b) = c.to_oihw();
+            (name, serde_json::json!({ "shape": [c.cout, c.cin, 3, 3], "w": w, "b": b }))
+        })
+        .collect();
+    serde_json::Value::Object(m)
 }
 
 /// Writes the 3×3 convolutions `convs` under the names of `layers` as a burnpack weight file

@@ -115,22 +115,51 @@ pub struct SketchScratch {
     out: Map,
 }
 
+/// Channels of the full-size stage as the CPU kernels run it: [`WIDTHS`]`[0]` (12) rounded up
+/// to the vectorised kernels' block of 8 channels, the extra channels zero. Full size is where
+/// most of the work is, and a width of 12 would run on the scalar kernel.
+const KERNEL_W0: usize = WIDTHS[0].next_multiple_of(8);
+
+/// `convs` (in [`conv_layers`] order) with the full-size stage widened to [`KERNEL_W0`]
+/// channels: the same function on the vectorised kernels.
+fn widened_for_kernels(convs: &[Conv3]) -> Vec<Conv3> {
+    let wide = |c: usize| if c == WIDTHS[0] { KERNEL_W0 } else { c };
+    conv_layers()
+        .iter()
+        .zip(convs)
+        .map(|((name, cout, cin), c)| {
+            // The first decoder stage reads the upsampled 1/2-size features, then the skip.
+            let cin = if name == "dec.0.a" { WIDTHS[1] + KERNEL_W0 } else { wide(*cin) };
+            c.widened(wide(*cout), cin)
+        })
+        .collect()
+}
+
 /// The sketch generator on the project's own CPU kernels: the same network as
 /// [`SketchGen::forward`] without a tensor framework (the CLI, the page's worker).
 #[derive(Clone, Debug)]
 pub struct SketchGenCpu {
+    /// The layers as trained, in [`conv_layers`] order.
     convs: Vec<Conv3>,
+    /// The same layers as the kernels run them ([`widened_for_kernels`]).
+    run: Vec<Conv3>,
 }
 
 impl SketchGenCpu {
+    /// The generator with these layers ([`conv_layers`] order).
+    fn new(convs: Vec<Conv3>) -> Self {
+        let run = widened_for_kernels(&convs);
+        Self { convs, run }
+    }
+
     /// Every layer random (uniform ±`amplitude`, from `seed`), for tests.
     pub fn randomized(seed: u64, amplitude: f32) -> Self {
-        Self { convs: cpu::random_convs(&conv_layers(), seed, amplitude) }
+        Self::new(cpu::random_convs(&conv_layers(), seed, amplitude))
     }
 
     /// Reads a generator weight file (burnpack, as training writes it).
     pub fn from_burnpack(bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
-        Ok(Self { convs: cpu::convs_from_burnpack(bytes, &conv_layers())? })
+        Ok(Self::new(cpu::convs_from_burnpack(bytes, &conv_layers())?))
     }
 
     /// Writes these weights into a burn generator (training starts from shipped weights).
@@ -144,13 +173,19 @@ impl SketchGenCpu {
     /// Copies a burn generator's weights.
     pub fn from_model(m: &SketchGen) -> Result<Self, String> {
         let convs = m.enc.iter().chain(&m.dec).flat_map(|st| st.convs()).chain([&m.out]);
-        Ok(Self { convs: convs.map(cpu::conv_from_burn).collect::<Result<_, _>>()? })
+        Ok(Self::new(convs.map(cpu::conv_from_burn).collect::<Result<_, _>>()?))
+    }
+
+    /// Every convolution's weights and bias as trained, keyed by its [`conv_layers`] name (see
+    /// [`cpu::convs_json`]), for reference runtimes that rebuild the network.
+    pub fn convs_json(&self) -> serde_json::Value {
+        cpu::convs_json(conv_layers().into_iter().map(|(name, _, _)| name).zip(&self.convs))
     }
 
     /// Heights / 255 (`side`², row-major) for the channel-first input `x` of a `side`² sketch.
     pub fn forward(&self, x: &[f32], side: usize, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
         s.input.set_chw(x, IN_CHANNELS, side, side);
-        let c = &self.convs;
+        let c = &self.run;
         for k in 0..SCALES {
             let src = if k == 0 {
                 &s.input
@@ -285,6 +320,20 @@ mod tests {
             let worst = ours.iter().zip(&burn_out).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
             assert!(worst < 1e-4, "{threads} threads: CPU and burn differ by {worst}");
         }
+    }
+
+    /// The layers the CPU kernels run all have a multiple of 8 outputs (the vectorised
+    /// kernels), but the single-output last one, which reads a multiple of 8 inputs; the full
+    /// size stage is 16 wide where the trained one is 12.
+    #[test]
+    fn every_layer_the_cpu_runs_has_channels_in_blocks_of_eight() {
+        let g = SketchGenCpu::randomized(3, 0.1);
+        assert_eq!(g.run.len(), g.convs.len());
+        for ((name, _, _), c) in conv_layers().iter().zip(&g.run) {
+            let blocks = if c.cout() == 1 { c.cin() % 8 == 0 } else { c.cout() % 8 == 0 };
+            assert!(blocks, "{name}: {} → {} channels", c.cin(), c.cout());
+        }
+        assert_eq!((g.convs[0].cout(), g.run[0].cout()), (12, 16));
     }
 
     /// A sketch that no rotation or flip maps to itself: bands rising to the east, a ridge

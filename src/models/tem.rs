@@ -376,15 +376,7 @@ impl TemCpu {
     /// runtimes that rebuild the network (tools/tem_vs_onnx.py).
     pub fn convs_json(&self) -> serde_json::Value {
         let layers = std::iter::once(&self.head).chain(&self.body).chain([&self.merge, &self.tail]);
-        let m: serde_json::Map<String, serde_json::Value> = conv_names()
-            .into_iter()
-            .zip(layers)
-            .map(|(name, c)| {
-                let (w, b) = c.to_oihw();
-                (name, serde_json::json!({ "shape": [c.cout(), c.cin(), 3, 3], "w": w, "b": b }))
-            })
-            .collect();
-        serde_json::Value::Object(m)
+        cpu::convs_json(conv_names().into_iter().zip(layers))
     }
 
     /// One window: `x` is `side`² heights in metres (row-major), `scale_m` the level's height
