@@ -11,17 +11,15 @@ sketch (one view) with 1 thread and all threads in ONNX Runtime and in ours
     pip install onnxruntime onnx numpy
     cargo build --release && python3 tools/sketch_vs_onnx.py [--bin target/release/terrain]
 """
-import argparse
 import json
 import os
 import subprocess
-import tempfile
 
 import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from tem_vs_onnx import const_i64, session, time_ms
+from tem_vs_onnx import const_i64, export, parse_args, session, time_ms
 
 
 def build(exported):
@@ -71,17 +69,8 @@ def build(exported):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    here = os.path.dirname(os.path.abspath(__file__))
-    target = os.environ.get("CARGO_TARGET_DIR", os.path.join(here, "..", "target"))
-    ap.add_argument("--bin", default=os.path.join(target, "release", "terrain"))
-    ap.add_argument("--weights", default=os.path.join(here, "..", "weights"))
-    ap.add_argument("--repeats", type=int, default=10)
-    a = ap.parse_args()
-    with tempfile.TemporaryDirectory() as d:
-        path = os.path.join(d, "sketch.json")
-        subprocess.run([a.bin, "sketch-export", "--weights", a.weights, "--out", path], check=True)
-        exported = json.load(open(path))
+    a = parse_args(__doc__)
+    exported = export(a, "sketch-export")
     model = build(exported)
     onnx.checker.check_model(model)
     side, cin = exported["side"], exported["in_channels"]

@@ -107,19 +107,31 @@ def time_ms(fn, repeats):
     return float(np.median(best))
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parse_args(doc, *extra):
+    """The command line of the *_vs_onnx tools: --bin, --weights, --repeats and `extra`
+    (flag, type, default) tuples."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     here = os.path.dirname(os.path.abspath(__file__))
     target = os.environ.get("CARGO_TARGET_DIR", os.path.join(here, "..", "target"))
     ap.add_argument("--bin", default=os.path.join(target, "release", "terrain"))
     ap.add_argument("--weights", default=os.path.join(here, "..", "weights"))
-    ap.add_argument("--level", type=int, default=0)
     ap.add_argument("--repeats", type=int, default=10)
-    a = ap.parse_args()
+    for flag, kind, default in extra:
+        ap.add_argument(flag, type=kind, default=default)
+    return ap.parse_args()
+
+
+def export(a, command):
+    """The JSON that `terrain <command> --weights W --out FILE` writes (weights and probe)."""
     with tempfile.TemporaryDirectory() as d:
-        path = os.path.join(d, "tem.json")
-        subprocess.run([a.bin, "tem-export", "--weights", a.weights, "--out", path], check=True)
-        exported = json.load(open(path))
+        path = os.path.join(d, "export.json")
+        subprocess.run([a.bin, command, "--weights", a.weights, "--out", path], check=True)
+        return json.load(open(path))
+
+
+def main():
+    a = parse_args(__doc__, ("--level", int, 0))
+    exported = export(a, "tem-export")
     lv = exported["levels"][a.level]
     side = exported["probe_side"]
     model = build(lv, side)
