@@ -765,8 +765,15 @@ impl WebApp {
                 ml.sketch_busy = false;
             });
         }
-        let on_gpu = ml.sketch_gpu.clone();
         drop(ml);
+        self.start_sketch_jobs(&w);
+    }
+
+    /// Sends the canvas's newest sketch to the generator (the GPU, else the CPU worker) if it
+    /// has no terrain yet and none is being made. Runs at the start of a frame and again right
+    /// after the sketch panel, so a stroke goes out in the frame that drew it.
+    fn start_sketch_jobs(&mut self, w: &Rc<worker::CpuWorker>) {
+        let on_gpu = self.ml.borrow().sketch_gpu.clone();
         for (job, sketch) in self.app.sketch_jobs() {
             let (w, shared, on_gpu) = (w.clone(), self.ml.clone(), on_gpu.clone());
             wasm_bindgen_futures::spawn_local(async move {
@@ -1147,6 +1154,9 @@ impl eframe::App for WebApp {
             let relief = self.app.settings().relief_m;
             let sk = self.sketch_panel.show(&ctx, &mut self.app.canvas, relief, busy, &self.examples);
             self.sketch_actions(sk);
+            if let Some(Ok(w)) = WORKER.with(|w| w.borrow().clone()) {
+                self.start_sketch_jobs(&w);
+            }
         }
         if act.copy_link {
             self.last_url_write_ms = 0.0;
