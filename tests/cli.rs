@@ -159,9 +159,9 @@ fn tem_export_and_bench_describe_the_network() {
 }
 
 /// `terrain sketch-export` writes the generator's 19 convolutions in their trained shapes
-/// (enc.0.a 4→12 … out 12→1) and a probe whose output, stretched to 0–255, is what `terrain
-/// sketch --views 1` makes of the same example sketch (within 0.01); `terrain sketch-bench`
-/// prints a positive time per sketch.
+/// (enc.0.a 4→12 … out 12→1) and a probe whose output, put on the 0–255 scale by the sketch's
+/// bands, is what `terrain sketch --views 1` makes of the same example sketch (within 0.01);
+/// `terrain sketch-bench` prints a positive time per sketch.
 #[test]
 fn sketch_export_and_bench_describe_the_generator() {
     let p = tmp("sketch_export.json");
@@ -176,8 +176,8 @@ fn sketch_export_and_bench_describe_the_generator() {
     assert_eq!(v["convs"]["out"]["shape"], serde_json::json!([1, 12, 3, 3]));
     assert_eq!(v["probe_input"].as_array().unwrap().len(), cin * side * side);
     let mut probe: Vec<f32> = v["probe_output"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap() as f32 * 255.0).collect();
-    terrain::sketch::baseline::stretch(&mut probe);
     let (name, sketch) = terrain::sketch::examples::first();
+    terrain::sketch::calibrate::to_band_scale(&mut probe, &sketch.band, side);
     let (input, out) = (tmp("export_probe_sketch.png"), tmp("export_probe_dem.png"));
     sketch.write_png(std::fs::File::create(&input).unwrap()).unwrap();
     let o = run(&["sketch", "--input", input.to_str().unwrap(), "--out", out.to_str().unwrap(), "--views", "1"]);

@@ -4,8 +4,8 @@
 //!
 //! Input ([`IN_CHANNELS`] × H × W, any H and W divisible by 16; [`SKETCH_PX`]² in use):
 //! band / 3, ridge, valley ([`Sketch::channels`]) and the baseline / 255. Output: heights / 255,
-//! the baseline plus the network's correction; the caller stretches them to 0–255 like the
-//! targets. Network: two 3×3 convolutions + ReLU per scale ([`WIDTHS`] at 1, 1/2 … 1/16 of the
+//! the baseline plus the network's correction; the caller puts them on the 0–255 scale by the
+//! sketch's bands ([`crate::sketch::calibrate`]). Network: two 3×3 convolutions + ReLU per scale ([`WIDTHS`] at 1, 1/2 … 1/16 of the
 //! size; 2×2 mean pooling between them), a decoder that upsamples (nearest), concatenates the
 //! skip and applies two convolutions, and a 3×3 output convolution. No normalisation layers:
 //! training and inference compute the same function.
@@ -17,7 +17,7 @@ use burn::tensor::{Device, Tensor};
 use crate::dem::{dihedral, dihedral_channels, dihedral_inverse};
 use crate::models::cpu::{self, Conv3, Map, Post};
 use crate::models::tcm::{Stage, conv3, pool2, up2};
-use crate::sketch::{self, SKETCH_PX, Sketch, baseline};
+use crate::sketch::{self, SKETCH_PX, Sketch, baseline, calibrate};
 
 /// Input channels: the sketch's three ([`sketch::INPUT_CHANNELS`]) and the baseline.
 pub const IN_CHANNELS: usize = sketch::INPUT_CHANNELS + 1;
@@ -234,15 +234,16 @@ impl SketchGenCpu {
             sum.iter_mut().zip(out).for_each(|(a, b)| *a += b);
         }
         let k = order.len() as f32;
-        to_format_scale(sum.into_iter().map(|v| v / k).collect())
+        to_format_scale(sum.into_iter().map(|v| v / k).collect(), sketch)
     }
 }
 
-/// The network's output (heights / 255) on the format's 0–255 scale, stretched to span it like
-/// the targets.
-fn to_format_scale(out: Vec<f32>) -> Vec<f32> {
+/// The network's output (heights / 255) for `sketch` on the format's 0–255 scale: spanning it
+/// like the targets, with the sketch's band borders at their thresholds
+/// ([`calibrate::to_band_scale`]).
+fn to_format_scale(out: Vec<f32>, sketch: &Sketch) -> Vec<f32> {
     let mut h: Vec<f32> = out.into_iter().map(|v| v * 255.0).collect();
-    baseline::stretch(&mut h);
+    calibrate::to_band_scale(&mut h, &sketch.band, SKETCH_PX);
     h
 }
 
@@ -273,13 +274,13 @@ impl SketchGenGpu {
     /// require for GPU buffers).
     pub async fn generate_async(&self, sketch: &Sketch) -> Result<Vec<f32>, String> {
         let data = self.launch(sketch).into_data_async().await.map_err(|e| format!("GPU readback failed: {e:?}"))?;
-        Ok(to_format_scale(data.try_to_vec::<f32>().map_err(|e| format!("unexpected result type: {e:?}"))?))
+        Ok(to_format_scale(data.try_to_vec::<f32>().map_err(|e| format!("unexpected result type: {e:?}"))?, sketch))
     }
 
     /// [`Self::generate_async`] with a blocking readback (native).
     #[cfg(not(target_arch = "wasm32"))]
     pub fn generate_blocking(&self, sketch: &Sketch) -> Result<Vec<f32>, String> {
-        Ok(to_format_scale(self.launch(sketch).into_data().try_to_vec::<f32>().map_err(|e| format!("unexpected result type: {e:?}"))?))
+        Ok(to_format_scale(self.launch(sketch).into_data().try_to_vec::<f32>().map_err(|e| format!("unexpected result type: {e:?}"))?, sketch))
     }
 }
 

@@ -7,6 +7,7 @@
 //! sketch into heights without learning, [`score`] compares heights on the format's 0–255 scale.
 
 pub mod baseline;
+pub mod calibrate;
 pub mod canvas;
 pub mod code;
 pub mod examples;

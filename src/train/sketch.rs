@@ -16,7 +16,7 @@ use super::pairs::{Dem, Rng, Split, fits_square, random_window};
 use super::tcm::TcmProgress as Progress;
 use crate::dem::{Heightfield, dihedral, dihedral_channels};
 use crate::models::sketch::{IN_CHANNELS, SketchGen, SketchGenCpu, SketchScratch, WEIGHT_FILE, assemble_input};
-use crate::sketch::{SKETCH_PX, baseline, extract, score};
+use crate::sketch::{SKETCH_PX, calibrate, extract, score};
 
 /// Source window sides (samples) a pair is cut at, before they are brought to [`SKETCH_PX`].
 pub const WINDOW_SIDES: [usize; 5] = [32, 64, 128, 256, 512];
@@ -337,7 +337,7 @@ impl SketchRun {
 pub struct Validation {
     /// Pairs scored.
     pub pairs: usize,
-    /// Mean RMSE of the generator (output stretched to 0–255 like the targets).
+    /// Mean RMSE of the generator (output put on the 0–255 scale by its bands, as the CLI does).
     pub rmse: f64,
     /// Mean PSNR (dB) of the generator.
     pub psnr: f64,
@@ -355,7 +355,9 @@ pub fn validate(generator: &SketchGenCpu, pairs: &[Pair]) -> Validation {
     for pair in pairs {
         let target: Vec<f32> = pair.target.iter().map(|v| v * 255.0).collect();
         let mut out: Vec<f32> = generator.forward(&pair.input, SKETCH_PX, &mut scratch, threads).into_iter().map(|v| v * 255.0).collect();
-        baseline::stretch(&mut out);
+        // The bands back from the input's first channel (band / 3).
+        let band: Vec<u8> = pair.input[..SKETCH_PX * SKETCH_PX].iter().map(|v| (v * 3.0).round() as u8).collect();
+        calibrate::to_band_scale(&mut out, &band, SKETCH_PX);
         let base: Vec<f32> = pair.input[(IN_CHANNELS - 1) * SKETCH_PX * SKETCH_PX..].iter().map(|v| v * 255.0).collect();
         let (e, eb) = (score::rmse(&out, &target), score::rmse(&base, &target));
         (r, p, rb, pb) = (r + e, p + score::psnr(e), rb + eb, pb + score::psnr(eb));
