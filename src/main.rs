@@ -43,6 +43,8 @@ enum PixelLossArg {
     L1,
     /// Mean squared error.
     L2,
+    /// Mean absolute error after the band scale the CLI applies (whole tiles: --crop 256).
+    BandL1,
 }
 
 /// Where tiles come from.
@@ -359,8 +361,8 @@ enum Command {
         /// Share (0–1) of each batch's crops taken from --format-pairs.
         #[arg(long, default_value_t = 0.5)]
         format_share: f32,
-        /// The generator's per-pixel loss: l1 (pix2pix) or l2 (least expected RMSE; a new
-        /// run only).
+        /// The generator's per-pixel loss: l1 (pix2pix), l2 (least expected RMSE) or band-l1
+        /// (L1 after the band scale the CLI applies; whole tiles) (a new run only).
         #[arg(long, value_enum, default_value_t = PixelLossArg::L1)]
         loss: PixelLossArg,
         /// Adam learning rate of the generator (the discriminator's is half; a new run only).
@@ -1145,6 +1147,7 @@ fn main() -> ExitCode {
             let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, lr, loss: match loss {
                 PixelLossArg::L1 => terrain::train::sketch::PixelLoss::L1,
                 PixelLossArg::L2 => terrain::train::sketch::PixelLoss::L2,
+                PixelLossArg::BandL1 => terrain::train::sketch::PixelLoss::BandL1,
             }, ..Default::default() };
             train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
         }

@@ -192,6 +192,10 @@ pub enum PixelLoss {
     /// Mean squared error: its optimum is the conditional mean, the answer of least expected
     /// RMSE (the format's score) where a sketch leaves the terrain open.
     L2,
+    /// Mean absolute error of the output put on the format's scale by its bands, as the CLI
+    /// and the page put it ([`calibrate::BandMap`], its knots fitted to the step's output and
+    /// held fixed for the gradient); whole tiles only (crop [`SKETCH_PX`]).
+    BandL1,
 }
 
 impl Default for SketchConfig {
@@ -231,6 +235,9 @@ impl SketchRun {
     pub fn start(cfg: SketchConfig, dems: &[Dem], device: &Device, resume_from: Option<&Path>, init: Option<&SketchGenCpu>) -> Result<Self, String> {
         if cfg.crop == 0 || cfg.crop % 16 != 0 || cfg.crop > SKETCH_PX {
             return Err(format!("the crop side must be a multiple of 16 up to {SKETCH_PX}, not {}", cfg.crop));
+        }
+        if cfg.loss == PixelLoss::BandL1 && cfg.crop != SKETCH_PX {
+            return Err(format!("the band-scale loss needs whole tiles (crop {SKETCH_PX}), not {} px crops", cfg.crop));
         }
         let mut g = SketchGen::new(device);
         if let Some(w) = init {
@@ -285,6 +292,8 @@ impl SketchRun {
             }
         }
         let dev = &self.device;
+        // The bands (channel 0, band / 3) for the band-scale loss.
+        let bands: Vec<f32> = if self.cfg.loss == PixelLoss::BandL1 { xs.clone() } else { Vec::new() };
         let x = tensor(xs, [b, IN_CHANNELS, c, c], dev);
         let real = tensor(ys, [b, 1, c, c], dev);
         let cond = x.clone().narrow(1, 0, crate::sketch::INPUT_CHANNELS);
@@ -296,11 +305,11 @@ impl SketchRun {
             let fake_in = Tensor::cat(vec![fake.clone().detach(), cond.clone()], 1);
             disc_v = gan::disc_step(&mut self.d, &mut self.od, self.cfg.lr * 0.5, real_in, fake_in, None);
         }
-        let diff = fake.clone() - real;
+        let diff = if self.cfg.loss == PixelLoss::BandL1 { band_scaled(fake.clone(), &bands, [b, c], dev) - real } else { fake.clone() - real };
         let l1 = diff.clone().abs().mean();
         let l1_v = l1.clone().into_scalar::<f32>() as f64;
         let mut loss = match self.cfg.loss {
-            PixelLoss::L1 => l1,
+            PixelLoss::L1 | PixelLoss::BandL1 => l1,
             PixelLoss::L2 => (diff.clone() * diff).mean(),
         };
         if adv_w > 0.0 {
@@ -330,6 +339,37 @@ impl SketchRun {
         let state = serde_json::json!({ "config": self.cfg, "progress": self.progress, "validation": validation });
         gan::save_run(dir, "sketch", WEIGHT_FILE, &self.g, &self.d, &self.og, &self.od, &state)
     }
+}
+
+/// The generator's output `fake` ([b, 1, c, c], heights / 255) put on the format's scale by
+/// each tile's bands (read from the inputs `xs`, channel-first, band / 3 in channel 0) and
+/// divided by 255 again: each pixel through its [`calibrate::Segment`], whose knots are
+/// constants of the step, so the gradient flows through the cubic only.
+fn band_scaled(fake: Tensor<4>, xs: &[f32], [b, c]: [usize; 2], dev: &Device) -> Tensor<4> {
+    let out = fake.clone().detach().into_data().try_to_vec::<f32>().expect("float output");
+    let n = c * c;
+    let mut parts: [Vec<f32>; 6] = std::array::from_fn(|_| Vec::with_capacity(b * n));
+    for s in 0..b {
+        let h: Vec<f32> = out[s * n..(s + 1) * n].iter().map(|v| v * 255.0).collect();
+        let band: Vec<u8> = xs[s * IN_CHANNELS * n..][..n].iter().map(|v| (v * 3.0).round() as u8).collect();
+        let map = calibrate::BandMap::fit(&h, &band, c);
+        for &x in &h {
+            // Flat output: the identity (slope 1 from 0 to 255).
+            let g = map.as_ref().map_or(calibrate::Segment { x0: 0.0, width: 255.0, y0: 0.0, y1: 255.0, m0: 1.0, m1: 1.0 }, |m| m.segment(x));
+            for (part, v) in parts.iter_mut().zip([g.x0, g.width, g.y0, g.y1, g.m0, g.m1]) {
+                part.push(v);
+            }
+        }
+    }
+    let [x0, width, y0, y1, m0, m1] = parts.map(|v| tensor(v, [b, 1, c, c], dev));
+    let t = (fake * 255.0 - x0) / width.clone();
+    let t2 = t.clone() * t.clone();
+    let t3 = t2.clone() * t.clone();
+    let h00 = t3.clone() * 2.0 - t2.clone() * 3.0 + 1.0;
+    let h10 = t3.clone() - t2.clone() * 2.0 + t;
+    let h01 = t2.clone() * 3.0 - t3.clone() * 2.0;
+    let h11 = t3 - t2;
+    (h00 * y0 + h10 * width.clone() * m0 + h01 * y1 + h11 * width * m1) / 255.0
 }
 
 /// Scores on held-out pairs, on the format's 0–255 scale.
@@ -425,6 +465,32 @@ mod tests {
         let after = mse(&run);
         assert!(after < 0.5 * before, "mean squared error {before} -> {after}");
         assert_eq!(run.progress.disc, 0.0);
+    }
+
+    /// The band-scale loss's tensor path puts a synthetic pair's generated heights (a random
+    /// generator's output) on the scale exactly as the CLI does ([`calibrate::to_band_scale`]):
+    /// within 1e-3 of 255 on every pixel, for two tiles in one batch.
+    #[test]
+    fn the_loss_band_scale_is_the_cli_band_scale() {
+        let dems = vec![synthetic(420, 200, 30.0)];
+        let batch = pairs(&dems, Split::Train, 2, &WindowChoice::ALL, 9);
+        assert_eq!(batch.len(), 2);
+        let g = SketchGenCpu::randomized(4, 0.05);
+        let n = SKETCH_PX * SKETCH_PX;
+        let (mut xs, mut outs) = (Vec::new(), Vec::new());
+        for p in &batch {
+            xs.extend_from_slice(&p.input);
+            outs.extend(g.forward(&p.input, SKETCH_PX, &mut SketchScratch::default(), 2));
+        }
+        let dev = Device::flex();
+        let got = band_scaled(tensor(outs.clone(), [2, 1, SKETCH_PX, SKETCH_PX], &dev), &xs, [2, SKETCH_PX], &dev).into_data().try_to_vec::<f32>().unwrap();
+        for (s, p) in batch.iter().enumerate() {
+            let band: Vec<u8> = p.input[..n].iter().map(|v| (v * 3.0).round() as u8).collect();
+            let mut want: Vec<f32> = outs[s * n..(s + 1) * n].iter().map(|v| v * 255.0).collect();
+            calibrate::to_band_scale(&mut want, &band, SKETCH_PX);
+            let worst = want.iter().zip(&got[s * n..]).map(|(w, g)| (w / 255.0 - g).abs()).fold(0f32, f32::max);
+            assert!(worst * 255.0 < 1e-3, "tile {s}: differs by {} of 255", worst * 255.0);
+        }
     }
 
     /// A pair file of the format read with augmentation gives its 8 rotations/flips (the first
