@@ -35,18 +35,6 @@ enum SketchModel {
     Vae,
 }
 
-/// The sketch generator's per-pixel loss (`terrain::train::sketch::PixelLoss`).
-#[cfg(feature = "train")]
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum PixelLossArg {
-    /// Mean absolute error (pix2pix).
-    L1,
-    /// Mean squared error.
-    L2,
-    /// Mean absolute error after the band scale the CLI applies (whole tiles: --crop 256).
-    BandL1,
-}
-
 /// Where tiles come from.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum Source {
@@ -60,8 +48,8 @@ enum Source {
 #[derive(clap::Args, Debug)]
 struct Views {
     /// Views averaged: the generator runs on this many rotations/flips of the sketch (1–8)
-    /// and the outputs, turned back, are averaged (8: the most accurate; 1: what the page
-    /// shows while drawing, 8× faster).
+    /// and the outputs, turned back, are averaged (8: the terrain turns exactly with the
+    /// sketch; 1: what the page shows while drawing, 8× faster).
     #[arg(long = "views", value_name = "N", default_value_t = terrain::models::sketch::CLI_VIEWS as u32, value_parser = clap::value_parser!(u32).range(1..=8))]
     count: u32,
 }
@@ -125,7 +113,7 @@ enum Command {
         out: PathBuf,
     },
     /// Write the sketch generator's weights and a probe (an example sketch's input and our
-    /// output before the stretch) as JSON, for reference runtimes (tools/sketch_vs_onnx.py
+    /// output before the band scale) as JSON, for reference runtimes (tools/sketch_vs_onnx.py
     /// rebuilds the network in ONNX Runtime).
     SketchExport {
         /// Folder of the sketch weights.
@@ -363,8 +351,8 @@ enum Command {
         format_share: f32,
         /// The generator's per-pixel loss: l1 (pix2pix), l2 (least expected RMSE) or band-l1
         /// (L1 after the band scale the CLI applies; whole tiles) (a new run only).
-        #[arg(long, value_enum, default_value_t = PixelLossArg::L1)]
-        loss: PixelLossArg,
+        #[arg(long, value_enum, default_value_t = terrain::train::sketch::PixelLoss::L1)]
+        loss: terrain::train::sketch::PixelLoss,
         /// Adam learning rate of the generator (the discriminator's is half; a new run only).
         #[arg(long, default_value_t = 2e-4)]
         lr: f64,
@@ -1144,11 +1132,7 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share, loss, lr } => {
             let format_share = if format_pairs.is_some() { format_share } else { 0.0 };
-            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, lr, loss: match loss {
-                PixelLossArg::L1 => terrain::train::sketch::PixelLoss::L1,
-                PixelLossArg::L2 => terrain::train::sketch::PixelLoss::L2,
-                PixelLossArg::BandL1 => terrain::train::sketch::PixelLoss::BandL1,
-            }, ..Default::default() };
+            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, lr, loss, ..Default::default() };
             train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
         }
         Command::SketchVariants { input, n, out_dir, seed, weights, views } => sketch_variants(&input, n as usize, &out_dir, seed, weights, views.count as usize),

@@ -17,6 +17,7 @@ import subprocess
 
 import numpy as np
 import onnx
+import onnxruntime as ort
 from onnx import TensorProto, helper, numpy_helper
 
 from tem_vs_onnx import const_i64, export, parse_args, session, time_ms
@@ -78,7 +79,6 @@ def main():
     want = np.array(exported["probe_output"], dtype=np.float32).reshape(1, 1, side, side)
     got = session(model, 1).run(["y"], {"x": x})[0]
     diff = float(np.abs(got - want).max())
-    import onnxruntime as ort
     print(f"sketch generator: ONNX Runtime {ort.__version__} vs ours on the probe: max |difference| {diff:.2e} (heights / 255)")
     assert diff < 1e-4, "the ONNX graph is not our network"
     print(f"{'threads':>7} {'ORT ms/sketch':>14} {'ours ms/sketch':>15} {'ours/ORT':>9}")

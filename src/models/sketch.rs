@@ -5,8 +5,8 @@
 //! Input ([`IN_CHANNELS`] × H × W, any H and W divisible by 16; [`SKETCH_PX`]² in use):
 //! band / 3, ridge, valley ([`Sketch::channels`]) and the baseline / 255. Output: heights / 255,
 //! the baseline plus the network's correction; the caller puts them on the 0–255 scale by the
-//! sketch's bands ([`crate::sketch::calibrate`]). Network: two 3×3 convolutions + ReLU per scale ([`WIDTHS`] at 1, 1/2 … 1/16 of the
-//! size; 2×2 mean pooling between them), a decoder that upsamples (nearest), concatenates the
+//! sketch's bands ([`crate::sketch::calibrate`]). Network: two 3×3 convolutions + ReLU per
+//! scale ([`WIDTHS`] at 1, 1/2 … 1/16 of the size; 2×2 mean pooling between them), a decoder that upsamples (nearest), concatenates the
 //! skip and applies two convolutions, and a 3×3 output convolution. No normalisation layers:
 //! training and inference compute the same function.
 
@@ -89,7 +89,11 @@ impl SketchGen {
 /// Names and shapes (name, output channels, input channels) of the generator's convolutions
 /// in network order, as burn names them in a weight file.
 pub fn conv_layers() -> Vec<(String, usize, usize)> {
-    let w = WIDTHS;
+    conv_layers_of(WIDTHS)
+}
+
+/// [`conv_layers`] for a generator of channel widths `w` per scale.
+fn conv_layers_of(w: [usize; SCALES]) -> Vec<(String, usize, usize)> {
     let mut v = Vec::new();
     for k in 0..SCALES {
         v.push((format!("enc.{k}.a"), w[k], if k == 0 { IN_CHANNELS } else { w[k - 1] }));
@@ -115,24 +119,34 @@ pub struct SketchScratch {
     out: Map,
 }
 
-/// Channels of the full-size stage as the CPU kernels run it: [`WIDTHS`]`[0]` (12) rounded up
-/// to the vectorised kernels' block of 8 channels, the extra channels zero. Full size is where
-/// most of the work is, and a width of 12 would run on the scalar kernel.
-const KERNEL_W0: usize = WIDTHS[0].next_multiple_of(8);
+/// Channels per scale as the CPU kernels run them: [`WIDTHS`] rounded up to the vectorised
+/// kernels' block of 8 channels (the full-size stage, most of the work, 12 → 16), the extra
+/// channels zero. A width that is not a multiple of 8 would run on the scalar kernel.
+const KERNEL_WIDTHS: [usize; SCALES] = {
+    let mut w = WIDTHS;
+    let mut k = 0;
+    while k < SCALES {
+        w[k] = w[k].next_multiple_of(8);
+        k += 1;
+    }
+    w
+};
 
-/// `convs` (in [`conv_layers`] order) with the full-size stage widened to [`KERNEL_W0`]
-/// channels: the same function on the vectorised kernels.
+// [`Conv3::widened`] appends the padding after a layer's own channels. A decoder stage reads
+// the upsampled deeper features, then the skip, so only the last group, the full-size skip,
+// may grow: the deeper widths must be multiples of 8 already.
+const _: () = {
+    let mut k = 1;
+    while k < SCALES {
+        assert!(WIDTHS[k] % 8 == 0, "only the full-size width may be padded");
+        k += 1;
+    }
+};
+
+/// `convs` (in [`conv_layers`] order) widened to [`KERNEL_WIDTHS`]: the same function on the
+/// vectorised kernels.
 fn widened_for_kernels(convs: &[Conv3]) -> Vec<Conv3> {
-    let wide = |c: usize| if c == WIDTHS[0] { KERNEL_W0 } else { c };
-    conv_layers()
-        .iter()
-        .zip(convs)
-        .map(|((name, cout, cin), c)| {
-            // The first decoder stage reads the upsampled 1/2-size features, then the skip.
-            let cin = if name == "dec.0.a" { WIDTHS[1] + KERNEL_W0 } else { wide(*cin) };
-            c.widened(wide(*cout), cin)
-        })
-        .collect()
+    conv_layers_of(KERNEL_WIDTHS).into_iter().zip(convs).map(|((_, cout, cin), c)| c.widened(cout, cin)).collect()
 }
 
 /// The sketch generator on the project's own CPU kernels: the same network as

@@ -145,6 +145,18 @@ impl Sketch {
         x
     }
 
+    /// The sketch back from [`Self::channels`] (at least the first [`INPUT_CHANNELS`] ×
+    /// n² values of a channel-first stack; n² pixels): band = 3 × the first channel rounded,
+    /// ridge and valley where their channels exceed one half.
+    pub fn from_channels(x: &[f32], n: usize) -> Self {
+        let px = n * n;
+        Self {
+            band: x[..px].iter().map(|v| ((v * 3.0).round() as u8).min(BANDS as u8 - 1)).collect(),
+            ridge: x[px..2 * px].iter().map(|&v| v > 0.5).collect(),
+            valley: x[2 * px..3 * px].iter().map(|&v| v > 0.5).collect(),
+        }
+    }
+
     /// Fraction of pixels on a ridge and on a valley stroke.
     pub fn stroke_cover(&self) -> (f64, f64) {
         let n = self.band.len() as f64;

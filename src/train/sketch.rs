@@ -16,7 +16,7 @@ use super::pairs::{Dem, Rng, Split, fits_square, random_window};
 use super::tcm::TcmProgress as Progress;
 use crate::dem::{Heightfield, dihedral, dihedral_channels};
 use crate::models::sketch::{IN_CHANNELS, SketchGen, SketchGenCpu, SketchScratch, WEIGHT_FILE, assemble_input};
-use crate::sketch::{SKETCH_PX, calibrate, extract, score};
+use crate::sketch::{SKETCH_PX, Sketch, calibrate, extract, score};
 
 /// Source window sides (samples) a pair is cut at, before they are brought to [`SKETCH_PX`].
 pub const WINDOW_SIDES: [usize; 5] = [32, 64, 128, 256, 512];
@@ -182,8 +182,10 @@ pub struct SketchConfig {
     pub loss: PixelLoss,
 }
 
-/// The per-pixel term of the generator's loss, on heights normalised to 0–1.
+/// The per-pixel term of the generator's loss, on heights normalised to 0–1 (`terrain
+/// train-sketch --loss l1|l2|band-l1`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum PixelLoss {
     /// Mean absolute error (pix2pix): its optimum is the conditional median.
@@ -292,8 +294,8 @@ impl SketchRun {
             }
         }
         let dev = &self.device;
-        // The bands (channel 0, band / 3) for the band-scale loss.
-        let bands: Vec<f32> = if self.cfg.loss == PixelLoss::BandL1 { xs.clone() } else { Vec::new() };
+        // Each crop's bands, for the band-scale loss.
+        let bands: Vec<Vec<u8>> = if self.cfg.loss == PixelLoss::BandL1 { xs.chunks_exact(IN_CHANNELS * c * c).map(|x| Sketch::from_channels(x, c).band).collect() } else { Vec::new() };
         let x = tensor(xs, [b, IN_CHANNELS, c, c], dev);
         let real = tensor(ys, [b, 1, c, c], dev);
         let cond = x.clone().narrow(1, 0, crate::sketch::INPUT_CHANNELS);
@@ -305,7 +307,7 @@ impl SketchRun {
             let fake_in = Tensor::cat(vec![fake.clone().detach(), cond.clone()], 1);
             disc_v = gan::disc_step(&mut self.d, &mut self.od, self.cfg.lr * 0.5, real_in, fake_in, None);
         }
-        let diff = if self.cfg.loss == PixelLoss::BandL1 { band_scaled(fake.clone(), &bands, [b, c], dev) - real } else { fake.clone() - real };
+        let diff = if self.cfg.loss == PixelLoss::BandL1 { band_scaled(fake.clone(), &bands, c, dev) - real } else { fake.clone() - real };
         let l1 = diff.clone().abs().mean();
         let l1_v = l1.clone().into_scalar::<f32>() as f64;
         let mut loss = match self.cfg.loss {
@@ -342,17 +344,16 @@ impl SketchRun {
 }
 
 /// The generator's output `fake` ([b, 1, c, c], heights / 255) put on the format's scale by
-/// each tile's bands (read from the inputs `xs`, channel-first, band / 3 in channel 0) and
-/// divided by 255 again: each pixel through its [`calibrate::Segment`], whose knots are
-/// constants of the step, so the gradient flows through the cubic only.
-fn band_scaled(fake: Tensor<4>, xs: &[f32], [b, c]: [usize; 2], dev: &Device) -> Tensor<4> {
+/// each tile's bands (`bands`, one c² list per tile) and divided by 255 again: each pixel
+/// through its [`calibrate::Segment`], whose knots are constants of the step, so the gradient
+/// flows through the cubic only.
+fn band_scaled(fake: Tensor<4>, bands: &[Vec<u8>], c: usize, dev: &Device) -> Tensor<4> {
     let out = fake.clone().detach().into_data().try_to_vec::<f32>().expect("float output");
-    let n = c * c;
+    let (b, n) = (bands.len(), c * c);
     let mut parts: [Vec<f32>; 6] = std::array::from_fn(|_| Vec::with_capacity(b * n));
-    for s in 0..b {
+    for (s, band) in bands.iter().enumerate() {
         let h: Vec<f32> = out[s * n..(s + 1) * n].iter().map(|v| v * 255.0).collect();
-        let band: Vec<u8> = xs[s * IN_CHANNELS * n..][..n].iter().map(|v| (v * 3.0).round() as u8).collect();
-        let map = calibrate::BandMap::fit(&h, &band, c);
+        let map = calibrate::BandMap::fit(&h, band, c);
         for &x in &h {
             // Flat output: the identity (slope 1 from 0 to 255).
             let g = map.as_ref().map_or(calibrate::Segment { x0: 0.0, width: 255.0, y0: 0.0, y1: 255.0, m0: 1.0, m1: 1.0 }, |m| m.segment(x));
@@ -395,9 +396,7 @@ pub fn validate(generator: &SketchGenCpu, pairs: &[Pair]) -> Validation {
     for pair in pairs {
         let target: Vec<f32> = pair.target.iter().map(|v| v * 255.0).collect();
         let mut out: Vec<f32> = generator.forward(&pair.input, SKETCH_PX, &mut scratch, threads).into_iter().map(|v| v * 255.0).collect();
-        // The bands back from the input's first channel (band / 3).
-        let band: Vec<u8> = pair.input[..SKETCH_PX * SKETCH_PX].iter().map(|v| (v * 3.0).round() as u8).collect();
-        calibrate::to_band_scale(&mut out, &band, SKETCH_PX);
+        calibrate::to_band_scale(&mut out, &Sketch::from_channels(&pair.input, SKETCH_PX).band, SKETCH_PX);
         let base: Vec<f32> = pair.input[(IN_CHANNELS - 1) * SKETCH_PX * SKETCH_PX..].iter().map(|v| v * 255.0).collect();
         let (e, eb) = (score::rmse(&out, &target), score::rmse(&base, &target));
         (r, p, rb, pb) = (r + e, p + score::psnr(e), rb + eb, pb + score::psnr(eb));
@@ -477,17 +476,13 @@ mod tests {
         assert_eq!(batch.len(), 2);
         let g = SketchGenCpu::randomized(4, 0.05);
         let n = SKETCH_PX * SKETCH_PX;
-        let (mut xs, mut outs) = (Vec::new(), Vec::new());
-        for p in &batch {
-            xs.extend_from_slice(&p.input);
-            outs.extend(g.forward(&p.input, SKETCH_PX, &mut SketchScratch::default(), 2));
-        }
+        let bands: Vec<Vec<u8>> = batch.iter().map(|p| Sketch::from_channels(&p.input, SKETCH_PX).band).collect();
+        let outs: Vec<f32> = batch.iter().flat_map(|p| g.forward(&p.input, SKETCH_PX, &mut SketchScratch::default(), 2)).collect();
         let dev = Device::flex();
-        let got = band_scaled(tensor(outs.clone(), [2, 1, SKETCH_PX, SKETCH_PX], &dev), &xs, [2, SKETCH_PX], &dev).into_data().try_to_vec::<f32>().unwrap();
-        for (s, p) in batch.iter().enumerate() {
-            let band: Vec<u8> = p.input[..n].iter().map(|v| (v * 3.0).round() as u8).collect();
+        let got = band_scaled(tensor(outs.clone(), [2, 1, SKETCH_PX, SKETCH_PX], &dev), &bands, SKETCH_PX, &dev).into_data().try_to_vec::<f32>().unwrap();
+        for (s, band) in bands.iter().enumerate() {
             let mut want: Vec<f32> = outs[s * n..(s + 1) * n].iter().map(|v| v * 255.0).collect();
-            calibrate::to_band_scale(&mut want, &band, SKETCH_PX);
+            calibrate::to_band_scale(&mut want, band, SKETCH_PX);
             let worst = want.iter().zip(&got[s * n..]).map(|(w, g)| (w / 255.0 - g).abs()).fold(0f32, f32::max);
             assert!(worst * 255.0 < 1e-3, "tile {s}: differs by {} of 255", worst * 255.0);
         }

@@ -66,14 +66,7 @@ pub struct VaeRun {
 
 /// The sketch of a pair's input (its first three channels).
 pub fn sketch_of(p: &Pair) -> Sketch {
-    let n = SKETCH_PX * SKETCH_PX;
-    let mut s = Sketch::filled(0);
-    for i in 0..n {
-        s.band[i] = (p.input[i] * 3.0).round() as u8;
-        s.ridge[i] = p.input[n + i] > 0.5;
-        s.valley[i] = p.input[2 * n + i] > 0.5;
-    }
-    s
+    Sketch::from_channels(&p.input, SKETCH_PX)
 }
 
 impl VaeRun {
