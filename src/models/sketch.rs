@@ -6,9 +6,10 @@
 //! band / 3, ridge, valley ([`Sketch::channels`]) and the baseline / 255. Output: heights / 255,
 //! the baseline plus the network's correction; the caller puts them on the 0–255 scale by the
 //! sketch's bands ([`crate::sketch::calibrate`]). Network: two 3×3 convolutions + ReLU per
-//! scale ([`WIDTHS`] at 1, 1/2 … 1/16 of the size; 2×2 mean pooling between them), a decoder that upsamples (nearest), concatenates the
-//! skip and applies two convolutions, and a 3×3 output convolution. No normalisation layers:
-//! training and inference compute the same function.
+//! scale ([`WIDTHS`] at 1, 1/2 … 1/16 of the size; 2×2 mean pooling between them), a decoder
+//! that upsamples (nearest), concatenates the skip and applies two convolutions, and a 3×3
+//! output convolution. No normalisation layers: training and inference compute the same
+//! function.
 
 use burn::module::Module;
 use burn::nn::conv::Conv2d;

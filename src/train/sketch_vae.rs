@@ -64,11 +64,6 @@ pub struct VaeRun {
     device: Device,
 }
 
-/// The sketch of a pair's input (its first three channels).
-pub fn sketch_of(p: &Pair) -> Sketch {
-    Sketch::from_channels(&p.input, SKETCH_PX)
-}
-
 impl VaeRun {
     /// Starts a run on `device` (an autodiff device), or resumes the one saved in
     /// `resume_from`.
@@ -181,7 +176,7 @@ pub fn validate(vae: &SketchVaeCpu, pairs: &[Pair]) -> VaeValidation {
     let threads = crate::models::cpu::default_threads();
     let (mut band, mut rf, mut vf, mut change) = (0.0, 0.0, 0.0, 0.0);
     for p in pairs {
-        let sk = sketch_of(p);
+        let sk = Sketch::from_channels(&p.input, SKETCH_PX);
         let (mu, _) = vae.encode(&sk, &mut s, threads);
         let rec = vae.decode(&mu, crate::models::sketch_vae::StrokeCount::of(&sk), &mut s, threads);
         let a = score::Agreement::between(&rec, &sk);
