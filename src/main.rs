@@ -253,6 +253,8 @@ enum Command {
         /// inside the 128 m cell (0: none; with --resume it replaces the saved weight).
         #[arg(long)]
         grow_position: Option<f32>,
+        #[command(flatten)]
+        run: RunArgs,
     },
     /// Compare the learned and the procedural world with the held-out east third of every DEM
     /// at 32 m or finer: geomorphometric statistics over 128 and 256-sample windows, their
@@ -356,6 +358,12 @@ enum Command {
         /// Adam learning rate of the generator (the discriminator's is half; a new run only).
         #[arg(long, default_value_t = 2e-4)]
         lr: f64,
+        /// Also keep each checkpoint's generator as snapshots/gen_STEP.bpk in the checkpoint
+        /// folder (for `terrain average-weights`).
+        #[arg(long)]
+        snapshots: bool,
+        #[command(flatten)]
+        run: RunArgs,
     },
     /// Propose variants of a sketch: sketches with codes near its own in the sketch VAE, each
     /// turned into terrain. Writes variant_K_sketch.png and variant_K_dem.png (16-bit) per
@@ -425,6 +433,41 @@ enum Command {
     },
 }
 
+/// Where and how long a training runs (`--backend`, `--minutes`, `--checkpoint-minutes`),
+/// shared by the training commands.
+#[cfg(feature = "train")]
+#[derive(clap::Args, Debug)]
+struct RunArgs {
+    /// cpu: burn's CPU backend; gpu: burn's wgpu backend on the default Vulkan adapter (a
+    /// GPU's driver, or Mesa's lavapipe where there is none).
+    #[arg(long, value_enum, default_value_t = terrain::train::Backend::Cpu)]
+    backend: terrain::train::Backend,
+    /// Stop after this many minutes of wall-clock time, with a checkpoint (default: run all
+    /// the steps).
+    #[arg(long)]
+    minutes: Option<f64>,
+    /// Also save a checkpoint every this many minutes of wall-clock time.
+    #[arg(long)]
+    checkpoint_minutes: Option<f64>,
+}
+
+#[cfg(feature = "train")]
+impl RunArgs {
+    /// The autodiff device and the wall-clock budget, with the backend logged.
+    fn start(&self) -> Result<(burn::tensor::Device, terrain::train::Budget), String> {
+        let budget = terrain::train::Budget::new(self.minutes, self.checkpoint_minutes)?;
+        let device = self.backend.device()?;
+        eprintln!("backend: {}", self.backend.describe());
+        Ok((device, budget))
+    }
+}
+
+/// Training examples per second of step time: `steps` steps of `batch` examples in `seconds`.
+#[cfg(feature = "train")]
+fn examples_per_s(steps: usize, batch: usize, seconds: f64) -> f64 {
+    if seconds > 0.0 { (steps * batch) as f64 / seconds } else { 0.0 }
+}
+
 /// Arguments of `terrain train-tem`.
 #[cfg(feature = "train")]
 #[derive(clap::Args, Debug)]
@@ -456,6 +499,12 @@ struct TrainArgs {
     /// Output folder of the weights.
     #[arg(long, default_value = "weights")]
     out: PathBuf,
+    /// Start the five models from the weight files in this folder (e.g. `weights`, or the
+    /// `checkpoint` folder of an earlier run) instead of random weights.
+    #[arg(long)]
+    init: Option<PathBuf>,
+    #[command(flatten)]
+    run: RunArgs,
 }
 
 /// The tile rectangle of `--tiles X0 Y0 W H`, checked without overflow: W, H ≥ 1, W·H ≤
@@ -593,28 +642,39 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
     };
     let dems = train::pairs::load_dems(&a.dem_dir)?;
     eprintln!("{} DEMs loaded; {cfg:?}", dems.len());
-    let device = burn::tensor::Device::flex().autodiff();
+    let (device, mut budget) = a.run.start()?;
+    let init = match &a.init {
+        Some(dir) => Some(train::load_models(dir, &device)?),
+        None => None,
+    };
     let every = a.checkpoint_every;
     let mut saved: Result<(), String> = Ok(());
-    let (models, losses) = train::train_tem(&dems, &cfg, &device, |step, loss, secs, models| {
+    // Steps and seconds after the first step (the GPU backend compiles its kernels there).
+    let (mut done, mut first_s, mut step_s) = (0, 0.0, 0.0);
+    let (models, losses) = train::train_tem(&dems, &cfg, &device, init, |step, loss, secs, models| {
+        (done, step_s) = (step + 1, secs);
+        if step == 0 {
+            first_s = secs;
+        }
         if step % 10 == 0 {
             eprintln!("step {step:5}  loss {loss:.5}  {secs:7.1} s");
         }
         // Checkpoints, so a long run stopped early still leaves usable weights.
-        if every > 0 && (step + 1) % every == 0 && saved.is_ok() {
+        if ((every > 0 && (step + 1) % every == 0) || budget.save_due()) && saved.is_ok() {
             saved = train::save_models(models, &out.join("checkpoint"));
             eprintln!("checkpoint after {} steps", step + 1);
         }
+        !budget.spent()
     })?;
     saved?;
     train::save_models(&models, &out)?;
-    println!("{}", serde_json::json!({ "steps": cfg.steps, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_scale_units": losses }));
+    println!("{}", serde_json::json!({ "steps": done, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_scale_units": losses, "backend": a.run.backend, "seconds": step_s, "examples_per_s": examples_per_s(done.saturating_sub(1), cfg.batch, step_s - first_s) }));
     Ok(())
 }
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7], [joined, disc_slopes]: [bool; 2], [position, grow_position]: [Option<f32>; 2], init: Option<&std::path::Path>, [tcm_only, grow_only]: [bool; 2]) -> Result<(), String> {
+fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7], [joined, disc_slopes]: [bool; 2], [position, grow_position]: [Option<f32>; 2], init: Option<&std::path::Path>, [tcm_only, grow_only]: [bool; 2], run_args: &RunArgs) -> Result<(), String> {
     use terrain::train::{grow, pairs, tcm};
     for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage), ("--coarse", coarse), ("--free-l1", free_l1), ("--l1-reach", l1_reach), ("--dome", dome), ("--position", position.unwrap_or(0.0)), ("--grow-position", grow_position.unwrap_or(0.0))] {
         if !w.is_finite() || w < 0.0 {
@@ -642,7 +702,7 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
             }
         }
     }
-    let device = burn::tensor::Device::flex().autodiff();
+    let (device, mut budget) = run_args.start()?;
     let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, free_l1, l1_reach_px: l1_reach, joined, dome, disc_slopes, position: position.unwrap_or(0.0), ..Default::default() };
     let from = resume.then_some(checkpoint);
     let start = match init {
@@ -675,7 +735,13 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
     // The step count of the part being trained.
     let at = |run: &tcm::TcmRun, up: &grow::GrowRun| if grow_only { up.progress.step } else { run.progress.step };
     let end = at(&run, &up) + steps;
-    while at(&run, &up) < end {
+    let first = at(&run, &up);
+    let (mut tcm_from, mut grow_from) = ((run.progress.step, run.progress.seconds), (up.progress.step, up.progress.seconds));
+    while at(&run, &up) < end && !budget.spent() {
+        // Examples/s leaves out the first step (the GPU backend compiles its kernels there).
+        if at(&run, &up) == first + 1 {
+            (tcm_from, grow_from) = ((run.progress.step, run.progress.seconds), (up.progress.step, up.progress.seconds));
+        }
         if !grow_only {
             run.step(&grids)?;
         }
@@ -687,7 +753,7 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
         if step % 10 == 0 || step == end {
             eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} pits {:.5} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", step, p.l1, p.adv, p.disc, p.depression, p.seconds / p.step.max(1) as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
         }
-        if step % every == 0 || step == end {
+        if step % every == 0 || step == end || budget.save_due() || budget.spent() {
             if !grow_only {
                 run.save(checkpoint)?;
             }
@@ -696,8 +762,9 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
             }
         }
     }
-    let summary = |p: &tcm::TcmProgress| serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc });
-    println!("{}", serde_json::json!({ "tcm": summary(&run.progress), "grow": summary(&up.progress), "checkpoint": checkpoint }));
+    // Examples/s counts this invocation's steps after its first.
+    let summary = |p: &tcm::TcmProgress, (step0, s0): (usize, f64), batch: usize| serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "examples_per_s": examples_per_s(p.step - step0, batch, p.seconds - s0) });
+    println!("{}", serde_json::json!({ "tcm": summary(&run.progress, tcm_from, run.cfg.batch), "grow": summary(&up.progress, grow_from, up.batch), "checkpoint": checkpoint, "backend": run_args.backend }));
     Ok(())
 }
 
@@ -910,7 +977,7 @@ fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBu
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch::SketchConfig, validation: usize, model: SketchModel, init: Option<&std::path::Path>) -> Result<(), String> {
+fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch::SketchConfig, validation: usize, model: SketchModel, init: Option<&std::path::Path>, run_args: &RunArgs, snapshots: bool) -> Result<(), String> {
     use terrain::train::{pairs, sketch};
     if !cfg.adversarial.is_finite() || cfg.adversarial < 0.0 {
         return Err(format!("--adversarial must be a finite number ≥ 0, not {}", cfg.adversarial));
@@ -938,10 +1005,10 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
     if let Some(id) = cfg.windows.dems.iter().find(|id| !dems.iter().any(|d| &d.id == *id)) {
         return Err(format!("--dems: {id} is not in {}", dem_dir.join("manifest.json").display()));
     }
-    let device = burn::tensor::Device::flex().autodiff();
+    let (device, mut budget) = run_args.start()?;
     let t = std::time::Instant::now();
     if let SketchModel::Vae = model {
-        return train_sketch_vae(&dems, steps, resume, checkpoint, every, terrain::train::sketch_vae::VaeConfig { batch: cfg.batch, pool: cfg.pool, crop: cfg.crop, ..Default::default() }, validation, &device);
+        return train_sketch_vae(&dems, steps, resume, checkpoint, every, terrain::train::sketch_vae::VaeConfig { batch: cfg.batch, pool: cfg.pool, crop: cfg.crop, ..Default::default() }, validation, &device, &mut budget, run_args.backend);
     }
     let mut run = sketch::SketchRun::start(cfg, &dems, &device, resume.then_some(checkpoint), init.as_ref())?;
     let val = sketch::pairs(&dems, pairs::Split::Validation, validation, &run.cfg.windows, 0x5EED);
@@ -956,14 +1023,20 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
     };
     eprintln!("sketch generator: {} parameters; {:?}; from step {}; pool and {} validation pairs made in {:.1} s", run.g.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
     let end = run.progress.step + steps;
+    let first = run.progress.step;
+    let mut from = (run.progress.step, run.progress.seconds);
     let mut last = None;
-    while run.progress.step < end {
+    while run.progress.step < end && !budget.spent() {
         run.step(&dems)?;
         let p = &run.progress;
+        // Examples/s leaves out the first step (the GPU backend compiles its kernels there).
+        if p.step == first + 1 {
+            from = (p.step, p.seconds);
+        }
         if p.step % 10 == 0 || p.step == end {
             eprintln!("step {:6}  l1 {:.5} (×255 = {:.2}) adv {:.3} disc {:.3} {:.2} s/step", p.step, p.l1, p.l1 * 255.0, p.adv, p.disc, p.seconds / p.step as f64);
         }
-        if p.step % every == 0 || p.step == end {
+        if p.step % every == 0 || p.step == end || budget.save_due() || budget.spent() {
             let v = sketch::validate(&run.cpu()?, &val);
             eprintln!("validation ({} held-out pairs): RMSE {:.3} PSNR {:.2} dB; baseline {:.3} / {:.2} dB", v.pairs, v.rmse, v.psnr, v.rmse_baseline, v.psnr_baseline);
             if !held_out.is_empty() {
@@ -971,11 +1044,18 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
                 eprintln!("held-out format pairs ({}): RMSE {:.3} PSNR {:.2} dB; baseline {:.3} / {:.2} dB", h.pairs, h.rmse, h.psnr, h.rmse_baseline, h.psnr_baseline);
             }
             run.save(checkpoint, Some(&v))?;
+            if snapshots {
+                // Each checkpoint's generator kept, for a mean of checkpoints afterwards.
+                let dir = checkpoint.join("snapshots");
+                std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+                let to = dir.join(format!("gen_{:06}.bpk", p.step));
+                std::fs::copy(checkpoint.join(terrain::models::sketch::WEIGHT_FILE), &to).map_err(|e| format!("{}: {e}", to.display()))?;
+            }
             last = Some(v);
         }
     }
     let p = &run.progress;
-    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "validation": last, "checkpoint": checkpoint }));
+    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "validation": last, "checkpoint": checkpoint, "backend": run_args.backend, "examples_per_s": examples_per_s(p.step - from.0, run.cfg.batch, p.seconds - from.1) }));
     Ok(())
 }
 
@@ -1008,21 +1088,27 @@ fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::path::Path,
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch_vae::VaeConfig, validation: usize, device: &burn::tensor::Device) -> Result<(), String> {
+fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch_vae::VaeConfig, validation: usize, device: &burn::tensor::Device, budget: &mut terrain::train::Budget, backend: terrain::train::Backend) -> Result<(), String> {
     use terrain::train::{pairs, sketch, sketch_vae};
     let t = std::time::Instant::now();
     let mut run = sketch_vae::VaeRun::start(cfg, dems, device, resume.then_some(checkpoint))?;
     let val = sketch::pairs(dems, pairs::Split::Validation, validation, &sketch::WindowChoice::ALL, 0x5EED);
     eprintln!("sketch VAE: {} parameters; {:?}; from step {}; pool and {} validation sketches made in {:.1} s", run.m.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
     let end = run.progress.step + steps;
+    let first = run.progress.step;
+    let mut from = (run.progress.step, run.progress.seconds);
     let mut last = None;
-    while run.progress.step < end {
+    while run.progress.step < end && !budget.spent() {
         run.step(dems)?;
         let p = &run.progress;
+        // Examples/s leaves out the first step (the GPU backend compiles its kernels there).
+        if p.step == first + 1 {
+            from = (p.step, p.seconds);
+        }
         if p.step % 10 == 0 || p.step == end {
             eprintln!("step {:6}  reconstruction {:.4} KL {:.5} per pixel {:.2} s/step", p.step, p.l1, p.adv, p.seconds / p.step as f64);
         }
-        if p.step % every == 0 || p.step == end {
+        if p.step % every == 0 || p.step == end || budget.save_due() || budget.spent() {
             let v = sketch_vae::validate(&run.cpu()?, &val);
             eprintln!("validation ({} held-out sketches): bands kept {:.3}, ridge F1 {:.3}, valley F1 {:.3}; variants change {:.3} of the bands", v.sketches, v.band_agreement, v.ridge_f1, v.valley_f1, v.variant_band_change);
             run.save(checkpoint, Some(&v))?;
@@ -1030,7 +1116,7 @@ fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: b
         }
     }
     let p = &run.progress;
-    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "reconstruction": p.l1, "kl": p.adv, "validation": last, "checkpoint": checkpoint }));
+    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "reconstruction": p.l1, "kl": p.adv, "validation": last, "checkpoint": checkpoint, "backend": backend, "examples_per_s": examples_per_s(p.step - from.0, run.cfg.batch, p.seconds - from.1) }));
     Ok(())
 }
 
@@ -1130,10 +1216,10 @@ fn main() -> ExitCode {
         Command::Sketch { input, out, weights, views } => sketch(&input, &out, weights, views.count as usize),
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
-        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share, loss, lr } => {
+        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share, loss, lr, run, snapshots } => {
             let format_share = if format_pairs.is_some() { format_share } else { 0.0 };
             let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, lr, loss, ..Default::default() };
-            train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref())
+            train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref(), &run, snapshots)
         }
         Command::SketchVariants { input, n, out_dir, seed, weights, views } => sketch_variants(&input, n as usize, &out_dir, seed, weights, views.count as usize),
         #[cfg(feature = "train")]
@@ -1141,8 +1227,8 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
         #[cfg(feature = "train")]
-        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, free_l1, l1_reach, joined, dome, disc_slopes, position, tcm_only, grow_only, grow_position } => {
-            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome], [joined, disc_slopes], [position, grow_position], init.as_deref(), [tcm_only, grow_only])
+        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, free_l1, l1_reach, joined, dome, disc_slopes, position, tcm_only, grow_only, grow_position, run } => {
+            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome], [joined, disc_slopes], [position, grow_position], init.as_deref(), [tcm_only, grow_only], &run)
         }
     };
     match result {

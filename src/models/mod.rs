@@ -203,6 +203,15 @@ pub async fn self_check(device: &Device) -> Result<f32, String> {
     max_error(data)
 }
 
+/// The native wgpu device of this process (burn's wgpu runtime on the default adapter:
+/// natively Vulkan, a GPU's driver or Mesa's lavapipe). burn registers the runtime once per
+/// process, so every native user (training, tests) shares this one; no adapter is an error.
+#[cfg(not(target_arch = "wasm32"))]
+pub fn native_gpu() -> Result<Device, String> {
+    static GPU: std::sync::OnceLock<Result<Device, String>> = std::sync::OnceLock::new();
+    GPU.get_or_init(|| Device::wgpu_options().init().map_err(|e| format!("burn's wgpu runtime found no usable adapter: {e}"))).clone()
+}
+
 /// Blocking variant of [`self_check`] for native code.
 #[cfg(not(target_arch = "wasm32"))]
 pub fn self_check_blocking(device: &Device) -> Result<f32, String> {
@@ -215,8 +224,7 @@ mod tests {
 
     /// The native wgpu device (burn registers it once per process, so the tests share it).
     fn test_gpu() -> Device {
-        static GPU: std::sync::OnceLock<Device> = std::sync::OnceLock::new();
-        GPU.get_or_init(|| Device::wgpu_options().init().expect("a Vulkan device (install mesa-vulkan-drivers for lavapipe)")).clone()
+        native_gpu().expect("a Vulkan device (install mesa-vulkan-drivers for lavapipe)")
     }
 
     #[test]

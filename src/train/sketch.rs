@@ -562,6 +562,47 @@ mod tests {
         assert_eq!(pairs(&dems, Split::Train, 3, &choice(&[], 100.0), 3).len(), 3);
     }
 
+    /// The GPU path trains like the CPU path: the same five L1 steps from the same seeded
+    /// weights on the same pair, once on burn's wgpu backend (Mesa's lavapipe here) and once
+    /// on its CPU backend. The per-step losses agree to 1e-4 of the 0–1 height scale and the
+    /// trained generators' outputs to 1e-3, while the steps themselves change the output by
+    /// far more (checked too), so a GPU path that did not train, or trained differently,
+    /// fails. Why these bounds: both backends compute in f32 with other summation orders
+    /// (~1e-6 apart per layer); Adam's first steps move each weight by about the learning rate
+    /// whatever the gradient's size, so a near-zero gradient of opposite sign moves a weight
+    /// 2·lr apart: at lr 1e-3 over five steps that stays under 1e-3 of the output.
+    #[test]
+    fn gpu_and_cpu_backends_train_the_same_five_steps() {
+        use crate::train::Backend;
+        let dems = vec![synthetic(420, 200, 30.0)];
+        let cfg = SketchConfig { batch: 2, crop: 64, pool: 1, lr: 1e-3, adversarial: 0.0, loss: PixelLoss::L1, ..Default::default() };
+        let init = SketchGenCpu::randomized(7, 0.05);
+        let train = |backend: Backend| {
+            let mut run = SketchRun::start(cfg.clone(), &dems, &backend.device().unwrap(), None, Some(&init)).unwrap();
+            let pair = run.pool[0].clone();
+            let mut losses = Vec::new();
+            let t = web_time::Instant::now();
+            for _ in 0..5 {
+                // No DEMs: the pool keeps its one pair.
+                run.step(&[]).unwrap();
+                losses.push(run.progress.l1);
+            }
+            eprintln!("{backend:?}: 5 steps in {:.2} s, losses {losses:?}", t.elapsed().as_secs_f64());
+            let out = run.cpu().unwrap().forward(&pair.input, SKETCH_PX, &mut SketchScratch::default(), 1);
+            (losses, out, pair)
+        };
+        let (gpu_losses, gpu_out, pair) = train(Backend::Gpu);
+        let (cpu_losses, cpu_out, _) = train(Backend::Cpu);
+        let loss_gap = gpu_losses.iter().zip(&cpu_losses).map(|(a, b)| (a - b).abs()).fold(0f64, f64::max);
+        assert!(loss_gap < 1e-4, "losses differ by {loss_gap}: gpu {gpu_losses:?}, cpu {cpu_losses:?}");
+        let out_gap = gpu_out.iter().zip(&cpu_out).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        let start = init.forward(&pair.input, SKETCH_PX, &mut SketchScratch::default(), 1);
+        let moved = start.iter().zip(&cpu_out).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        eprintln!("trained outputs differ by {out_gap:.2e}; training moved them by {moved:.2e}");
+        assert!(out_gap < 1e-3, "trained generators differ by {out_gap}");
+        assert!(moved > 20.0 * out_gap.max(1e-4), "five steps moved the output by only {moved}");
+    }
+
     /// A run started from given weights generates what those weights generate on the CPU
     /// kernels (largest difference below 1e-5 of the 0–1 height scale).
     #[test]
