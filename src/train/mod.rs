@@ -536,18 +536,20 @@ mod tests {
     use crate::dem::Heightfield;
 
     /// The GPU path trains the TEM like the CPU path: the same random start (saved, then
-    /// loaded onto each backend), three chained steps on burn's wgpu backend (lavapipe here)
+    /// loaded onto each backend), two chained steps on burn's wgpu backend (lavapipe here)
     /// and on its CPU backend. The first step's loss (the same weights on the same windows)
-    /// agrees to 1e-5 of itself; the next ones, after Adam updates, to 5 % (Adam moves every
-    /// weight by about the learning rate whatever its gradient's size, so weights whose tiny
-    /// gradients differ in sign between two f32 summation orders move 2·lr apart: 2 % was
-    /// measured on lavapipe); the steps change the loss by more than 5 %.
+    /// agrees to 1e-5 of itself, the second's (after one Adam update) to 1e-4 (1e-7 was
+    /// measured), and the two steps' losses differ by more than 1 % (2 % measured). Only two
+    /// steps: from the third on, this random start's losses vary by ~20 % from run to run
+    /// even on the CPU backend alone (Adam moves weights with near-zero gradients by about
+    /// the learning rate, whatever their sign, and the CPU backend's parallel sums are not
+    /// bit-reproducible), so later steps cannot be compared.
     #[test]
-    fn gpu_and_cpu_backends_train_the_same_three_tem_steps() {
+    fn gpu_and_cpu_backends_train_the_same_two_tem_steps() {
         let (w, h) = (900, 400);
         let field = |x: f32, y: f32| (x * 0.031).sin() * 40.0 + (y * 0.047 + x * 0.011).cos() * 25.0 + ((x * 0.17).sin() * (y * 0.13).cos()) * 6.0;
         let dems = vec![Dem { id: "synthetic".into(), hf: crate::dem::Heightfield::new(w, h, 100.0, (0..w * h).map(|k| field((k % w) as f32, (k / w) as f32)).collect()) }];
-        let cfg = TrainConfig { steps: 3, finetune_steps: 0, batch: 2, chain_levels: 2, lr: 1e-3, seed: 5 };
+        let cfg = TrainConfig { steps: 2, finetune_steps: 0, batch: 2, chain_levels: 2, lr: 1e-3, seed: 5 };
         let dir = std::env::temp_dir().join(format!("terrain-tem-backends-{}", std::process::id()));
         save_models(&(0..LEVELS).map(|_| Tem::new(&Device::flex())).collect::<Vec<_>>(), &dir).unwrap();
         let train = |backend: Backend| {
@@ -563,12 +565,10 @@ mod tests {
         let (gpu, cpu) = (train(Backend::Gpu), train(Backend::Cpu));
         let rel = |a: f64, b: f64| (a - b).abs() / b.abs();
         eprintln!("TEM losses: gpu {gpu:?}, cpu {cpu:?}");
-        assert_eq!(gpu.len(), 3);
+        assert_eq!(gpu.len(), 2);
         assert!(rel(gpu[0], cpu[0]) < 1e-5, "first step: {} vs {}", gpu[0], cpu[0]);
-        for k in 1..3 {
-            assert!(rel(gpu[k], cpu[k]) < 0.05, "step {k}: {} vs {}", gpu[k], cpu[k]);
-        }
-        assert!(rel(cpu[2], cpu[0]) > 0.05, "the steps did not change the loss: {cpu:?}");
+        assert!(rel(gpu[1], cpu[1]) < 1e-4, "second step: {} vs {}", gpu[1], cpu[1]);
+        assert!(rel(cpu[1], cpu[0]) > 0.01, "the steps did not change the loss: {cpu:?}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 
