@@ -462,10 +462,37 @@ impl RunArgs {
     }
 }
 
-/// Training examples per second of step time: `steps` steps of `batch` examples in `seconds`.
+/// Training examples per second over a run's steps after its first (the GPU backend compiles
+/// its kernels in the first step): 0 until a second step has run.
 #[cfg(feature = "train")]
-fn examples_per_s(steps: usize, batch: usize, seconds: f64) -> f64 {
-    if seconds > 0.0 { (steps * batch) as f64 / seconds } else { 0.0 }
+struct StepRate {
+    /// The step count the run started from.
+    first: usize,
+    /// Step count and seconds (of step time) after the first step.
+    from: Option<(usize, f64)>,
+}
+
+#[cfg(feature = "train")]
+impl StepRate {
+    /// A rate for a run starting at step count `first`.
+    fn new(first: usize) -> Self {
+        Self { first, from: None }
+    }
+
+    /// Notes the progress after a step: the step count and the seconds so far.
+    fn after_step(&mut self, step: usize, seconds: f64) {
+        if step == self.first + 1 {
+            self.from = Some((step, seconds));
+        }
+    }
+
+    /// Examples/s at step count `step` and `seconds`, with `batch` examples a step.
+    fn examples_per_s(&self, step: usize, seconds: f64, batch: usize) -> f64 {
+        match self.from {
+            Some((s0, t0)) if seconds > t0 => ((step - s0) * batch) as f64 / (seconds - t0),
+            _ => 0.0,
+        }
+    }
 }
 
 /// Arguments of `terrain train-tem`.
@@ -649,13 +676,10 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
     };
     let every = a.checkpoint_every;
     let mut saved: Result<(), String> = Ok(());
-    // Steps and seconds after the first step (the GPU backend compiles its kernels there).
-    let (mut done, mut first_s, mut step_s) = (0, 0.0, 0.0);
+    let (mut done, mut step_s, mut rate) = (0, 0.0, StepRate::new(0));
     let (models, losses) = train::train_tem(&dems, &cfg, &device, init, |step, loss, secs, models| {
         (done, step_s) = (step + 1, secs);
-        if step == 0 {
-            first_s = secs;
-        }
+        rate.after_step(done, secs);
         if step % 10 == 0 {
             eprintln!("step {step:5}  loss {loss:.5}  {secs:7.1} s");
         }
@@ -668,7 +692,7 @@ fn train_tem(a: TrainArgs) -> Result<(), String> {
     })?;
     saved?;
     train::save_models(&models, &out)?;
-    println!("{}", serde_json::json!({ "steps": done, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_scale_units": losses, "backend": a.run.backend, "seconds": step_s, "examples_per_s": examples_per_s(done.saturating_sub(1), cfg.batch, step_s - first_s) }));
+    println!("{}", serde_json::json!({ "steps": done, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_scale_units": losses, "backend": a.run.backend, "seconds": step_s, "examples_per_s": rate.examples_per_s(done, step_s, cfg.batch) }));
     Ok(())
 }
 
@@ -735,13 +759,8 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
     // The step count of the part being trained.
     let at = |run: &tcm::TcmRun, up: &grow::GrowRun| if grow_only { up.progress.step } else { run.progress.step };
     let end = at(&run, &up) + steps;
-    let first = at(&run, &up);
-    let (mut tcm_from, mut grow_from) = ((run.progress.step, run.progress.seconds), (up.progress.step, up.progress.seconds));
+    let (mut tcm_rate, mut grow_rate) = (StepRate::new(run.progress.step), StepRate::new(up.progress.step));
     while at(&run, &up) < end && !budget.spent() {
-        // Examples/s leaves out the first step (the GPU backend compiles its kernels there).
-        if at(&run, &up) == first + 1 {
-            (tcm_from, grow_from) = ((run.progress.step, run.progress.seconds), (up.progress.step, up.progress.seconds));
-        }
         if !grow_only {
             run.step(&grids)?;
         }
@@ -749,11 +768,13 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
             up.step(&fine, run.cfg.seed)?;
         }
         let (p, q) = (&run.progress, &up.progress);
+        tcm_rate.after_step(p.step, p.seconds);
+        grow_rate.after_step(q.step, q.seconds);
         let step = at(&run, &up);
         if step % 10 == 0 || step == end {
             eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} pits {:.5} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", step, p.l1, p.adv, p.disc, p.depression, p.seconds / p.step.max(1) as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
         }
-        if step % every == 0 || step == end || budget.save_due() || budget.spent() {
+        if step % every == 0 || step == end || budget.checkpoint_due() {
             if !grow_only {
                 run.save(checkpoint)?;
             }
@@ -762,9 +783,8 @@ fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: 
             }
         }
     }
-    // Examples/s counts this invocation's steps after its first.
-    let summary = |p: &tcm::TcmProgress, (step0, s0): (usize, f64), batch: usize| serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "examples_per_s": examples_per_s(p.step - step0, batch, p.seconds - s0) });
-    println!("{}", serde_json::json!({ "tcm": summary(&run.progress, tcm_from, run.cfg.batch), "grow": summary(&up.progress, grow_from, up.batch), "checkpoint": checkpoint, "backend": run_args.backend }));
+    let summary = |p: &tcm::TcmProgress, rate: &StepRate, batch: usize| serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "examples_per_s": rate.examples_per_s(p.step, p.seconds, batch) });
+    println!("{}", serde_json::json!({ "tcm": summary(&run.progress, &tcm_rate, run.cfg.batch), "grow": summary(&up.progress, &grow_rate, up.batch), "checkpoint": checkpoint, "backend": run_args.backend }));
     Ok(())
 }
 
@@ -1023,20 +1043,16 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
     };
     eprintln!("sketch generator: {} parameters; {:?}; from step {}; pool and {} validation pairs made in {:.1} s", run.g.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
     let end = run.progress.step + steps;
-    let first = run.progress.step;
-    let mut from = (run.progress.step, run.progress.seconds);
+    let mut rate = StepRate::new(run.progress.step);
     let mut last = None;
     while run.progress.step < end && !budget.spent() {
         run.step(&dems)?;
         let p = &run.progress;
-        // Examples/s leaves out the first step (the GPU backend compiles its kernels there).
-        if p.step == first + 1 {
-            from = (p.step, p.seconds);
-        }
+        rate.after_step(p.step, p.seconds);
         if p.step % 10 == 0 || p.step == end {
             eprintln!("step {:6}  l1 {:.5} (×255 = {:.2}) adv {:.3} disc {:.3} {:.2} s/step", p.step, p.l1, p.l1 * 255.0, p.adv, p.disc, p.seconds / p.step as f64);
         }
-        if p.step % every == 0 || p.step == end || budget.save_due() || budget.spent() {
+        if p.step % every == 0 || p.step == end || budget.checkpoint_due() {
             let v = sketch::validate(&run.cpu()?, &val);
             eprintln!("validation ({} held-out pairs): RMSE {:.3} PSNR {:.2} dB; baseline {:.3} / {:.2} dB", v.pairs, v.rmse, v.psnr, v.rmse_baseline, v.psnr_baseline);
             if !held_out.is_empty() {
@@ -1055,7 +1071,7 @@ fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoin
         }
     }
     let p = &run.progress;
-    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "validation": last, "checkpoint": checkpoint, "backend": run_args.backend, "examples_per_s": examples_per_s(p.step - from.0, run.cfg.batch, p.seconds - from.1) }));
+    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "validation": last, "checkpoint": checkpoint, "backend": run_args.backend, "examples_per_s": rate.examples_per_s(p.step, p.seconds, run.cfg.batch) }));
     Ok(())
 }
 
@@ -1095,20 +1111,16 @@ fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: b
     let val = sketch::pairs(dems, pairs::Split::Validation, validation, &sketch::WindowChoice::ALL, 0x5EED);
     eprintln!("sketch VAE: {} parameters; {:?}; from step {}; pool and {} validation sketches made in {:.1} s", run.m.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
     let end = run.progress.step + steps;
-    let first = run.progress.step;
-    let mut from = (run.progress.step, run.progress.seconds);
+    let mut rate = StepRate::new(run.progress.step);
     let mut last = None;
     while run.progress.step < end && !budget.spent() {
         run.step(dems)?;
         let p = &run.progress;
-        // Examples/s leaves out the first step (the GPU backend compiles its kernels there).
-        if p.step == first + 1 {
-            from = (p.step, p.seconds);
-        }
+        rate.after_step(p.step, p.seconds);
         if p.step % 10 == 0 || p.step == end {
             eprintln!("step {:6}  reconstruction {:.4} KL {:.5} per pixel {:.2} s/step", p.step, p.l1, p.adv, p.seconds / p.step as f64);
         }
-        if p.step % every == 0 || p.step == end || budget.save_due() || budget.spent() {
+        if p.step % every == 0 || p.step == end || budget.checkpoint_due() {
             let v = sketch_vae::validate(&run.cpu()?, &val);
             eprintln!("validation ({} held-out sketches): bands kept {:.3}, ridge F1 {:.3}, valley F1 {:.3}; variants change {:.3} of the bands", v.sketches, v.band_agreement, v.ridge_f1, v.valley_f1, v.variant_band_change);
             run.save(checkpoint, Some(&v))?;
@@ -1116,7 +1128,7 @@ fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: b
         }
     }
     let p = &run.progress;
-    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "reconstruction": p.l1, "kl": p.adv, "validation": last, "checkpoint": checkpoint, "backend": backend, "examples_per_s": examples_per_s(p.step - from.0, run.cfg.batch, p.seconds - from.1) }));
+    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "reconstruction": p.l1, "kl": p.adv, "validation": last, "checkpoint": checkpoint, "backend": backend, "examples_per_s": rate.examples_per_s(p.step, p.seconds, run.cfg.batch) }));
     Ok(())
 }
 

@@ -130,6 +130,12 @@ impl Budget {
         }
         due
     }
+
+    /// Whether a loop that stops when the budget is spent should save now: a timed
+    /// checkpoint is due, or this is its last step.
+    pub fn checkpoint_due(&mut self) -> bool {
+        self.save_due() || self.spent()
+    }
 }
 
 /// Settings of one training run.

@@ -89,14 +89,16 @@ case "$model" in
     [ -n "${RESUME:-}" ] && init=(--init "$RESUME")
     run tem train-tem --dem-dir "$data" --out "$out/tem" --steps 1000000 --checkpoint-every 0 "${init[@]}" "${common[@]}" "$@" ;;
   bench)
-    # Each trainer for MINUTES on small pools: the examples/s of its summary line.
+    # Each trainer for MINUTES on small pools: the examples/s of its summary line (this
+    # bench's lines only: the log gathers every run into the same $OUT).
     rc=0
+    before=$(wc -l < "$log")
     run bench-tem train-tem --dem-dir "$data" --out "$out/bench/tem" --steps 100000 --checkpoint-every 0 --batch 12 --backend "$backend" --minutes "$minutes" || rc=1
     run bench-tcm train-tcm --dem-dir "$data" --checkpoint "$out/bench/tcm" --steps 100000 --checkpoint-every 100000 --batch 8 --backend "$backend" --minutes "$minutes" || rc=1
     run bench-sketch train-sketch --dem-dir "$data" --checkpoint "$out/bench/sketch" --steps 100000 --checkpoint-every 100000 --batch 8 --crop 256 --pool 32 --validation 4 --loss band-l1 --backend "$backend" --minutes "$minutes" || rc=1
     run bench-vae train-sketch --model vae --dem-dir "$data" --checkpoint "$out/bench/vae" --steps 100000 --checkpoint-every 100000 --batch 8 --crop 256 --pool 32 --validation 4 --backend "$backend" --minutes "$minutes" || rc=1
     rm -rf "$out/bench"
-    grep -h '"examples_per_s"' "$log" | sed 's/^/result: /'
+    tail -n +"$((before + 1))" "$log" | grep -h '"examples_per_s"' | sed 's/^/result: /'
     exit $rc ;;
   *)
     echo "unknown model $model (sketch | vae | tcm | tem | bench)" >&2
