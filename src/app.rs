@@ -17,7 +17,8 @@ use crate::world::sketched::SketchSource;
 use crate::models::tem::LEVELS;
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
 use crate::world::refine::{INPUT_SIDE, PatchKey, PatchStore, RefineJob};
-use crate::world::schedule::{mix64, tile_seed};
+use crate::grid::mix64;
+use crate::grid::schedule::tile_seed;
 use crate::world::{ProceduralSource, SourceKind, TILE_SAMPLES, TILE_SIZE_M, Tile, TileCoord, TileSource, WorldStream};
 
 /// Milliseconds per frame that tile generation may use at least before it waits for the next

@@ -320,7 +320,7 @@ mod tests {
                     if k < 1.0 {
                         continue;
                     }
-                    seed = crate::world::schedule::mix64(seed);
+                    seed = crate::grid::mix64(seed);
                     let phase = (seed >> 11) as f64 / (1u64 << 53) as f64 * std::f64::consts::TAU;
                     let amp = k.powf(beta / 2.0);
                     for y in 0..n {

@@ -17,6 +17,7 @@ pub mod dem;
 #[cfg(not(target_arch = "wasm32"))]
 pub mod enhance;
 pub mod geomorph;
+pub mod grid;
 pub mod jobs;
 pub mod models;
 pub mod render;

@@ -859,7 +859,7 @@ fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) ->
         })
         .collect();
     let side = world_eval::WINDOW_SIDES[1];
-    let real: Vec<terrain::dem::Heightfield> = world_eval::real_windows(&dems, side).into_iter().map(|w| terrain::dem::Heightfield::new(side, side, terrain::world::coord::BASE_SPACING_M, w)).collect();
+    let real: Vec<terrain::dem::Heightfield> = world_eval::real_windows(&dems, side).into_iter().map(|w| terrain::dem::Heightfield::new(side, side, terrain::grid::BASE_SPACING_M, w)).collect();
     seams.insert("real_validation_cut_into_tiles".into(), seam_figures(&real));
     // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.
     let mean_sd = |v: &[f64]| {

@@ -13,6 +13,7 @@
 //! The page's query string (`?tem=gpu|cpu|off`) holds options of this page load, not of the
 //! world: [`PageOptions`].
 
+use crate::models::runtime::TemChoice;
 use crate::world::{NoiseKind, NoiseParams, SourceKind};
 
 /// The link version this page writes.
@@ -248,20 +249,6 @@ impl ShareState {
     }
 }
 
-/// Where the page runs the TEM, from `?tem=`: the adapter decides (`Auto`), or the user asks.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum TemChoice {
-    /// WebGPU on a hardware adapter, the CPU on a software one.
-    #[default]
-    Auto,
-    /// WebGPU even on a software adapter (`?tem=gpu`).
-    Gpu,
-    /// The CPU backend even with WebGPU (`?tem=cpu`).
-    Cpu,
-    /// Learned detail starts switched off (`?tem=off`).
-    Off,
-}
-
 /// Options of one page load, read from the query string (`?tem=…`).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct PageOptions {
@@ -305,7 +292,7 @@ mod tests {
         assert_eq!(example.share_fragment(), Ok(example.to_fragment()));
         let mut noisy = crate::sketch::Sketch::filled(0);
         for p in 0..crate::sketch::SKETCH_PX * crate::sketch::SKETCH_PX {
-            noisy.band[p] = (crate::world::schedule::mix64(p as u64) % 4) as u8;
+            noisy.band[p] = (crate::grid::mix64(p as u64) % 4) as u8;
         }
         let s = ShareState { sketch: Some(crate::sketch::code::encode(&noisy)), ..example };
         let err = s.share_fragment().unwrap_err();

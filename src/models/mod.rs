@@ -21,8 +21,8 @@ pub use burn::tensor::wgpu::{WgpuSetup, wgpu as burn_wgpu};
 /// Short hash (8 hex digits, FNV-1a over the bytes in order) of a model's weight files: names
 /// the weights in share links and the overlay.
 pub fn weights_hash(files: &[&[u8]]) -> String {
-    let h = files.iter().flat_map(|f| f.iter()).fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ *b as u64).wrapping_mul(0x0000_0100_0000_01b3));
-    format!("{:08x}", h >> 32)
+    let h = files.iter().fold(crate::grid::Fnv::default(), |h, f| h.bytes(f));
+    format!("{:08x}", h.0 >> 32)
 }
 
 /// Why a weight file could not be read: the page falls back (procedural world, band
@@ -301,7 +301,7 @@ mod tests {
 #[cfg(all(test, feature = "train"))]
 pub(crate) fn random_weights<M: burn::module::Module>(m: M, device: &Device, seed: u64, amplitude: f32) -> M {
     use burn::module::{ModuleMapper, Param};
-    use crate::world::schedule::mix64;
+    use crate::grid::mix64;
     struct Random(Device, u64, f32);
     impl ModuleMapper for Random {
         fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {

@@ -2,7 +2,19 @@
 //! kernels ([`crate::models::cpu`]), and why. Pure policy, so it is tested natively; the browser shell only reports
 //! what it found (adapter kind, self-check result) and acts on the answer.
 
-use crate::share::TemChoice;
+/// Where the page runs the TEM, from `?tem=`: the adapter decides (`Auto`), or the user asks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TemChoice {
+    /// WebGPU on a hardware adapter, the CPU on a software one.
+    #[default]
+    Auto,
+    /// WebGPU even on a software adapter (`?tem=gpu`).
+    Gpu,
+    /// The CPU backend even with WebGPU (`?tem=cpu`).
+    Cpu,
+    /// Learned detail starts switched off (`?tem=off`).
+    Off,
+}
 
 /// Why the models run on the CPU.
 #[derive(Clone, Debug, PartialEq, Eq)]

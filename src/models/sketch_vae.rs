@@ -18,7 +18,7 @@ use burn::tensor::{Device, Tensor};
 use crate::models::cpu::{self, Conv3, Map, Post};
 use crate::models::tcm::{pool2, up2};
 use crate::sketch::{BANDS, INPUT_CHANNELS, SKETCH_PX, Sketch};
-use crate::world::schedule::mix64;
+use crate::grid::mix64;
 
 /// Side of the code's grid (pixels).
 pub const CODE_PX: usize = 4;

@@ -27,7 +27,8 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
 use crate::models::cpu::{self, Conv3, Map, Post};
-use crate::world::schedule::{PHASES, dependency_offsets, mix64};
+use crate::grid::mix64;
+use crate::grid::schedule::{PHASES, dependency_offsets};
 
 /// Spacing of the TCM's tiles (metres per sample).
 pub const COARSE_SPACING_M: f64 = 128.0;
@@ -58,7 +59,7 @@ pub const WIDTHS: [usize; 5] = [24, 48, 72, 96, 112];
 pub const DECODER_CROP: [usize; 4] = [38, 24, 16, 12];
 
 /// Which of the 3×3 tiles are inputs, for the schedule's phase `p` (0..4, see
-/// [`crate::world::schedule::PHASES`]), in row-major order (dj = −1, 0, 1; di = −1, 0, 1): the
+/// [`crate::grid::schedule::PHASES`]), in row-major order (dj = −1, 0, 1; di = −1, 0, 1): the
 /// schedule's dependencies; the centre is never an input.
 pub fn phase_mask(p: usize) -> [bool; 9] {
     let mut m = [false; 9];

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use crate::dem::{Heightfield, PngScale, dihedral};
 use crate::models::tem::LEVEL_SPACING_M;
-use crate::world::schedule::mix64;
+use crate::grid::mix64;
 
 pub use crate::models::tem::{MARGIN, PATCH, QUAD, WINDOW};
 

@@ -4,7 +4,7 @@
 
 use crate::dem::Heightfield;
 use crate::geomorph::{self, Stats};
-use crate::world::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
+use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
 use crate::world::tile::{Neighbourhood, TileSource, paste};
 
 use super::pairs::{Dem, Split, split_columns};

@@ -270,7 +270,7 @@ mod tests {
     }
 
     fn noise(n: usize, seed: u64) -> Vec<f32> {
-        (0..n * n).map(|p| (crate::world::schedule::mix64(seed ^ p as u64) % 10_000) as f32 * 0.01 + 2000.0).collect()
+        (0..n * n).map(|p| (crate::grid::mix64(seed ^ p as u64) % 10_000) as f32 * 0.01 + 2000.0).collect()
     }
 
     /// White noise (100 m range at 2 km) is full of pits; after the fill every sample drains

@@ -1,6 +1,6 @@
 //! Writing a rectangle of tiles as one heightfield: the CLI's `terrain world`.
 
-use super::coord::{BASE_SPACING_M, TILE_SAMPLES, TILE_SIZE_M, TileCoord};
+use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TILE_SIZE_M, TileCoord};
 use super::stream::WorldStream;
 use super::tile::TileSource;
 use crate::dem::{GeoRef, Heightfield};

@@ -33,10 +33,10 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-use super::coord::{TILE_SAMPLES, TileCoord};
+use crate::grid::coord::{TILE_SAMPLES, TileCoord};
 use super::drainage;
 use super::noise::perlin;
-use super::schedule::{dependencies, tile_seed};
+use crate::grid::schedule::{dependencies, tile_seed};
 use super::seam;
 use super::tile::{Neighbourhood, Tile, TileSource, cut, paste};
 use crate::models::grow::{self, GrowCpu, GrowScratch};
@@ -418,7 +418,7 @@ impl BlockCache {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::world::schedule::mix64;
+    use crate::grid::mix64;
 
     fn random_models() -> Arc<LearnedModels> {
         Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), GrowCpu::randomized(2, 0.05), "test"))

@@ -1,22 +1,20 @@
 //! The infinite world: tile grid, the order-independent tile schedule, tile sources
-//! (procedural now, learned later), streaming with a bounded cache, and the per-tile quadtree
+//! (procedural, learned, sketched), streaming with a bounded cache, and the per-tile quadtree
 //! of level-of-detail nodes. Data flows seed → tile → quadtree node; nothing here knows about
 //! rendering.
 
-pub mod coord;
 pub mod drainage;
 pub mod export;
 pub mod learned;
 pub mod noise;
 pub mod quadtree;
 pub mod refine;
-pub mod schedule;
 pub mod seam;
 pub mod sketched;
 pub mod stream;
 pub mod tile;
 
-pub use coord::{BASE_SPACING_M, TILE_SAMPLES, TILE_SIZE_M, TileCoord};
+pub use crate::grid::{BASE_SPACING_M, TILE_SAMPLES, TILE_SIZE_M, TileCoord};
 pub use noise::{NoiseKind, NoiseParams, ProceduralSource};
 pub use quadtree::{LodView, NodeCache, NodeData, NodeId};
 pub use refine::{PatchKey, PatchStore, RefineJob, RefineStats};

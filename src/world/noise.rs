@@ -4,8 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
-use super::schedule::mix64;
+use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
+use crate::grid::mix64;
 use super::tile::{Neighbourhood, Tile, TileSource};
 
 /// How octaves are combined.

@@ -7,8 +7,9 @@ use std::sync::Arc;
 
 use glam::{DVec3, Mat4, Vec3, Vec4};
 
-use super::coord::{TILE_SAMPLES, TILE_SIZE_M, TileCoord};
-use super::refine::{PatchKey, PatchStore};
+use crate::grid::coord::{TILE_SAMPLES, TILE_SIZE_M, TileCoord};
+use super::refine::{PATCH_MARGIN, PatchKey, PatchStore, STORED_SIDE};
+use crate::models::tem::{LEVELS, PATCH};
 use super::stream::WorldStream;
 
 /// Quads along one side of every node's mesh, at every depth.
@@ -271,7 +272,7 @@ impl NodeCache {
         if *build_budget == 0 {
             return None;
         }
-        let d = if id.depth <= BASE_DATA_DEPTH { NodeData::from_world(id, world)? } else { refine?.node(id, world)? };
+        let d = if id.depth <= BASE_DATA_DEPTH { NodeData::from_world(id, world)? } else { NodeData::from_patches(id, refine?, world)? };
         *build_budget -= 1;
         self.built += 1;
         Some(self.insert(d))
@@ -329,7 +330,7 @@ impl NodeCache {
                 }
                 return;
             }
-            if refining && let (Some(store), Some(key)) = (refine.as_deref_mut(), PatchKey::for_node(kids[0])) {
+            if refining && let (Some(store), Some(key)) = (refine.as_deref_mut(), kids[0].patch()) {
                 store.request(key, distance_to_box(view.eye_m, min, max));
             }
         }
@@ -337,11 +338,77 @@ impl NodeCache {
     }
 }
 
+/// Level-k nodes are this much deeper than the level: a depth-(k + 3) node has the vertex
+/// spacing of level k (16 m at depth 3 … 1 m at depth 7).
+pub const DEPTH_OF_LEVEL_0: u8 = BASE_DATA_DEPTH + 1;
+
+/// Refined nodes: which TEM patch a node reads, and the node built from it.
+impl NodeId {
+    /// The patch whose data a refined node uses, and the level: `None` above the refined
+    /// depths or below the last level.
+    pub fn patch(self) -> Option<PatchKey> {
+        let level = self.depth.checked_sub(DEPTH_OF_LEVEL_0)? as usize;
+        if level >= LEVELS {
+            return None;
+        }
+        let (gx, gz) = self.global();
+        let per_patch = (PATCH / NODE_QUADS) as i64;
+        Some(PatchKey { level: level as u8, x: gx.div_euclid(per_patch), y: gz.div_euclid(per_patch) })
+    }
+
+    /// Global index (x, z) of the node among all nodes of its depth.
+    fn global(self) -> (i64, i64) {
+        let n = 1i64 << self.depth;
+        (self.tile.i as i64 * n + self.x as i64, self.tile.j as i64 * n + self.y as i64)
+    }
+}
+
+impl NodeData {
+    /// Builds refined node `id` (depth 3 … 7) from its patch in `store`: every vertex the mean of
+    /// the four pixels around its corner. `None` if the patch is not stored. Skirts hang 1 m +
+    /// the node's height range + twice its largest edge departure from the 32 m surface below
+    /// the edges, which covers the gap to any coarser neighbour (whose edge lies between the
+    /// 32 m surface and its own refinement).
+    pub fn from_patches(id: NodeId, store: &PatchStore, world: &WorldStream) -> Option<NodeData> {
+        let key = id.patch()?;
+        let patch = store.get(key)?;
+        let (gx, gz) = id.global();
+        let q = NODE_QUADS as i64;
+        let o = 1i64 << key.level; // pixel offset of cell corners: 16 m / spacing
+        let start = (key.x * PATCH as i64 - PATCH_MARGIN as i64, key.y * PATCH as i64 - PATCH_MARGIN as i64);
+        let px = |v: i64, s: i64| (v + o - 1 - s) as usize;
+        let mut heights = Vec::with_capacity(NODE_APRON_GRID * NODE_APRON_GRID);
+        for r in -1..=q + 1 {
+            let y = px(gz * q + r, start.1);
+            for c in -1..=q + 1 {
+                let x = px(gx * q + c, start.0);
+                let a = &patch[y * STORED_SIDE + x..y * STORED_SIDE + x + 2];
+                let b = &patch[(y + 1) * STORED_SIDE + x..(y + 1) * STORED_SIDE + x + 2];
+                heights.push((a[0] + a[1] + b[0] + b[1]) * 0.25);
+            }
+        }
+        let mut d = NodeData::new(id, heights, 0.0);
+        let (x0, z0) = id.origin_m();
+        let s = id.spacing_m();
+        let mut dev = 0f32;
+        for k in 0..=NODE_QUADS as i32 {
+            for (c, r) in [(k, 0), (k, NODE_QUADS as i32), (0, k), (NODE_QUADS as i32, k)] {
+                let base = world.height_at(x0 + c as f64 * s, z0 + r as f64 * s)?;
+                dev = dev.max((d.at(c, r) - base).abs());
+            }
+        }
+        d.skirt_m = 1.0 + (d.max_m - d.min_m) + 2.0 * dev;
+        Some(d)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::world::coord::BASE_SPACING_M;
+    use crate::grid::coord::BASE_SPACING_M;
     use crate::world::noise::ProceduralSource;
+    use crate::world::refine::tests::{run_all, scrambled, world as patch_world};
+    use crate::models::tem::{Exec, TemSet};
 
     fn world() -> WorldStream {
         let mut w = WorldStream::new(11, Box::new(ProceduralSource::default()), 2.0);
@@ -441,5 +508,149 @@ mod tests {
         assert!(!v.frustum.intersects_box(Vec3::new(-1.0, -1.0, 10.0), Vec3::new(1.0, 1.0, 20.0)));
         assert!(!v.frustum.intersects_box(Vec3::new(500.0, -1.0, -20.0), Vec3::new(600.0, 1.0, -10.0)));
         assert!(!v.frustum.intersects_box(Vec3::new(-1.0, -1.0, -70_000.0), Vec3::new(1.0, 1.0, -65_000.0)));
+    }
+
+    #[test]
+    fn refined_nodes_read_the_patch_of_their_level_and_tile() {
+        let node = NodeId { tile: TileCoord::new(-1, 0), depth: 5, x: 31, y: 0 };
+        let p = node.patch().unwrap();
+        assert_eq!((p.level, p.x, p.y), (2, -1, 0));
+        assert_eq!(p.tile(), node.tile);
+        assert!(NodeId { depth: 8, ..node }.patch().is_none());
+        assert!(NodeId { depth: 2, x: 0, ..node }.patch().is_none());
+    }
+
+    /// Two neighbouring refined nodes made from different patches, in either order, share
+    /// their edge exactly; the patches agree where their margins overlap; results do not
+    /// depend on the order patches were made in.
+    #[test]
+    fn neighbouring_patches_and_nodes_agree() {
+        let w = patch_world();
+        let tem = scrambled();
+        // Depth-4 nodes (level 1, 8 m) on both sides of a patch border (4 nodes per patch).
+        let a = NodeId { tile: TileCoord::new(0, 0), depth: 4, x: 3, y: 5 };
+        let b = NodeId { x: 4, ..a };
+        let (ka, kb) = (a.patch().unwrap(), b.patch().unwrap());
+        assert_ne!(ka, kb);
+        let mut s1 = PatchStore::new(0, 0);
+        s1.request(ka, 0.0);
+        s1.request(kb, 1.0);
+        for _ in 0..3 {
+            run_all(&mut s1, &w, &tem);
+            s1.request(ka, 0.0);
+            s1.request(kb, 1.0);
+        }
+        let (na, nb) = (NodeData::from_patches(a, &s1, &w).unwrap(), NodeData::from_patches(b, &s1, &w).unwrap());
+        let mut worst = 0f32;
+        for r in -1..=NODE_QUADS as i32 + 1 {
+            worst = worst.max((na.at(NODE_QUADS as i32, r) - nb.at(0, r)).abs());
+            worst = worst.max((na.at(NODE_QUADS as i32 + 1, r) - nb.at(1, r)).abs());
+        }
+        assert!(worst < 1e-3, "shared edge differs by {worst} m");
+        // The raw patches agree on their overlap (margin of one = core of the other).
+        let (pa, pb) = (s1.get(ka).unwrap(), s1.get(kb).unwrap());
+        let mut overlap = 0f32;
+        for y in 0..STORED_SIDE {
+            for x in 0..2 * PATCH_MARGIN {
+                overlap = overlap.max((pa[y * STORED_SIDE + PATCH + x] - pb[y * STORED_SIDE + x]).abs());
+            }
+        }
+        assert!(overlap < 1e-3, "overlap differs by {overlap} m");
+        // The other order gives the same heights.
+        let mut s2 = PatchStore::new(0, 0);
+        for _ in 0..3 {
+            s2.request(kb, 0.0);
+            run_all(&mut s2, &w, &tem);
+        }
+        s2.request(ka, 0.0);
+        for _ in 0..3 {
+            s2.request(ka, 0.0);
+            run_all(&mut s2, &w, &tem);
+        }
+        let nb2 = NodeData::from_patches(b, &s2, &w).unwrap();
+        let diff = nb.heights.iter().zip(&nb2.heights).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+        assert!(diff < 1e-3, "order changed heights by {diff} m");
+        // And the scrambled models did refine: not plain bicubic of the 32 m surface.
+        let plain = TemSet::untrained(&Exec::cpu());
+        let mut s3 = PatchStore::new(0, 0);
+        for _ in 0..3 {
+            s3.request(kb, 0.0);
+            run_all(&mut s3, &w, &plain);
+        }
+        let nb3 = NodeData::from_patches(b, &s3, &w).unwrap();
+        let moved = nb.heights.iter().zip(&nb3.heights).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+        assert!(moved > 0.01, "the residual must change heights ({moved})");
+    }
+
+    /// An untrained ladder is exact bicubic (zero residual): every vertex of a refined 16 m
+    /// node (apron included) equals the mean of the four bicubic ×2 pixels around its corner,
+    /// computed independently from the 32 m samples with `Heightfield::upsample_bicubic`.
+    #[test]
+    fn untrained_refined_nodes_are_the_bicubic_surface() {
+        let w = patch_world();
+        let tem = TemSet::untrained(&Exec::cpu());
+        let id = NodeId { tile: TileCoord::new(0, 0), depth: 3, x: 5, y: 2 };
+        let mut s = PatchStore::new(0, 0);
+        s.request(id.patch().unwrap(), 0.0);
+        run_all(&mut s, &w, &tem);
+        let d = NodeData::from_patches(id, &s, &w).unwrap();
+        // 32 m samples 70..110 × 22..62 hold the node (samples 80..96 × 32..48) with margin.
+        let (i0, j0, side) = (70i64, 22i64, 40usize);
+        let window: Vec<f32> = (0..side as i64).flat_map(|v| (0..side as i64).map(move |u| (u, v))).map(|(u, v)| w.sample(i0 + u, j0 + v).unwrap()).collect();
+        let up = crate::dem::Heightfield::new(side, side, 32.0, window).upsample_bicubic(2);
+        let (x0, z0) = id.origin_m();
+        let mut worst = 0f32;
+        for r in -1..=NODE_QUADS as i32 + 1 {
+            for c in -1..=NODE_QUADS as i32 + 1 {
+                // The corner at (X, Z) lies between level-0 pixels p − 1 and p, p = X / 16 + 1.
+                let p = ((x0 + 16.0 * c as f64) / 16.0) as i64 + 1 - 2 * i0;
+                let q = ((z0 + 16.0 * r as f64) / 16.0) as i64 + 1 - 2 * j0;
+                let px = |a: i64, b: i64| up.at(a as usize, b as usize);
+                let want = (px(p - 1, q - 1) + px(p, q - 1) + px(p - 1, q) + px(p, q)) * 0.25;
+                worst = worst.max((d.at(c, r) - want).abs());
+            }
+        }
+        assert!(worst < 2e-3, "refined node departs from bicubic by {worst} m");
+        assert!(d.skirt_m >= 1.0 + d.max_m - d.min_m);
+        assert_eq!(s.stats().quads_made, 1);
+    }
+
+    /// A refined node beside coarser neighbours (a refined one a level up and a base one):
+    /// along the shared edge, whichever side is higher hangs a skirt below the other, so no
+    /// crack opens. Measured with scrambled (large-residual) models.
+    #[test]
+    fn skirts_cover_the_gap_to_coarser_neighbours() {
+        let w = patch_world();
+        let tem = scrambled();
+        let fine = NodeId { tile: TileCoord::new(0, 0), depth: 4, x: 3, y: 2 };
+        let mid = NodeId { tile: TileCoord::new(0, 0), depth: 3, x: 2, y: 1 };
+        let mut s = PatchStore::new(0, 0);
+        for _ in 0..3 {
+            s.request(fine.patch().unwrap(), 0.0);
+            s.request(mid.patch().unwrap(), 0.0);
+            run_all(&mut s, &w, &tem);
+        }
+        let f = NodeData::from_patches(fine, &s, &w).unwrap();
+        let coarse_nodes = [NodeData::from_patches(mid, &s, &w).unwrap(), NodeData::from_world(NodeId { tile: TileCoord::new(0, 0), depth: 2, x: 1, y: 0 }, &w).unwrap()];
+        let mut worst_gap = 0f32;
+        for c in &coarse_nodes {
+            let (cx, cz) = c.id.origin_m();
+            let (fx, fz) = f.id.origin_m();
+            assert_eq!(cx, fx + f.id.size_m(), "they share the line x = {cx}");
+            for k in 0..=NODE_QUADS {
+                let z = fz + k as f64 * f.id.spacing_m();
+                let t = (z - cz) / c.id.spacing_m();
+                let (i, fr) = (t.floor() as i32, (t - t.floor()) as f32);
+                let ch = if i >= NODE_QUADS as i32 { c.at(0, i) } else { c.at(0, i) * (1.0 - fr) + c.at(0, i + 1) * fr };
+                let fh = f.at(NODE_QUADS as i32, k as i32);
+                worst_gap = worst_gap.max((fh - ch).abs());
+                if fh > ch {
+                    assert!(fh - f.skirt_m <= ch, "crack vs {:?} at k={k}: fine {fh}, coarse {ch}, skirt {}", c.id, f.skirt_m);
+                } else {
+                    assert!(ch - c.skirt_m <= fh, "crack vs {:?} at k={k}: coarse {ch}, fine {fh}, skirt {}", c.id, c.skirt_m);
+                }
+            }
+        }
+        assert!(worst_gap > 0.05, "the levels must differ for this to mean something ({worst_gap})");
     }
 }

@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use web_time::Instant;
 
-use super::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
-use super::schedule::dependencies;
+use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
+use crate::grid::schedule::dependencies;
 use super::tile::{Neighbourhood, Tile, TileSource};
 
 /// Counters of the streamer, shown in the overlay and read by the tests.
@@ -264,7 +264,7 @@ fn capacity_for(radius_tiles: f64) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::world::coord::TILE_SIZE_M;
+    use crate::grid::coord::TILE_SIZE_M;
     use crate::world::noise::ProceduralSource;
 
     /// A source that really reads its neighbours: its tile is its own noise plus the mean of

@@ -1,7 +1,7 @@
 //! A generated tile and the interface every tile source (procedural noise now, the TCM next)
 //! implements.
 
-use super::coord::{TILE_SAMPLES, TileCoord};
+use crate::grid::coord::{TILE_SAMPLES, TileCoord};
 
 /// Copies the `n`×`n` field `piece` (row-major) into `field` (row-major, `width` samples per
 /// row) with its first sample at column `x0`, row `y0`: how tiles are put side by side.
@@ -43,7 +43,7 @@ impl Tile {
         let (min_m, max_m) = heights
             .iter()
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &h| (lo.min(h), hi.max(h)));
-        let checksum = heights.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, v| (h ^ v.to_bits() as u64).wrapping_mul(0x0000_0100_0000_01b3));
+        let checksum = heights.iter().fold(crate::grid::Fnv::default(), |h, v| h.word(v.to_bits() as u64)).0;
         Self { coord, heights, min_m, max_m, checksum }
     }
 

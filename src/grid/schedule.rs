@@ -8,6 +8,7 @@
 //! are independent of each other and can be generated in one batch.
 
 use super::coord::TileCoord;
+use super::mix64;
 
 /// Generation phase of a tile, determined by the parity of its coordinate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -56,14 +57,6 @@ pub fn tile_seed(seed: u64, c: TileCoord) -> u64 {
     let h = mix64(seed ^ 0x9E37_79B9_7F4A_7C15);
     let h = mix64(h ^ (c.i as u32 as u64));
     mix64(h ^ ((c.j as u32 as u64) << 32))
-}
-
-/// SplitMix64 finaliser: a bijective 64-bit mix.
-pub fn mix64(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
 }
 
 #[cfg(test)]
