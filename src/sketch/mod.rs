@@ -111,6 +111,24 @@ impl Sketch {
         Ok(s)
     }
 
+    /// The sketch as one byte per pixel (row-major): band | ridge << 2 | valley << 3. The
+    /// compact form the worker protocol carries ([`crate::jobs::protocol`]).
+    pub fn packed(&self) -> Vec<u8> {
+        (0..self.band.len()).map(|p| self.band[p].min(3) | (self.ridge[p] as u8) << 2 | (self.valley[p] as u8) << 3).collect()
+    }
+
+    /// Reads [`Sketch::packed`] bytes: exactly [`SKETCH_PX`]² of them, each below 16.
+    pub fn from_packed(bytes: &[u8]) -> Result<Self, SketchError> {
+        let n = SKETCH_PX * SKETCH_PX;
+        if bytes.len() != n {
+            return Err(SketchError::Palette(format!("{} packed pixels for {n}", bytes.len())));
+        }
+        if let Some(p) = bytes.iter().position(|&b| b >= 16) {
+            return Err(SketchError::Palette(format!("packed pixel {p} is {} (at most 15)", bytes[p])));
+        }
+        Ok(Self { band: bytes.iter().map(|b| b & 3).collect(), ridge: bytes.iter().map(|b| b & 4 != 0).collect(), valley: bytes.iter().map(|b| b & 8 != 0).collect() })
+    }
+
     /// The sketch as RGB bytes in the palette (row-major, 3 bytes per pixel).
     pub fn to_rgb(&self) -> Vec<u8> {
         (0..self.band.len()).flat_map(|p| Self::encode_pixel(self.band[p], self.ridge[p], self.valley[p])).collect()

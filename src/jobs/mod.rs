@@ -7,6 +7,11 @@
 //! within a budget of jobs in flight. Every job carries the epoch of the world it was made
 //! for; a new world starts a new epoch, and whatever comes back for an older one is dropped.
 
+#[cfg(not(target_arch = "wasm32"))]
+pub mod native;
+pub mod protocol;
+pub mod runner;
+
 use std::collections::HashMap;
 use std::hash::Hash;
 

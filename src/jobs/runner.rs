@@ -1,0 +1,420 @@
+//! The one procedure that answers every [`Request`] of the protocol on the CPU: the models a
+//! runner keeps (loaded from weight bytes) and what it does with each request. The page's Web
+//! Worker, the main thread when the browser gives no worker, a native thread
+//! ([`super::native`]) and the tests all run this code.
+//!
+//! Learned tiles and TEM batches are answered in pieces ([`Task`]): one network tile, one
+//! ×4 step, one drainage block or one TEM window at a time, so a runner beside a software
+//! rasteriser can rest between pieces ([`Envelope::rest_per_work`]). Every request of a world
+//! carries its epoch: once a newer world's request has arrived, older ones still queued or
+//! half made are dropped with [`Reply::Stale`] instead of being finished for nobody.
+
+use std::sync::Arc;
+
+use super::protocol::{Answer, Envelope, Reply, Request, SketchBytes};
+use crate::grid::TileCoord;
+use crate::models::sketch_vae::SketchModels;
+use crate::models::tem::{Exec, LEVELS, TemSet};
+use crate::models::weights_hash;
+use crate::sketch::{SKETCH_PX, Sketch};
+use crate::world::learned::{LearnedModels, LearnedSource};
+use crate::world::{Neighbourhood, ProceduralSource, TileSource};
+
+/// Most variants one request may ask for.
+pub const MAX_VARIANTS: u32 = 16;
+
+/// The models a runner has loaded, and the newest world epoch it has seen.
+pub struct Runner {
+    tem: Option<TemSet>,
+    world: Option<LearnedSource>,
+    sketch: Option<SketchModels>,
+    epoch: u64,
+    threads: usize,
+}
+
+/// A learned tile or TEM batch being made piece by piece ([`Runner::step`]).
+pub struct Task {
+    /// The request's id.
+    pub id: u32,
+    /// Rest (ms) per ms of work the caller may take between pieces.
+    pub rest_per_work: f64,
+    epoch: u64,
+    work: Work,
+    /// Milliseconds of work so far.
+    ms: f64,
+}
+
+enum Work {
+    Tile { seed: u64, tile: TileCoord },
+    Enhance { level: usize, side: usize, windows: Vec<Vec<f32>>, out: Vec<f32> },
+}
+
+/// How a runner takes a request: answered at once, or a task to make in pieces.
+pub enum Accepted {
+    /// The answer.
+    Now(Answer),
+    /// Call [`Runner::step`] until it answers.
+    Paced(Task),
+}
+
+impl Runner {
+    /// A runner with no models loaded, whose kernels use `threads` threads.
+    pub fn new(threads: usize) -> Self {
+        Self { tem: None, world: None, sketch: None, epoch: 0, threads: threads.max(1) }
+    }
+
+    /// Reads a request from its bytes and takes it; malformed bytes are answered with
+    /// [`Reply::Failed`] (to the id they start with, else 0).
+    pub fn accept_bytes(&mut self, bytes: &[u8]) -> Accepted {
+        match Envelope::decode(bytes) {
+            Ok(env) => self.accept(env),
+            Err((id, e)) => Accepted::Now(Answer { id: id.unwrap_or(0), reply: Reply::Failed(e.to_string()) }),
+        }
+    }
+
+    /// Takes a request: loads and sketch work are answered now; tiles and TEM batches become
+    /// a [`Task`] (a procedural tile is one piece). A world request older than the newest
+    /// seen is answered [`Reply::Stale`].
+    pub fn accept(&mut self, env: Envelope) -> Accepted {
+        let id = env.id;
+        let now = |reply| Accepted::Now(Answer { id, reply });
+        if env.request.of_world() {
+            if env.epoch < self.epoch {
+                return now(Reply::Stale);
+            }
+            self.epoch = env.epoch;
+        }
+        let task = |work| Accepted::Paced(Task { id, rest_per_work: env.rest_per_work.max(0.0), epoch: env.epoch, work, ms: 0.0 });
+        match env.request {
+            Request::Tile { seed, tile, noise: None } => task(Work::Tile { seed, tile }),
+            Request::Enhance { level, n, side, input } => match enhance_windows(level, n, side, input) {
+                Ok(windows) => task(Work::Enhance { level: level as usize, side: side as usize, windows, out: Vec::new() }),
+                Err(e) => now(Reply::Failed(e)),
+            },
+            request => {
+                let (reply, ms) = timed(|| self.answer(request));
+                now(match reply {
+                    Ok(Reply::Heights { heights, .. }) => Reply::Heights { heights, ms },
+                    Ok(Reply::Sketches { sketches, heights, .. }) => Reply::Sketches { sketches, heights, ms },
+                    Ok(r) => r,
+                    Err(e) => Reply::Failed(e),
+                })
+            }
+        }
+    }
+
+    /// Does one piece of `task`: returns its answer once made (or [`Reply::Stale`] when a
+    /// newer world's request arrived meanwhile), and the milliseconds this piece took.
+    pub fn step(&mut self, task: &mut Task) -> (Option<Answer>, f64) {
+        let answer = |reply| Some(Answer { id: task.id, reply });
+        if task.epoch < self.epoch {
+            return (answer(Reply::Stale), 0.0);
+        }
+        let (out, ms) = timed(|| -> Result<Option<Vec<f32>>, String> {
+            match &mut task.work {
+            Work::Tile { seed, tile } => {
+                let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
+                if world.prepare(*seed, *tile) {
+                    return Ok(None);
+                }
+                Ok(Some(world.generate(*seed, *tile, &Neighbourhood::default()).heights))
+            }
+            Work::Enhance { level, side, windows, out } => {
+                let tem = self.tem.as_ref().ok_or("the CPU worker has no TEM loaded".to_string())?;
+                let window = windows.remove(0);
+                out.extend(tem.enhance_blocking(*level, window, 1, *side)?);
+                Ok(windows.is_empty().then(|| std::mem::take(out)))
+            }
+            }
+        });
+        task.ms += ms;
+        let reply = match out {
+            Ok(None) => return (None, ms),
+            Ok(Some(heights)) => Reply::Heights { heights, ms: task.ms },
+            Err(e) => Reply::Failed(e),
+        };
+        (answer(reply), ms)
+    }
+
+    /// Answers a request completely, all pieces at once (the native runner and tests).
+    pub fn handle(&mut self, env: Envelope) -> Answer {
+        match self.accept(env) {
+            Accepted::Now(a) => a,
+            Accepted::Paced(mut task) => loop {
+                if let (Some(a), _) = self.step(&mut task) {
+                    break a;
+                }
+            },
+        }
+    }
+
+    /// The newest world epoch this runner has seen.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+
+    fn answer(&mut self, request: Request) -> Result<Reply, String> {
+        match request {
+            Request::LoadTem { files } => {
+                let hash = weights_hash(&files.iter().map(Vec::as_slice).collect::<Vec<_>>());
+                self.tem = Some(TemSet::from_bytes(files, &Exec::Cpu { threads: self.threads }).map_err(|e| e.to_string())?);
+                Ok(Reply::Loaded { hash })
+            }
+            Request::LoadWorld { tcm, grow } => {
+                let models = LearnedModels::from_bytes(&tcm, &grow).map_err(|e| e.to_string())?;
+                let hash = models.hash.clone();
+                self.world = Some(LearnedSource::new(Arc::new(models), self.threads));
+                Ok(Reply::Loaded { hash })
+            }
+            Request::LoadSketch { generator, vae } => {
+                let models = SketchModels::from_bytes(&generator, &vae).map_err(|e| e.to_string())?;
+                let hash = models.hash.clone();
+                self.sketch = Some(models);
+                Ok(Reply::Loaded { hash })
+            }
+            Request::Tile { seed, tile, noise: Some(noise) } => Ok(Reply::Heights { heights: ProceduralSource::new(noise).generate(seed, tile, &Neighbourhood::default()).heights, ms: 0.0 }),
+            Request::Sketch { sketch: s } => {
+                let s = sketch_of(&s)?;
+                let m = self.sketch.as_ref().ok_or(NO_SKETCH)?;
+                Ok(Reply::Heights { heights: m.generator.generate(&s, &mut Default::default(), self.threads), ms: 0.0 })
+            }
+            Request::Variants { sketch: s, n, seed } => {
+                if !(1..=MAX_VARIANTS).contains(&n) {
+                    return Err(format!("a request asks for 1 to {MAX_VARIANTS} variants, not {n}"));
+                }
+                let s = sketch_of(&s)?;
+                let m = self.sketch.as_ref().ok_or(NO_SKETCH)?;
+                let list = m.vae.variants(&s, n as usize, seed, &mut Default::default(), self.threads);
+                Ok(self.terrains(list))
+            }
+            Request::Blend { a, b, alpha } => {
+                if !(0.0..=1.0).contains(&alpha) {
+                    return Err(format!("a blend's alpha is in 0..1, not {alpha}"));
+                }
+                let (a, b) = (sketch_of(&a)?, sketch_of(&b)?);
+                let m = self.sketch.as_ref().ok_or(NO_SKETCH)?;
+                let s = m.vae.interpolate(&a, &b, alpha, &mut Default::default(), self.threads);
+                Ok(self.terrains(vec![s]))
+            }
+            Request::Tile { .. } | Request::Enhance { .. } => unreachable!("tiles and TEM batches are tasks"),
+        }
+    }
+
+    /// `sketches` with their terrains.
+    fn terrains(&self, sketches: Vec<Sketch>) -> Reply {
+        let g = &self.sketch.as_ref().expect("checked by the caller").generator;
+        let heights = sketches.iter().flat_map(|s| g.generate(s, &mut Default::default(), self.threads)).collect();
+        Reply::Sketches { sketches: sketches.iter().map(SketchBytes::from).collect(), heights, ms: 0.0 }
+    }
+}
+
+/// The sketch of a request, or why its bytes are not one.
+fn sketch_of(s: &SketchBytes) -> Result<Sketch, String> {
+    s.sketch().map_err(|e| format!("the request's sketch is broken ({e})"))
+}
+
+const NO_WORLD: &str = "the CPU worker has no learned world loaded";
+const NO_SKETCH: &str = "the CPU worker has no sketch models loaded";
+
+/// The windows of a TEM request, checked: a level of the ladder, at least one window, and
+/// exactly `n`·`side`² heights.
+fn enhance_windows(level: u8, n: u32, side: u32, input: Vec<f32>) -> Result<Vec<Vec<f32>>, String> {
+    let (n, side) = (n as usize, side as usize);
+    if level as usize >= LEVELS {
+        return Err(format!("no TEM level {level} (there are {LEVELS})"));
+    }
+    if n == 0 || side == 0 || side > 4096 || input.len() != n * side * side {
+        return Err(format!("a TEM request of {n} windows of {side}² needs {} heights, not {}", n * side * side, input.len()));
+    }
+    Ok(input.chunks(side * side).map(<[f32]>::to_vec).collect())
+}
+
+/// `f`'s result and how long it took (milliseconds).
+fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
+    let t0 = web_time::Instant::now();
+    let out = f();
+    (out, t0.elapsed().as_secs_f64() * 1000.0)
+}
+
+/// Terrain made from a sketch is 256² heights; a reply of sketches carries that many per sketch.
+pub const SKETCH_TERRAIN: usize = SKETCH_PX * SKETCH_PX;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::jobs::native::NativeRunner;
+    use crate::models::tem::{PROBE_SIDE, probe_input, weight_file};
+    use crate::world::NoiseParams;
+
+    fn weight(name: &str) -> Vec<u8> {
+        std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(name)).unwrap()
+    }
+
+    fn env(id: u32, epoch: u64, request: Request) -> Envelope {
+        Envelope { id, epoch, rest_per_work: 0.0, request }
+    }
+
+    fn heights(a: Answer) -> Vec<f32> {
+        match a.reply {
+            Reply::Heights { heights, ms } => {
+                assert!(ms >= 0.0);
+                heights
+            }
+            other => panic!("expected heights, got {other:?}"),
+        }
+    }
+
+    fn failed(a: &Answer) -> &str {
+        match &a.reply {
+            Reply::Failed(why) => why,
+            other => panic!("expected an error reply, got {other:?}"),
+        }
+    }
+
+    /// Every request kind, as bytes through the native runner thread, gives bit-identical
+    /// results to calling the models directly: TEM, learned and procedural tiles, a sketch's
+    /// terrain, 2 variants (2 sketches, 2·256² heights) and a blend; the loads answer the
+    /// weights' hashes.
+    #[test]
+    fn every_request_kind_through_the_runner_thread_matches_the_models_called_directly() {
+        let r = NativeRunner::spawn(1);
+        let tem_files: Vec<Vec<u8>> = (0..LEVELS).map(|k| weight(&weight_file(k))).collect();
+        let (tcm, grow) = (weight(crate::world::learned::TCM_FILE), weight(crate::world::learned::GROW_FILE));
+        let (generator, vae) = (weight(crate::models::sketch::WEIGHT_FILE), weight(crate::models::sketch_vae::WEIGHT_FILE));
+        let loads = [
+            Request::LoadTem { files: tem_files.clone() },
+            Request::LoadWorld { tcm: tcm.clone(), grow: grow.clone() },
+            Request::LoadSketch { generator: generator.clone(), vae: vae.clone() },
+        ];
+        let hashes: Vec<String> = loads
+            .into_iter()
+            .enumerate()
+            .map(|(k, l)| match r.call(&env(k as u32 + 1, 0, l)).unwrap() {
+                Answer { id, reply: Reply::Loaded { hash } } if id == k as u32 + 1 => hash,
+                other => panic!("load {k}: {other:?}"),
+            })
+            .collect();
+        let models = LearnedModels::from_bytes(&tcm, &grow).unwrap();
+        assert_eq!(hashes[1], models.hash);
+        let sketch_models = SketchModels::from_bytes(&generator, &vae).unwrap();
+        assert_eq!(hashes[2], sketch_models.hash);
+        assert_eq!(hashes[0].len(), 8);
+
+        let tem = TemSet::from_bytes(tem_files, &Exec::Cpu { threads: 1 }).unwrap();
+        let input = probe_input(1);
+        let want = tem.enhance_blocking(1, input.clone(), 1, PROBE_SIDE).unwrap();
+        let got = heights(r.call(&env(10, 0, Request::Enhance { level: 1, n: 1, side: PROBE_SIDE as u32, input })).unwrap());
+        assert_eq!(got, want);
+
+        let c = TileCoord::new(1, -1);
+        let want = LearnedSource::new(Arc::new(models), 1).generate(42, c, &Neighbourhood::default()).heights;
+        assert_eq!(heights(r.call(&env(11, 0, Request::Tile { seed: 42, tile: c, noise: None })).unwrap()), want);
+        let noise = NoiseParams::default();
+        let want = ProceduralSource::new(noise).generate(7, c, &Neighbourhood::default()).heights;
+        assert_eq!(heights(r.call(&env(12, 0, Request::Tile { seed: 7, tile: c, noise: Some(noise) })).unwrap()), want);
+
+        let (_, sketch) = crate::sketch::examples::all().swap_remove(0);
+        let want = sketch_models.generator.generate(&sketch, &mut Default::default(), 1);
+        assert_eq!(heights(r.call(&env(13, 0, Request::Sketch { sketch: (&sketch).into() })).unwrap()), want);
+        match r.call(&env(14, 0, Request::Variants { sketch: (&sketch).into(), n: 2, seed: 5 })).unwrap().reply {
+            Reply::Sketches { sketches, heights, .. } => {
+                let sketches: Vec<Sketch> = sketches.iter().map(|s| s.sketch().unwrap()).collect();
+                assert_eq!(sketches, sketch_models.vae.variants(&sketch, 2, 5, &mut Default::default(), 1));
+                assert_eq!(heights.len(), 2 * SKETCH_TERRAIN);
+                assert_eq!(&heights[SKETCH_TERRAIN..], &sketch_models.generator.generate(&sketches[1], &mut Default::default(), 1)[..]);
+            }
+            other => panic!("variants: {other:?}"),
+        }
+        let other = Sketch::filled(2);
+        match r.call(&env(15, 0, Request::Blend { a: (&sketch).into(), b: (&other).into(), alpha: 0.25 })).unwrap().reply {
+            Reply::Sketches { sketches, heights, .. } => {
+                assert_eq!(sketches, vec![SketchBytes::from(&sketch_models.vae.interpolate(&sketch, &other, 0.25, &mut Default::default(), 1))]);
+                assert_eq!(heights.len(), SKETCH_TERRAIN);
+            }
+            other => panic!("blend: {other:?}"),
+        }
+    }
+
+    /// Once a request of world epoch 3 has arrived, a queued learned tile of epoch 2 is
+    /// answered Stale at its next piece (unmade), and a later request of epoch 2 at once;
+    /// requests of epoch 3 are made.
+    #[test]
+    fn world_requests_older_than_the_newest_epoch_are_answered_stale() {
+        let mut r = Runner::new(1);
+        let noise = NoiseParams::default();
+        let Accepted::Paced(mut old) = r.accept(env(1, 2, Request::Tile { seed: 1, tile: TileCoord::new(0, 0), noise: None })) else { panic!("a learned tile is a task") };
+        let Accepted::Now(a) = r.accept(env(2, 3, Request::Tile { seed: 1, tile: TileCoord::new(0, 0), noise: Some(noise) })) else { panic!("a procedural tile is answered now") };
+        assert_eq!(heights(a).len(), crate::grid::TILE_SAMPLES.pow(2));
+        assert_eq!(r.epoch(), 3);
+        assert_eq!(r.step(&mut old).0, Some(Answer { id: 1, reply: Reply::Stale }));
+        assert_eq!(r.handle(env(3, 2, Request::Enhance { level: 0, n: 1, side: 4, input: vec![0.0; 16] })), Answer { id: 3, reply: Reply::Stale });
+        // Loads and sketches belong to no world: their epoch is not checked.
+        assert!(!matches!(r.handle(env(4, 0, Request::Sketch { sketch: (&Sketch::filled(1)).into() })).reply, Reply::Stale));
+    }
+
+    /// Bytes that name no request kind (variant 99) get an error reply to their id that says
+    /// the request is malformed.
+    #[test]
+    fn an_unknown_request_kind_gets_an_error_reply_to_its_id() {
+        let mut bytes = env(77, 0, Request::Sketch { sketch: (&Sketch::filled(0)).into() }).encode();
+        // id (1 byte varint), epoch (1 byte), rest (8 bytes), then the variant index.
+        assert_eq!(bytes[10], 5, "Sketch is variant 5");
+        bytes[10] = 99;
+        let Accepted::Now(a) = Runner::new(1).accept_bytes(&bytes) else { panic!() };
+        assert_eq!(a.id, 77);
+        assert!(failed(&a).starts_with("malformed request"), "{a:?}");
+    }
+
+    /// Malformed payloads are error replies that say what is wrong, never a panic: truncated
+    /// bytes, an empty message, a sketch pixel out of range, TEM windows of the wrong size or
+    /// level, 0 variants, a blend α of 2, broken weight bytes, and requests before their
+    /// models are loaded; 2000 random byte strings too.
+    #[test]
+    fn malformed_payloads_get_clear_error_replies_never_a_panic() {
+        let mut r = Runner::new(1);
+        let full = env(9, 0, Request::Sketch { sketch: (&Sketch::filled(0)).into() }).encode();
+        let Accepted::Now(a) = r.accept_bytes(&full[..full.len() / 2]) else { panic!() };
+        assert_eq!(a.id, 9);
+        assert!(failed(&a).contains("malformed request"));
+        let Accepted::Now(a) = r.accept_bytes(&[]) else { panic!() };
+        assert_eq!(a.id, 0);
+        let mut bad_pixel = full.clone();
+        *bad_pixel.last_mut().unwrap() = 200;
+        let a = r.handle(Envelope::decode(&bad_pixel).unwrap());
+        assert!(failed(&a).contains("packed pixel 65535 is 200"), "{a:?}");
+        let cases = [
+            (Request::Enhance { level: 0, n: 2, side: 4, input: vec![0.0; 16] }, "needs 32 heights, not 16"),
+            (Request::Enhance { level: 9, n: 1, side: 4, input: vec![0.0; 16] }, "no TEM level 9"),
+            (Request::Variants { sketch: (&Sketch::filled(0)).into(), n: 0, seed: 1 }, "1 to 16 variants, not 0"),
+            (Request::Blend { a: (&Sketch::filled(0)).into(), b: (&Sketch::filled(1)).into(), alpha: 2.0 }, "not 2"),
+            (Request::LoadWorld { tcm: vec![1, 2, 3], grow: vec![] }, ""),
+            (Request::LoadTem { files: vec![vec![0; 10]; 5] }, ""),
+            (Request::Sketch { sketch: (&Sketch::filled(0)).into() }, "no sketch models loaded"),
+            (Request::Tile { seed: 1, tile: TileCoord::new(0, 0), noise: None }, "no learned world loaded"),
+            (Request::Enhance { level: 0, n: 1, side: 4, input: vec![0.0; 16] }, "no TEM loaded"),
+        ];
+        for (k, (req, says)) in cases.into_iter().enumerate() {
+            let a = r.handle(env(100 + k as u32, 0, req));
+            assert_eq!(a.id, 100 + k as u32);
+            assert!(failed(&a).contains(says) && !failed(&a).is_empty(), "case {k}: {a:?}");
+        }
+        let mut state = 1u64;
+        for len in 0..2000usize {
+            let bytes: Vec<u8> = (0..len % 64).map(|_| {
+                state = crate::grid::mix64(state);
+                state as u8
+            }).collect();
+            if let Accepted::Paced(mut t) = r.accept_bytes(&bytes) {
+                let _ = r.step(&mut t);
+            }
+        }
+    }
+
+    /// A sketch survives the wire: packed and read back it is the same sketch.
+    #[test]
+    fn a_sketch_packed_and_read_back_is_the_same_sketch() {
+        for (_, s) in crate::sketch::examples::all() {
+            assert_eq!(Sketch::from_packed(&s.packed()).unwrap(), s);
+        }
+    }
+}
