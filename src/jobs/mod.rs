@@ -9,6 +9,7 @@
 
 #[cfg(not(target_arch = "wasm32"))]
 pub mod native;
+pub mod gpu;
 pub mod protocol;
 pub mod runner;
 

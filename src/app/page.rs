@@ -1,0 +1,556 @@
+//! The page's core: every load and every piece of work in flight, platform-free. The shell
+//! only carries out what [`PageCore::take_effects`] asks (fetch a URL; post a request to the
+//! CPU worker, the main thread or the GPU) and hands back what came of it with one
+//! [`PageCore::deliver`]. Every request has an id in one table of work in flight that says
+//! what it was for (a file of a model set, a load, a tile, a TEM batch, a sketch, variants, a
+//! blend), so each reply goes one way back into the app, and a runner that dies fails exactly
+//! the requests it held.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use glam::DVec3;
+
+use super::loads::{Load, LoadError, Loads, ModelSet, notice, reason};
+use super::{LearnedStatus, REFINE_BATCH, TerrainApp};
+use crate::grid::TileCoord;
+use crate::jobs::Job;
+use crate::jobs::protocol::{Answer, Envelope, Reply, Request, SketchBytes};
+use crate::models::runtime::{self, Backend, CpuReason, TemChoice};
+use crate::share::ShareState;
+use crate::sketch::{SKETCH_PX, Sketch};
+use crate::world::refine::INPUT_SIDE;
+use crate::world::{PatchKey, SourceKind};
+
+/// Who runs a request.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Target {
+    /// The CPU worker (a Web Worker; natively a thread).
+    Worker,
+    /// The CPU kernels on the main thread (no worker: they block frames, so rationed).
+    MainThread,
+    /// burn on the shared GPU device.
+    Gpu,
+}
+
+/// What the core asks the shell to do.
+#[derive(Debug)]
+pub enum Effect {
+    /// Download `url` and deliver [`Delivery::Fetched`] with `id`.
+    Fetch {
+        /// The request's id.
+        id: u32,
+        /// The URL (relative to the page).
+        url: String,
+    },
+    /// Hand `envelope` to `target` and deliver its [`Answer`].
+    Post {
+        /// Who runs it.
+        target: Target,
+        /// The request.
+        envelope: Envelope,
+    },
+}
+
+/// What comes back to the core.
+#[derive(Debug)]
+pub enum Delivery {
+    /// The bytes of a fetch, or why it failed.
+    Fetched {
+        /// The fetch's id.
+        id: u32,
+        /// The body or the reason.
+        bytes: Result<Vec<u8>, String>,
+    },
+    /// A runner's answer.
+    Answer(Answer),
+    /// The CPU worker could not take request `id` because it is gone (why): every request it
+    /// held fails, and its work moves to the fallbacks.
+    WorkerGone {
+        /// The request it could not answer.
+        id: u32,
+        /// The browser's reason.
+        why: String,
+    },
+}
+
+/// What a request in flight is for.
+#[derive(Debug)]
+enum For {
+    File { set: ModelSet, index: usize },
+    Load { set: ModelSet, target: Target },
+    Tile(Job<TileCoord>),
+    Tem { epoch: u64, keys: Vec<PatchKey> },
+    Sketch(Job<u64>, Target),
+    Variants,
+    Blend,
+}
+
+/// What the shell found when the page started.
+#[derive(Clone, Debug)]
+pub struct PageStart {
+    /// Where the user wants the TEM (`?tem=`).
+    pub tem: TemChoice,
+    /// The GPU's self-check: passed, or why burn cannot use it.
+    pub gpu: Result<(), String>,
+    /// Whether the WebGPU adapter is a software rasteriser.
+    pub software_adapter: bool,
+    /// The CPU worker started, or why not.
+    pub worker: Result<(), String>,
+    /// The overlay's line about the GPU runtime (the self-check's result).
+    pub status: String,
+}
+
+/// Ids are unique in the whole page, across restarts of the core after a lost device, so a
+/// late reply for an old core never matches a new request.
+static NEXT_ID: AtomicU32 = AtomicU32::new(1);
+
+fn next_id() -> u32 {
+    NEXT_ID.fetch_add(1, Ordering::Relaxed).max(1)
+}
+
+/// The page's core (see the module documentation).
+pub struct PageCore {
+    /// The world, camera and sketch canvas.
+    pub app: TerrainApp,
+    /// The model loads.
+    pub loads: Loads,
+    /// A message for the user (dismissable), if any.
+    pub message: Option<String>,
+    /// The overlay's line about the GPU runtime.
+    pub status: String,
+    /// Learned detail is switched on (the overlay's switch; off with `?tem=off`).
+    pub refine_on: bool,
+    /// Variants that came back, for the sketch panel to take.
+    pub variants: Option<Vec<(Sketch, Vec<f32>)>>,
+    /// Blends that came back and were drawn.
+    pub blends: u32,
+    /// Notes for the browser console (a GPU path that fell back to the CPU).
+    pub console: Vec<String>,
+    effects: Vec<Effect>,
+    waiting: HashMap<u32, For>,
+    files: HashMap<ModelSet, Vec<Option<Vec<u8>>>>,
+    tem: Backend,
+    tem_target: Target,
+    sketch_on_gpu: bool,
+    worker: Result<(), String>,
+    software_adapter: bool,
+    complete_epoch: Option<u64>,
+    rest_per_work: f64,
+    last_eye: Option<(DVec3, f64)>,
+    last_main_quad_ms: f64,
+    pending_blend: Option<(Sketch, Sketch, f32)>,
+}
+
+impl PageCore {
+    /// The core of a page showing `share`, with what the shell found; asks at once for the
+    /// learned world's and the TEM's weights (the sketch models when the sketch world is first
+    /// shown).
+    pub fn new(share: ShareState, start: PageStart) -> Self {
+        let tem = runtime::choose(start.tem, start.gpu.clone(), start.software_adapter);
+        let tem_target = match (&tem, &start.worker) {
+            (Backend::Gpu, _) => Target::Gpu,
+            (_, Ok(())) => Target::Worker,
+            (_, Err(_)) => Target::MainThread,
+        };
+        let status = match &tem {
+            Backend::Cpu(CpuReason::NoGpuCompute(e)) => format!("{e}; the TEM runs on the CPU"),
+            _ => start.status,
+        };
+        let mut core = Self {
+            app: TerrainApp::new(share),
+            loads: Loads::default(),
+            message: None,
+            status,
+            refine_on: start.tem != TemChoice::Off,
+            variants: None,
+            blends: 0,
+            console: Vec::new(),
+            effects: Vec::new(),
+            waiting: HashMap::new(),
+            files: HashMap::new(),
+            tem,
+            tem_target,
+            sketch_on_gpu: false,
+            worker: start.worker,
+            software_adapter: start.software_adapter,
+            complete_epoch: None,
+            rest_per_work: 0.0,
+            last_eye: None,
+            last_main_quad_ms: f64::NEG_INFINITY,
+            pending_blend: None,
+        };
+        if let Err(why) = core.worker.clone() {
+            core.fail(ModelSet::World, &LoadError::NoWorker(why));
+        } else {
+            core.fetch(ModelSet::World);
+        }
+        core.fetch(ModelSet::Tem);
+        core
+    }
+
+    /// What the shell is to do now (oldest first).
+    pub fn take_effects(&mut self) -> Vec<Effect> {
+        std::mem::take(&mut self.effects)
+    }
+
+    /// Requests in flight now.
+    pub fn in_flight(&self) -> usize {
+        self.waiting.len()
+    }
+
+    /// Where the TEM runs (the overlay's name, e.g. "WebGPU", "CPU (software WebGPU adapter)").
+    pub fn tem_backend(&self) -> String {
+        match self.tem_target {
+            Target::MainThread => format!("{} on the main thread", self.tem.label()),
+            _ => self.tem.label(),
+        }
+    }
+
+    /// Who runs the TEM.
+    pub fn tem_target(&self) -> Target {
+        self.tem_target
+    }
+
+    /// Where strokes become terrain ("WebGPU" or "CPU worker").
+    pub fn sketch_backend(&self) -> &'static str {
+        if self.sketch_on_gpu { "WebGPU" } else { "CPU worker" }
+    }
+
+    /// The CPU worker's rest per ms of work in the last frame
+    /// ([`runtime::worker_rest_per_work`]).
+    pub fn rest_per_work(&self) -> f64 {
+        self.rest_per_work
+    }
+
+    /// The worker is up (or why not).
+    pub fn worker(&self) -> &Result<(), String> {
+        &self.worker
+    }
+
+    fn fetch(&mut self, set: ModelSet) {
+        let files = set.files();
+        *self.loads.get_mut(set) = Load::Fetching { done: 0, total: files.len() };
+        self.files.insert(set, vec![None; files.len()]);
+        for (index, f) in files.into_iter().enumerate() {
+            let id = next_id();
+            self.waiting.insert(id, For::File { set, index });
+            self.effects.push(Effect::Fetch { id, url: format!("weights/{f}") });
+        }
+    }
+
+    fn post(&mut self, target: Target, epoch: u64, request: Request, what: For) {
+        let id = next_id();
+        let rest_per_work = if target == Target::Worker { self.rest_per_work } else { 0.0 };
+        self.waiting.insert(id, what);
+        self.effects.push(Effect::Post { target, envelope: Envelope { id, epoch, rest_per_work, request } });
+    }
+
+    fn fail(&mut self, set: ModelSet, e: &LoadError) {
+        let why = reason(set, e);
+        *self.loads.get_mut(set) = Load::Failed(why.clone());
+        self.files.remove(&set);
+        match set {
+            ModelSet::World => {
+                self.app.set_learned(LearnedStatus::Failed(why.clone()));
+            }
+            ModelSet::Sketch => self.app.set_sketch_models(LearnedStatus::Failed(why.clone())),
+            ModelSet::Tem => self.app.set_refinement(None),
+        }
+        if let Some(m) = notice(set, &why) {
+            self.message = Some(m);
+        }
+    }
+
+    fn ready(&mut self, set: ModelSet, hash: String) {
+        let backend = match set {
+            ModelSet::Tem => self.tem_backend(),
+            ModelSet::World => "CPU worker".into(),
+            ModelSet::Sketch => self.sketch_backend().into(),
+        };
+        *self.loads.get_mut(set) = Load::Ready { hash: hash.clone(), backend };
+        match set {
+            ModelSet::World => {
+                if let Some(note) = self.app.set_learned(LearnedStatus::Ready { hash }) {
+                    self.message = Some(note);
+                }
+            }
+            ModelSet::Sketch => self.app.set_sketch_models(LearnedStatus::Ready { hash }),
+            ModelSet::Tem => {}
+        }
+    }
+
+    /// A file of `set` arrived: once all have, the set goes to its runner(s).
+    fn file_arrived(&mut self, set: ModelSet, index: usize, bytes: Vec<u8>) {
+        let Some(slots) = self.files.get_mut(&set) else { return };
+        slots[index] = Some(bytes);
+        let done = slots.iter().filter(|s| s.is_some()).count();
+        let total = slots.len();
+        if done < total {
+            *self.loads.get_mut(set) = Load::Fetching { done, total };
+            return;
+        }
+        let mut files: Vec<Vec<u8>> = self.files.remove(&set).unwrap_or_default().into_iter().flatten().collect();
+        *self.loads.get_mut(set) = Load::Loading;
+        match set {
+            ModelSet::Tem => self.post(self.tem_target, 0, Request::LoadTem { files }, For::Load { set, target: self.tem_target }),
+            ModelSet::World => {
+                let (grow, tcm) = (files.pop().unwrap_or_default(), files.pop().unwrap_or_default());
+                self.post(Target::Worker, 0, Request::LoadWorld { tcm, grow }, For::Load { set, target: Target::Worker });
+            }
+            ModelSet::Sketch => {
+                let (vae, generator) = (files.pop().unwrap_or_default(), files.pop().unwrap_or_default());
+                if self.tem_target == Target::Gpu {
+                    // The generator on the GPU too: strokes are made there when it loads.
+                    let request = Request::LoadSketch { generator: generator.clone(), vae: vae.clone() };
+                    self.post(Target::Gpu, 0, request, For::Load { set, target: Target::Gpu });
+                }
+                self.post(Target::Worker, 0, Request::LoadSketch { generator, vae }, For::Load { set, target: Target::Worker });
+            }
+        }
+    }
+
+    /// Takes back what came of an effect.
+    pub fn deliver(&mut self, d: Delivery) {
+        match d {
+            Delivery::Fetched { id, bytes } => match (self.waiting.remove(&id), bytes) {
+                (Some(For::File { set, index }), Ok(b)) => self.file_arrived(set, index, b),
+                (Some(For::File { set, .. }), Err(e)) if !self.loads.get(set).is_settled() => self.fail(set, &LoadError::Fetch(e)),
+                _ => {}
+            },
+            Delivery::Answer(a) => {
+                if let Some(what) = self.waiting.remove(&a.id) {
+                    self.answered(what, a.reply);
+                }
+            }
+            Delivery::WorkerGone { id, why } => {
+                self.worker_gone(&why);
+                if let Some(what) = self.waiting.remove(&id) {
+                    self.answered(what, Reply::Failed(format!("the CPU worker stopped ({why})")));
+                }
+            }
+        }
+    }
+
+    /// The CPU worker is gone: the learned world and the sketch models fall back, a TEM on it
+    /// stops, and procedural tiles are made on the main thread again.
+    fn worker_gone(&mut self, why: &str) {
+        if self.worker.is_err() {
+            return;
+        }
+        self.worker = Err(why.to_string());
+        let stopped = LoadError::WorkerStopped(why.to_string());
+        if !matches!(self.loads.world, Load::Failed(_)) {
+            self.fail(ModelSet::World, &stopped);
+        }
+        if self.tem_target == Target::Worker && !matches!(self.loads.tem, Load::Failed(_)) {
+            self.fail(ModelSet::Tem, &stopped);
+        }
+        if self.loads.sketch != Load::Idle && !matches!(self.loads.sketch, Load::Failed(_)) {
+            self.fail(ModelSet::Sketch, &stopped);
+        }
+        self.app.set_procedural_elsewhere(false);
+    }
+
+    fn answered(&mut self, what: For, reply: Reply) {
+        let failed = |r: &Reply| match r {
+            Reply::Failed(e) => Some(e.clone()),
+            _ => None,
+        };
+        match (what, reply) {
+            (For::Load { set, target }, Reply::Loaded { hash }) => {
+                if set == ModelSet::Sketch && target == Target::Gpu {
+                    self.sketch_on_gpu = true;
+                    if let Load::Ready { backend, .. } = &mut self.loads.sketch {
+                        *backend = "WebGPU".into();
+                    }
+                } else {
+                    self.ready(set, hash);
+                }
+            }
+            (For::Load { set: ModelSet::Sketch, target: Target::Gpu }, r) => {
+                self.console.push(format!("the sketch generator could not run on the GPU ({}); strokes go to the CPU worker", failed(&r).unwrap_or_default()));
+            }
+            (For::Load { set, .. }, _) if matches!(self.loads.get(set), Load::Failed(_)) => {}
+            (For::Load { set, target }, r) => {
+                let e = failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"));
+                let err = match (set, target) {
+                    (ModelSet::Tem, Target::Gpu) if !e.contains(".bpk") => LoadError::Run { backend: self.tem_backend(), why: e },
+                    _ => LoadError::Broken(e),
+                };
+                self.fail(set, &err);
+            }
+            (For::Tile(job), Reply::Heights { heights, ms }) => {
+                self.app.tile_done(&job, heights, ms);
+            }
+            (For::Tile(job), Reply::Stale) => self.app.tile_failed(&job),
+            (For::Tile(job), r) => {
+                self.app.tile_failed(&job);
+                let e = failed(&r).unwrap_or_default();
+                if self.app.source() == SourceKind::Learned {
+                    self.fail(ModelSet::World, &LoadError::Failed(format!("making tile {}, {} failed ({e})", job.key.i, job.key.j)));
+                }
+            }
+            (For::Tem { epoch, keys }, Reply::Heights { heights, ms }) => self.app.refine_done(epoch, &keys, &heights, ms),
+            (For::Tem { epoch, keys }, Reply::Stale) => self.app.refine_failed(epoch, &keys),
+            (For::Tem { epoch, keys }, r) => {
+                self.app.refine_failed(epoch, &keys);
+                self.message = Some(format!("TEM inference failed: {}", failed(&r).unwrap_or_default()));
+            }
+            (For::Sketch(job, _), Reply::Heights { heights, ms }) if heights.len() == SKETCH_PX * SKETCH_PX => {
+                self.app.sketch_done(&job, heights, ms);
+            }
+            (For::Sketch(job, Target::Gpu), r) => {
+                // The GPU failed: this stroke and the next ones go to the worker.
+                self.console.push(format!("the sketch generator failed on the GPU ({}); strokes go to the CPU worker", failed(&r).unwrap_or_default()));
+                self.sketch_on_gpu = false;
+                self.app.sketch_failed(&job);
+            }
+            (For::Sketch(job, _), r) => {
+                self.app.sketch_failed(&job);
+                self.message = Some(format!("The sketch could not be made into terrain: {}", failed(&r).unwrap_or_else(|| "a reply of the wrong size".into())));
+            }
+            (For::Variants, Reply::Sketches { sketches, heights, .. }) => match pair_up(&sketches, heights) {
+                Ok(v) => self.variants = Some(v),
+                Err(e) => self.message = Some(format!("No variants: {e}")),
+            },
+            (For::Variants, r) => self.message = Some(format!("No variants: {}", failed(&r).unwrap_or_default())),
+            (For::Blend, Reply::Sketches { sketches, heights, .. }) => match pair_up(&sketches, heights).map(|mut v| v.pop()) {
+                Ok(Some((s, _))) => {
+                    self.blends += 1;
+                    self.app.canvas.load(s);
+                }
+                Ok(None) => self.message = Some("No blend: the reply has no sketch".into()),
+                Err(e) => self.message = Some(format!("No blend: {e}")),
+            },
+            (For::Blend, r) => self.message = Some(format!("No blend: {}", failed(&r).unwrap_or_default())),
+            (For::File { .. }, _) => {}
+        }
+    }
+
+    /// Variants or a blend are being made.
+    pub fn sketch_busy(&self) -> bool {
+        self.waiting.values().any(|w| matches!(w, For::Variants | For::Blend))
+    }
+
+    /// Asks for four variants of the canvas's sketch (the VAE, in the CPU worker).
+    pub fn ask_variants(&mut self) {
+        if !self.loads.sketch.is_ready() || self.worker.is_err() {
+            self.message = Some("Variants need the sketch models, which are not ready.".into());
+            return;
+        }
+        let sketch = SketchBytes::from(self.app.canvas.sketch());
+        let seed = self.app.stats().sketch_revision;
+        self.post(Target::Worker, 0, Request::Variants { sketch, n: 4, seed }, For::Variants);
+    }
+
+    /// Asks for the blend α·a + (1 − α)·b; while another is being made the latest asked wins.
+    pub fn ask_blend(&mut self, a: Sketch, b: Sketch, alpha: f32) {
+        self.pending_blend = Some((a, b, alpha));
+    }
+
+    /// Starts the work this frame asks for: learned or procedural tiles in the CPU worker, a
+    /// TEM batch, the sketch models once the sketch world is shown, the newest sketch, a
+    /// pending blend. `now_ms` is the page's clock.
+    pub fn start_work(&mut self, now_ms: f64) {
+        if self.app.stats().tiles_pending == 0 {
+            self.complete_epoch = Some(self.app.epoch());
+        }
+        self.rest_per_work = runtime::worker_rest_per_work(self.software_adapter, self.complete_epoch == Some(self.app.epoch()));
+        self.start_tiles();
+        self.start_refinement(now_ms);
+        self.start_sketch();
+    }
+
+    fn start_tiles(&mut self) {
+        if self.worker.is_err() {
+            return;
+        }
+        self.app.set_procedural_elsewhere(true);
+        let seed = self.app.settings().seed;
+        let noise = (self.app.source() == SourceKind::Procedural).then(|| self.app.settings().noise);
+        for job in self.app.tile_jobs() {
+            self.post(Target::Worker, job.epoch, Request::Tile { seed, tile: job.key, noise }, For::Tile(job));
+        }
+    }
+
+    fn start_refinement(&mut self, now: f64) {
+        let want = (self.refine_on && self.loads.tem.is_ready()).then(|| self.tem_backend());
+        if self.app.stats().refine_backend != want.clone().unwrap_or_default() {
+            self.app.set_refinement(want.clone());
+        }
+        if want.is_none() || self.waiting.values().any(|w| matches!(w, For::Tem { .. })) {
+            return;
+        }
+        // On the main thread the CPU path blocks the page while it runs (tens of ms a quad in
+        // wasm): one quad at a time, at most one a second, and only while the camera is slow
+        // (< 60 m/s), so flights stay smooth and detail fills in where the user looks. The GPU
+        // and the worker take whole batches.
+        let eye = self.app.camera.position_m;
+        let speed = self.last_eye.map_or(0.0, |(p, t)| (eye - p).length() / ((now - t) / 1000.0).max(1e-3));
+        self.last_eye = Some((eye, now));
+        let blocking = self.tem_target == Target::MainThread;
+        if blocking && (now - self.last_main_quad_ms < 1000.0 || speed > 60.0) {
+            return;
+        }
+        let jobs = self.app.refine_jobs(if blocking { 1 } else { REFINE_BATCH });
+        let Some(first) = jobs.first() else { return };
+        if blocking {
+            self.last_main_quad_ms = now;
+        }
+        let (level, epoch, n) = (first.key.level, first.epoch, jobs.len() as u32);
+        let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
+        let input = jobs.into_iter().flat_map(|j| j.input).collect();
+        self.post(self.tem_target, epoch, Request::Enhance { level, n, side: INPUT_SIDE as u32, input }, For::Tem { epoch, keys });
+    }
+
+    fn start_sketch(&mut self) {
+        if self.app.source() != SourceKind::Sketch {
+            return;
+        }
+        if self.loads.sketch == Load::Idle {
+            match self.worker.clone() {
+                Ok(()) => self.fetch(ModelSet::Sketch),
+                Err(_) => {
+                    self.loads.sketch = Load::Failed("no CPU worker".into());
+                    self.app.set_sketch_models(LearnedStatus::Failed("no CPU worker".into()));
+                    self.message = Some("The sketch generator needs a Web Worker: showing the band interpolation instead.".into());
+                }
+            }
+        }
+        if !self.sketch_busy()
+            && let Some((a, b, alpha)) = self.pending_blend.take()
+        {
+            self.post(Target::Worker, 0, Request::Blend { a: (&a).into(), b: (&b).into(), alpha }, For::Blend);
+        }
+        self.start_sketch_jobs();
+    }
+
+    /// Sends the canvas's newest sketch to the generator (the GPU, else the CPU worker) if it
+    /// has no terrain yet and none is being made. The shell calls it again right after the
+    /// sketch panel, so a stroke goes out in the frame that drew it.
+    pub fn start_sketch_jobs(&mut self) {
+        if self.worker.is_err() && !self.sketch_on_gpu {
+            // The band interpolation is made here by the app (no jobs to send).
+            let _ = self.app.sketch_jobs();
+            return;
+        }
+        let target = if self.sketch_on_gpu { Target::Gpu } else { Target::Worker };
+        for (job, sketch) in self.app.sketch_jobs() {
+            self.post(target, 0, Request::Sketch { sketch: (&sketch).into() }, For::Sketch(job, target));
+        }
+    }
+}
+
+/// Sketches and their terrains (256² heights each, concatenated) as pairs.
+fn pair_up(sketches: &[SketchBytes], heights: Vec<f32>) -> Result<Vec<(Sketch, Vec<f32>)>, String> {
+    let n = SKETCH_PX * SKETCH_PX;
+    if heights.len() != sketches.len() * n {
+        return Err("the reply has the wrong number of heights".into());
+    }
+    sketches.iter().zip(heights.chunks(n)).map(|(s, h)| Ok((s.sketch().map_err(|e| e.to_string())?, h.to_vec()))).collect()
+}
+
+#[cfg(test)]
+#[path = "page_tests.rs"]
+mod tests;

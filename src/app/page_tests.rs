@@ -1,0 +1,174 @@
+//! The page's core driven natively, as the browser shell drives it: effects carried out
+//! (files read from `weights/`, requests answered by the same [`Runner`] the Web Worker
+//! runs), deliveries handed back.
+
+use super::*;
+use crate::jobs::runner::Runner;
+use crate::render::camera::ControlInput;
+use crate::world::learned::{GROW_FILE, LearnedModels, LearnedSource, TCM_FILE};
+use crate::world::{Neighbourhood, TileSource};
+
+fn weights() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights")
+}
+
+fn start(worker: Result<(), String>) -> PageStart {
+    PageStart { tem: TemChoice::Auto, gpu: Err("no GPU in this test".into()), software_adapter: false, worker, status: String::new() }
+}
+
+/// A shell: files from `weights/` (or `swap`'s answer for a file name), requests to `runner`.
+struct Shell<'a> {
+    runner: Runner,
+    swap: &'a dyn Fn(&str) -> Option<Result<Vec<u8>, String>>,
+    posted: Vec<(Target, &'static str)>,
+}
+
+impl Shell<'_> {
+    /// Carries out the core's effects, and those their deliveries cause, until none is left.
+    fn carry_out(&mut self, core: &mut PageCore) {
+        loop {
+            let effects = core.take_effects();
+            if effects.is_empty() {
+                return;
+            }
+            self.carry_out_once(core, effects);
+        }
+    }
+
+    fn carry_out_once(&mut self, core: &mut PageCore, effects: Vec<Effect>) {
+        for e in effects {
+            match e {
+                Effect::Fetch { id, url } => {
+                    let name = url.trim_start_matches("weights/");
+                    let bytes = (self.swap)(name).unwrap_or_else(|| std::fs::read(weights().join(name)).map_err(|e| format!("{url}: {e}")));
+                    core.deliver(Delivery::Fetched { id, bytes });
+                }
+                Effect::Post { target, envelope } => {
+                    assert_ne!(target, Target::Gpu, "no GPU here");
+                    self.posted.push((target, envelope.request.kind()));
+                    let answer = self.runner.handle(envelope);
+                    core.deliver(Delivery::Answer(answer));
+                }
+            }
+        }
+    }
+
+    /// `frames` frames of 16 ms at the default view, carrying out each frame's effects.
+    fn frames(&mut self, core: &mut PageCore, frames: usize) {
+        for f in 0..frames {
+            core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
+            core.start_work(f as f64 * 16.0);
+            self.carry_out(core);
+        }
+    }
+}
+
+fn no_swap(_: &str) -> Option<Result<Vec<u8>, String>> {
+    None
+}
+
+/// Started with a worker and no GPU, the core fetches both model sets, loads them into the
+/// runner, says where each runs ("CPU (no WebGPU compute)" for the TEM), and then makes the
+/// learned world's tiles there: bit-identical to the learned source called directly, and
+/// learned detail refines (quads made).
+#[test]
+fn with_a_worker_the_core_loads_both_sets_and_makes_tiles_and_detail_through_effects_alone() {
+    let mut core = PageCore::new(ShareState { position_m: [2048.0, 900.0, 2048.0], pitch: -0.6, ..ShareState::default() }, start(Ok(())));
+    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    shell.frames(&mut core, 1);
+    let models = LearnedModels::from_bytes(&std::fs::read(weights().join(TCM_FILE)).unwrap(), &std::fs::read(weights().join(GROW_FILE)).unwrap()).unwrap();
+    assert_eq!(core.loads.world, Load::Ready { hash: models.hash.clone(), backend: "CPU worker".into() });
+    assert!(matches!(&core.loads.tem, Load::Ready { backend, .. } if backend == "CPU (no WebGPU compute)"), "{:?}", core.loads.tem);
+    assert!(core.status.ends_with("the TEM runs on the CPU"));
+    shell.frames(&mut core, 60);
+    assert!(core.app.stats().tiles_generated >= 4, "{:?}", core.app.stats());
+    assert!(core.app.stats().quads_made >= 1, "no learned detail: {:?}", core.app.stats());
+    let c = crate::grid::TileCoord::new(0, 0);
+    let want = LearnedSource::new(std::sync::Arc::new(models), 1).generate(core.app.settings().seed, c, &Neighbourhood::default()).heights;
+    assert_eq!(core.app.tile_heights(c).unwrap(), &want[..]);
+    assert!(shell.posted.iter().all(|(t, _)| *t == Target::Worker));
+    assert!(shell.posted.iter().any(|(_, k)| *k == "enhance") && shell.posted.iter().any(|(_, k)| *k == "tile"));
+    assert_eq!(core.message, None);
+}
+
+/// A TEM file that is not a burnpack fails the TEM with a reason naming the file and
+/// "showing the 32 m world" (no message box: the overlay shows it), and a learned-world file
+/// that cannot be downloaded fails the learned world with the message that the procedural
+/// world stands in, which the app then shows.
+#[test]
+fn broken_and_missing_weight_files_fail_their_set_with_the_fallback_said() {
+    let swap = |name: &str| match name {
+        "tem_2_4m.bpk" => Some(Ok(b"this is not a burnpack file".to_vec())),
+        n if n == GROW_FILE => Some(Err("weights/grow_32m.bpk: HTTP 404".into())),
+        _ => None,
+    };
+    let mut core = PageCore::new(ShareState::default(), start(Ok(())));
+    let mut shell = Shell { runner: Runner::new(1), swap: &swap, posted: Vec::new() };
+    shell.frames(&mut core, 2);
+    let Load::Failed(tem) = &core.loads.tem else { panic!("{:?}", core.loads.tem) };
+    assert!(tem.contains("tem_2_4m.bpk") && tem.starts_with("TEM weights are broken") && tem.ends_with("showing the 32 m world"), "{tem}");
+    assert_eq!(core.message.as_deref(), Some("The learned world is not available: its weights could not be loaded (weights/grow_32m.bpk: HTTP 404). Showing the procedural world."));
+    assert_eq!(core.app.source(), SourceKind::Procedural);
+    assert_eq!(core.app.stats().refine_backend, "");
+}
+
+/// A worker that dies with requests in flight: those requests fail, the learned world falls
+/// back to the procedural one (made on the main thread again) with a message, and the TEM on
+/// the worker stops; nothing stays in flight.
+#[test]
+fn a_dead_worker_fails_what_it_held_and_its_work_falls_back() {
+    let mut core = PageCore::new(ShareState::default(), start(Ok(())));
+    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    shell.frames(&mut core, 1);
+    core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
+    core.start_work(100.0);
+    let held: Vec<u32> = core.take_effects().into_iter().filter_map(|e| if let Effect::Post { envelope, .. } = e { Some(envelope.id) } else { None }).collect();
+    assert!(!held.is_empty());
+    for id in held {
+        core.deliver(Delivery::WorkerGone { id, why: "out of memory".into() });
+    }
+    assert_eq!(core.in_flight(), 0);
+    assert_eq!(core.app.source(), SourceKind::Procedural);
+    assert!(core.message.as_deref().unwrap_or("").contains("the CPU worker stopped (out of memory)"), "{:?}", core.message);
+    assert!(matches!(&core.loads.tem, Load::Failed(w) if w.starts_with("The CPU worker stopped")));
+    let before = shell.posted.len();
+    shell.frames(&mut core, 3);
+    assert_eq!(shell.posted.len(), before, "nothing more goes to a dead worker: {:?}", &shell.posted[before..]);
+    assert!(core.app.stats().tiles_generated > 0, "procedural tiles are made here");
+}
+
+/// Without a worker, the learned world says it needs one and the procedural world stands in;
+/// the TEM runs on the main thread (one quad at a time).
+#[test]
+fn without_a_worker_the_world_is_procedural_and_the_tem_runs_on_the_main_thread() {
+    let mut core = PageCore::new(ShareState { position_m: [2048.0, 900.0, 2048.0], pitch: -0.6, ..ShareState::default() }, start(Err("blocked".into())));
+    assert_eq!(core.message.as_deref(), Some("The learned world is not available: it needs a Web Worker (blocked). Showing the procedural world."));
+    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    shell.frames(&mut core, 40);
+    assert_eq!(core.tem_backend(), "CPU (no WebGPU compute) on the main thread");
+    assert!(shell.posted.iter().all(|(t, _)| *t == Target::MainThread));
+    let batches: Vec<_> = shell.posted.iter().filter(|(_, k)| *k == "enhance").collect();
+    assert!(!batches.is_empty() && batches.len() <= 1, "rationed to one quad a second: {}", batches.len());
+}
+
+/// The sketch world: its models load when it is first shown, the canvas's sketch becomes
+/// terrain in the worker, variants come back as four sketches with terrains, and a blend is
+/// drawn on the canvas.
+#[test]
+fn the_sketch_world_loads_its_models_and_makes_terrain_variants_and_blends() {
+    let mut core = PageCore::new(ShareState { source: SourceKind::Sketch, ..ShareState::default() }, start(Ok(())));
+    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    shell.frames(&mut core, 3);
+    assert!(core.loads.sketch.is_ready(), "{:?}", core.loads.sketch);
+    assert_eq!(core.app.stats().sketch_shown, core.app.canvas.revision() + 1);
+    core.ask_variants();
+    shell.carry_out(&mut core);
+    let v = core.variants.take().expect("variants");
+    assert_eq!(v.len(), 4);
+    assert!(v.iter().all(|(_, h)| h.len() == SKETCH_PX * SKETCH_PX));
+    let rev = core.app.canvas.revision();
+    core.ask_blend(v[0].0.clone(), v[1].0.clone(), 0.5);
+    shell.frames(&mut core, 1);
+    assert_eq!(core.blends, 1);
+    assert!(core.app.canvas.revision() > rev);
+}

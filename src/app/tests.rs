@@ -1,0 +1,319 @@
+//! Tests of the application core.
+
+use super::*;
+
+/// Settings of a procedural world of `radius` tiles (the tests below stream it here, on
+/// this thread).
+fn procedural(radius_tiles: f64) -> ShareState {
+    ShareState { radius_tiles, source: SourceKind::Procedural, ..ShareState::default() }
+}
+
+#[test]
+fn frames_stream_tiles_and_select_nodes() {
+    let mut app = TerrainApp::new(procedural(2.0));
+    let mut drawn = 0;
+    for _ in 0..200 {
+        let (nodes, p) = app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        drawn = nodes.len();
+        assert_eq!(p.size, [800, 600]);
+        if app.stats().tiles_pending == 0 && drawn > 0 {
+            break;
+        }
+    }
+    let s = app.stats();
+    assert_eq!(s.tiles_pending, 0);
+    assert!(drawn > 0 && s.tiles_generated >= 25, "{s:?}");
+    assert!(s.max_depth_drawn == BASE_DATA_DEPTH, "near nodes reach 32 m: {s:?}");
+    let ground = app.ground_at(app.camera.position_m.x, app.camera.position_m.z).unwrap() as f64;
+    assert!(app.camera.position_m.y > ground);
+}
+
+#[test]
+fn autopilot_flies_and_reaches_new_tiles() {
+    let mut app = TerrainApp::new(ShareState { autopilot_mps: 2000.0, ..procedural(2.0) });
+    let start = app.camera.position_m;
+    for _ in 0..300 {
+        app.frame(&ControlInput::default(), 1.0 / 30.0, [640, 480]);
+    }
+    let moved = (app.camera.position_m - start).length();
+    assert!(moved > 15_000.0, "moved {moved} m");
+    assert!(app.stats().tiles_evicted > 0 || app.stats().tiles_generated > 40, "{:?}", app.stats());
+    assert!(app.stats().tiles_cached <= app.stats().tiles_capacity);
+}
+
+/// With refinement on (untrained, i.e. bicubic, models on the CPU), looking down from low
+/// above rough ground draws nodes below 32 m, built from TEM patches.
+#[test]
+fn refinement_draws_nodes_below_the_base_depth() {
+    let tem = crate::models::tem::TemSet::untrained(&crate::models::tem::Exec::cpu());
+    let mut app = TerrainApp::new(procedural(1.0));
+    app.set_refinement(Some("CPU".into()));
+    for _ in 0..60 {
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    }
+    // Low above the ground, looking down ahead.
+    let p = app.camera.position_m;
+    let g = app.ground_at(p.x, p.z).unwrap() as f64;
+    app.camera.position_m.y = g + 60.0;
+    app.camera.pitch = -0.6;
+    let mut ran = 0;
+    for _ in 0..80 {
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        ran += app.refine_blocking(&tem, REFINE_BATCH).unwrap();
+    }
+    let s = app.stats().clone();
+    assert!(ran > 0 && s.quads_made as usize == ran, "{s:?}");
+    assert!(s.max_depth_drawn > BASE_DATA_DEPTH, "refined nodes drawn: {s:?}");
+    assert!(s.ms_per_quad > 0.0 && s.refine_backend == "CPU");
+    app.set_refinement(None);
+    app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    assert!(app.stats().max_depth_drawn <= BASE_DATA_DEPTH);
+}
+
+/// An app with refinement on, low above rough ground looking down, after enough frames
+/// that the quadtree asks for refined patches.
+fn low_refining_app() -> TerrainApp {
+    let mut app = TerrainApp::new(procedural(1.0));
+    app.set_refinement(Some("CPU".into()));
+    for _ in 0..60 {
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    }
+    let p = app.camera.position_m;
+    app.camera.position_m.y = app.ground_at(p.x, p.z).unwrap() as f64 + 60.0;
+    app.camera.pitch = -0.6;
+    app
+}
+
+/// Runs up to 20 frames until the app asks for TEM jobs; returns them (empty if it never
+/// did).
+fn frames_until_jobs(app: &mut TerrainApp) -> Vec<RefineJob> {
+    for _ in 0..20 {
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        let jobs = app.refine_jobs(REFINE_BATCH);
+        if !jobs.is_empty() {
+            return jobs;
+        }
+    }
+    Vec::new()
+}
+
+/// A TEM batch still running when the world changes (here: a new seed) comes back tagged
+/// with the old epoch and is dropped: nothing of the old world lands in the new one. The
+/// same batch delivered for the current world is stored (control).
+#[test]
+fn a_batch_of_an_older_world_is_dropped() {
+    let mut app = low_refining_app();
+    let jobs = frames_until_jobs(&mut app);
+    assert!(!jobs.is_empty(), "the low view asks for refined patches");
+    let old_epoch = jobs[0].epoch;
+    assert_eq!(old_epoch, app.epoch());
+    let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
+    let raw = vec![123.0f32; (2 * INPUT_SIDE).pow(2) * keys.len()];
+    // The world changes while the batch runs.
+    let new = ShareState { seed: app.settings().seed + 1, ..app.share_state() };
+    app.apply(new);
+    app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    assert_eq!(app.epoch(), old_epoch + 1);
+    app.refine_done(old_epoch, &keys, &raw, 10.0);
+    let s = app.refine_stats();
+    assert_eq!((s.quads_made, s.cached, s.stale_dropped), (0, 0, keys.len() as u64), "stale batch must not land: {s:?}");
+    // The same kind of batch for the current world lands.
+    let keys: Vec<PatchKey> = frames_until_jobs(&mut app).iter().map(|j| j.key).collect();
+    app.refine_done(app.epoch(), &keys, &vec![5.0f32; (2 * INPUT_SIDE).pow(2) * keys.len()], 10.0);
+    assert_eq!(app.refine_stats().quads_made, keys.len() as u64);
+    assert!(!keys.is_empty());
+}
+
+/// While no refinement jobs are taken (inference busy or rate-limited), a long flight keeps
+/// the request list to this frame's wants: never more requests than nodes drawn, and the
+/// last third of the flight no higher than the first.
+#[test]
+fn patch_requests_stay_bounded_while_no_jobs_are_taken() {
+    let mut app = low_refining_app();
+    let mut counts = Vec::new();
+    for _ in 0..600 {
+        app.camera.position_m.x += 40.0;
+        let p = app.camera.position_m;
+        if let Some(g) = app.ground_at(p.x, p.z) {
+            app.camera.position_m.y = g as f64 + 60.0;
+        }
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        let (r, drawn) = (app.refine_stats().requests, app.stats().nodes_drawn);
+        assert!(r <= drawn, "{r} requests for {drawn} nodes drawn");
+        counts.push(r);
+    }
+    let third = counts.len() / 3;
+    let (first, last) = (counts[..third].iter().max().unwrap(), counts[2 * third..].iter().max().unwrap());
+    assert!(*first > 0, "the flight asks for refinement");
+    assert!(*last <= first + first / 2, "requests grew from {first} to {last}");
+}
+
+#[test]
+fn share_state_reproduces_the_view() {
+    let mut a = TerrainApp::new(procedural(4.0));
+    a.frame(&ControlInput { look_px: glam::Vec2::new(40.0, 10.0), movement: glam::Vec3::Z, ..Default::default() }, 0.1, [320, 200]);
+    let link = a.share_state().to_fragment();
+    let b = TerrainApp::new(ShareState::from_fragment(&link).unwrap());
+    assert_eq!(a.camera.position_m, b.camera.position_m);
+    assert_eq!((a.camera.yaw, a.camera.pitch), (b.camera.yaw, b.camera.pitch));
+}
+
+/// Heights standing in for a learned tile: a plane through the tile's corner, so tiles
+/// differ by coordinate.
+fn fake_tile(c: TileCoord) -> Vec<f32> {
+    (0..TILE_SAMPLES * TILE_SAMPLES).map(|p| (c.i * 7 + c.j * 3) as f32 + (p % TILE_SAMPLES) as f32 * 0.01).collect()
+}
+
+/// The learned world asks for nothing while its models load, then for at most
+/// TILE_JOBS_IN_FLIGHT tiles at a time, nearest first; tiles handed back fill the world
+/// until nothing is pending; a tile made for the previous world (seed changed while it
+/// ran) is dropped and counted stale, and bad heights are refused.
+#[test]
+fn learned_tiles_arrive_as_jobs_and_stale_ones_are_dropped() {
+    let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, ..ShareState::default() });
+    app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    assert_eq!(app.source(), SourceKind::Learned);
+    assert!(app.tile_jobs().is_empty(), "no jobs while the models load");
+    assert!(app.stats().tiles_pending > 0 && app.stats().tiles_generated == 0);
+    assert_eq!(app.set_learned(LearnedStatus::Ready { hash: "abc".into() }), None);
+    let eye = app.camera.position_m;
+    let mut made = 0;
+    for _ in 0..200 {
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        let jobs = app.tile_jobs();
+        assert!(jobs.len() <= TILE_JOBS_IN_FLIGHT);
+        if made == 0 {
+            assert_eq!(jobs[0].key, TileCoord::containing(eye.x, eye.z), "the tile under the camera comes first");
+        }
+        for j in &jobs {
+            assert!(app.tile_done(j, fake_tile(j.key), 5.0));
+            made += 1;
+        }
+        if jobs.is_empty() {
+            break;
+        }
+    }
+    app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    let s = app.stats().clone();
+    assert_eq!((s.tiles_pending, s.tiles_generated, s.tile_jobs.done), (0, made, made), "{s:?}");
+    assert!(s.nodes_drawn > 0 && s.source == "learned" && (s.ms_per_tile - 5.0).abs() < 1e-9);
+    assert_eq!(app.share_state().weights.as_deref(), Some("abc"));
+    // A tile in flight when the seed changes belongs to the old world.
+    app.camera.position_m.x += 3.0 * TILE_SIZE_M;
+    let old = app.tile_jobs();
+    assert!(!old.is_empty());
+    app.apply_settings(ShareState { seed: 99, ..app.settings().clone() });
+    assert!(!app.tile_done(&old[0], fake_tile(old[0].key), 5.0), "stale tile landed");
+    assert_eq!(app.tile_jobs.stats().stale, 1);
+    let new = app.tile_jobs();
+    assert!(!app.tile_done(&new[0], vec![f32::NAN; TILE_SAMPLES * TILE_SAMPLES], 5.0), "NaN heights refused");
+    assert!(!app.tile_done(&new[1], vec![0.0; 3], 5.0), "a short tile refused");
+    assert_eq!(app.tile_jobs.stats().failed, 2);
+    assert!(!app.world.contains(new[0].key) && !app.world.contains(old[0].key));
+}
+
+/// Procedural tiles made elsewhere (the page's CPU worker): the app asks for them as jobs
+/// and makes none itself, and the tiles handed back (made by the same generator) give the
+/// same view checksum as an app that made them itself; without the worker it makes them
+/// here again.
+#[test]
+fn procedural_tiles_made_elsewhere_give_the_same_view() {
+    let mut here = TerrainApp::new(procedural(1.0));
+    let mut there = TerrainApp::new(procedural(1.0));
+    there.set_procedural_elsewhere(true);
+    let src = ProceduralSource::new(there.settings().noise);
+    for _ in 0..200 {
+        here.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        there.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        let jobs = there.tile_jobs();
+        for j in &jobs {
+            let t = src.generate(there.settings().seed, j.key, &crate::world::Neighbourhood::default());
+            assert!(there.tile_done(j, t.heights.to_vec(), 1.0));
+        }
+        if jobs.is_empty() && here.stats().tiles_pending == 0 && there.stats().tiles_pending == 0 {
+            break;
+        }
+    }
+    here.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    there.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    let (a, b) = (here.stats().clone(), there.stats().clone());
+    assert_eq!(a.tile_jobs.done, 0, "the app that makes its own tiles takes no jobs");
+    assert_eq!(b.tile_jobs.done, b.tiles_generated, "every tile of the other came as a job: {b:?}");
+    assert!(b.tiles_generated >= 9 && b.nodes_drawn > 0, "{b:?}");
+    assert_eq!(a.view_checksum, b.view_checksum);
+    there.set_procedural_elsewhere(false);
+    assert!(there.tile_jobs().is_empty());
+    there.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    assert!(there.stats().tiles_generated > 0, "made here again: {:?}", there.stats());
+}
+
+/// Models that fail leave the procedural world in place of the learned one: it streams,
+/// and the share link names it; a link made with other weights gets a note once the
+/// models are ready.
+#[test]
+fn failed_models_fall_back_to_the_procedural_world() {
+    let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, ..ShareState::default() });
+    app.set_learned(LearnedStatus::Failed("tcm_128m.bpk: HTTP 404".into()));
+    for _ in 0..30 {
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+    }
+    assert_eq!(app.source(), SourceKind::Procedural);
+    assert!(app.tile_jobs().is_empty());
+    let s = app.stats();
+    assert!(s.tiles_generated > 0 && s.source == "procedural", "{s:?}");
+    let link = app.share_state();
+    assert_eq!((link.source, link.weights), (SourceKind::Procedural, None));
+    let mut linked = TerrainApp::new(ShareState { weights: Some("0ld".into()), ..ShareState::default() });
+    let note = linked.set_learned(LearnedStatus::Ready { hash: "new".into() }).expect("a note");
+    assert!(note.contains("0ld") && note.contains("new"), "{note}");
+    let mut same = TerrainApp::new(ShareState { weights: Some("new".into()), ..ShareState::default() });
+    assert_eq!(same.set_learned(LearnedStatus::Ready { hash: "new".into() }), None);
+}
+
+fn sketch_app() -> TerrainApp {
+    let mut app = TerrainApp::new(ShareState { radius_tiles: 1.0, source: SourceKind::Sketch, ..ShareState::default() });
+    app.set_sketch_models(LearnedStatus::Ready { hash: "00000001".into() });
+    app
+}
+
+#[test]
+fn a_sketch_becomes_the_world_one_job_at_a_time_and_older_terrain_is_dropped() {
+    let mut app = sketch_app();
+    let jobs = app.sketch_jobs();
+    assert_eq!(jobs.len(), 1, "the first sketch is asked for");
+    assert!(app.sketch_jobs().is_empty(), "one job in flight at most");
+    let (first, sketch) = jobs[0].clone();
+    assert_eq!(&sketch, app.canvas.sketch());
+    // Two strokes land while the first sketch is being made.
+    app.canvas.set_tool(crate::sketch::canvas::Tool::Ridge);
+    app.canvas.press(10.0, 10.0);
+    app.canvas.drag(100.0, 10.0);
+    app.canvas.release();
+    let ramp: Vec<f32> = (0..SKETCH_PX * SKETCH_PX).map(|p| (p % SKETCH_PX) as f32).collect();
+    assert!(app.sketch_done(&first, ramp.clone(), 5.0), "the first terrain is shown");
+    let relief = app.settings().relief_m as f32;
+    // World sample x = 0 is sketch column 128.
+    assert_eq!(app.tile_heights(TileCoord::new(0, 0)), None, "tiles come with the next frame");
+    app.frame(&ControlInput::default(), 0.016, [64, 64]);
+    let h = app.tile_heights(TileCoord::new(0, 0)).expect("the tile at the origin")[0];
+    assert!((h - 128.0 / 255.0 * relief).abs() < 1e-3, "{h}");
+    // The newest sketch is asked for next; its terrain replaces the first.
+    let (second, _) = app.sketch_jobs()[0].clone();
+    assert!(second.key > first.key);
+    assert!(app.sketch_done(&second, vec![255.0; SKETCH_PX * SKETCH_PX], 5.0));
+    assert!(!app.sketch_done(&first, ramp, 5.0), "an older sketch's terrain is dropped");
+    assert!(app.sketch_jobs().is_empty(), "nothing new to make");
+    assert!(!app.sketch_done(&second, vec![f32::NAN; SKETCH_PX * SKETCH_PX], 1.0));
+}
+
+#[test]
+fn without_the_generator_the_band_interpolation_is_shown_at_once() {
+    let mut app = sketch_app();
+    app.set_sketch_models(LearnedStatus::Failed("no weights".into()));
+    assert!(app.sketch_jobs().is_empty());
+    let shown = app.sketch_terrain().unwrap();
+    assert_eq!(shown, crate::sketch::baseline::interpolate(app.canvas.sketch()).as_slice());
+    let link = app.share_state();
+    assert_eq!(link.source, SourceKind::Sketch);
+    assert_eq!(crate::sketch::code::decode(link.sketch.as_deref().unwrap()).unwrap(), *app.canvas.sketch());
+}
