@@ -187,6 +187,11 @@ impl Answer {
         postcard::to_stdvec(self).expect("a reply always encodes")
     }
 
+    /// The id of the reply in `bytes`, read without decoding the rest.
+    pub fn peek_id(bytes: &[u8]) -> Option<u32> {
+        postcard::take_from_bytes::<u32>(bytes).ok().map(|(id, _)| id)
+    }
+
     /// Reads a reply.
     pub fn decode(bytes: &[u8]) -> Result<Self, Malformed> {
         postcard::from_bytes(bytes).map_err(|e| Malformed { what: "reply", why: e.to_string() })

@@ -5,7 +5,9 @@
 pub mod sketch;
 
 use crate::app::AppStats;
-use crate::render::camera::CameraMode;
+use crate::app::loads::Load;
+use crate::app::page::PageCore;
+use crate::render::camera::{CameraMode, ControlInput};
 use crate::share::ShareState;
 use crate::world::{NoiseKind, SourceKind};
 
@@ -38,6 +40,83 @@ pub struct Environment {
     pub cpu_ms: f64,
     /// Where the sketch generator runs ("WebGPU" or "CPU worker").
     pub sketch_backend: &'static str,
+}
+
+impl Environment {
+    /// Takes over what the page's core says about its models: the GPU runtime line, the
+    /// TEM's progress, error and readiness, where strokes become terrain, the worker's rest.
+    pub fn take_core(&mut self, core: &PageCore) {
+        self.ml_status = core.status.clone();
+        self.tem_loading = match core.loads.tem {
+            Load::Fetching { done, total } => Some((done, total)),
+            _ => None,
+        };
+        self.tem_error = match &core.loads.tem {
+            Load::Failed(why) => Some(why.clone()),
+            _ => None,
+        };
+        self.tem_ready = core.loads.tem.is_ready();
+        self.sketch_backend = core.sketch_backend();
+        self.worker_rest_per_work = core.rest_per_work();
+        self.source = core.app.source_name();
+    }
+}
+
+/// The camera input of this frame from egui's pointer, touch and keys over the 3-D view's
+/// response `resp`: two-finger drag moves and pinch zooms, a drag looks, the wheel scrolls,
+/// WASD/arrows/QE/PageUp/PageDown move (unless a text field has the keyboard), Shift boosts.
+pub fn control_input(ctx: &egui::Context, resp: &egui::Response) -> ControlInput {
+    let mut input = ControlInput { pinch: 1.0, ..Default::default() };
+    if let Some(m) = ctx.multi_touch().filter(|m| m.num_touches >= 2) {
+        input.pinch = m.zoom_delta;
+        input.movement.x = (-m.translation_delta.x / 8.0).clamp(-1.0, 1.0);
+        input.movement.z = (m.translation_delta.y / 8.0).clamp(-1.0, 1.0);
+    } else if resp.dragged() {
+        let d = resp.drag_delta();
+        input.look_px = glam::Vec2::new(d.x, d.y);
+    }
+    if resp.hovered() {
+        input.scroll = ctx.input(|i| i.smooth_scroll_delta.y) / 50.0;
+    }
+    if !ctx.egui_wants_keyboard_input() {
+        ctx.input(|i| {
+            use egui::Key;
+            let axis = |pos: &[Key], neg: &[Key]| {
+                let p = pos.iter().any(|k| i.key_down(*k)) as i32 as f32;
+                let n = neg.iter().any(|k| i.key_down(*k)) as i32 as f32;
+                p - n
+            };
+            input.movement.x += axis(&[Key::D, Key::ArrowRight], &[Key::A, Key::ArrowLeft]);
+            input.movement.z += axis(&[Key::W, Key::ArrowUp], &[Key::S, Key::ArrowDown]);
+            input.movement.y += axis(&[Key::E, Key::PageUp], &[Key::Q, Key::PageDown]);
+            input.boost = i.modifiers.shift;
+        });
+    }
+    input
+}
+
+/// The page's statistics as JSON (read by the end-to-end test and usable from the browser
+/// console): the app's numbers, what the overlay shows, the message and link, and where the
+/// sketch panel's canvas and buttons are on screen (CSS pixels: x, y, width, height).
+/// `frame_work` holds [total, tiles, nodes, drawing, uploads, encoding + submit] ms and the
+/// meshes uploaded of recent frames; the worst frame's is reported.
+pub fn stats_json(core: &PageCore, env: &Environment, panel: &sketch::SketchPanel, overlay: &Overlay, frame_work: &std::collections::VecDeque<[f64; 7]>, device_restarts: u32, link_too_long: u32) -> String {
+    let rect = |r: egui::Rect| [r.min.x, r.min.y, r.width(), r.height()];
+    let app = &core.app;
+    let sketch = app.source() == SourceKind::Sketch;
+    serde_json::json!({
+        "stats": app.stats(), "adapter": env.adapter, "ml_status": env.ml_status, "tem_ready": env.tem_ready,
+        "tem_error": env.tem_error, "source": env.source, "uploads": env.uploads, "triangles": env.triangles, "cpu_ms": env.cpu_ms,
+        "cpu_ms_worst": frame_work.iter().copied().max_by(|a, b| a[0].total_cmp(&b[0])),
+        "message": core.message, "device_restarts": device_restarts, "link": app.share_state().to_fragment(),
+        "mode": format!("{:?}", app.controller.mode), "sketch_canvas": panel.canvas_rect.filter(|_| sketch).map(rect),
+        "sketch_models": format!("{:?}", app.sketch_models()), "sketch_backend": env.sketch_backend,
+        "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "link_too_long": link_too_long,
+        "copy_link_button": overlay.copy_link_rect.map(rect), "software_adapter": env.software_adapter,
+        "worker_rest_per_work": env.worker_rest_per_work,
+        "sketch_buttons": panel.buttons.iter().map(|(k, r)| (k.clone(), rect(*r))).collect::<std::collections::BTreeMap<_, _>>(),
+    })
+    .to_string()
 }
 
 /// What the user asked for this frame.

@@ -425,29 +425,16 @@ test('learned detail: the TEM loads, refines to 1 m and matches the native resul
   const medianOf = (v) => v.slice(8).sort((a, b) => a - b)[4];
   const native = nativeProbe();
   const diff = probeDiff(probe, native);
-  // The same kernels on the page's main thread (the worker's entry point called directly, with
+  // The same kernels on the page's main thread (the worker's request handler run there, with
   // drawing paused): the wasm code's own speed, and the same heights as the worker's probe.
-  const main = await page.evaluate(async (side) => {
+  const main = await page.evaluate(async () => {
     const g = window.wasmBindings;
     g.terrain_set_paused(true);
     await new Promise((r) => setTimeout(r, 500));
-    let last = null;
-    const post = window.postMessage;
-    window.postMessage = (m) => { last = m; };
-    const files = await Promise.all([[0, 16], [1, 8], [2, 4], [3, 2], [4, 1]].map(async ([k, s]) => new Uint8Array(await (await fetch(`weights/tem_${k}_${s}m.bpk`)).arrayBuffer())));
-    g.terrain_worker_message({ id: 1, kind: 'load', files });
-    const input = new Float32Array(JSON.parse(g.terrain_probe_input(0)));
-    const ms = [];
-    let out = null;
-    for (let rep = 0; rep < 8; rep++) {
-      g.terrain_worker_message({ id: 2, kind: 'enhance', level: 0, n: 1, side, input: input.slice() });
-      ms.push(last.ms);
-      out = Array.from(last.out);
-    }
-    window.postMessage = post;
+    const r = JSON.parse(await g.terrain_main_thread_tem(8));
     g.terrain_set_paused(false);
-    return { ms, out };
-  }, 100);
+    return r;
+  });
   assert.deepEqual(main.out, probe.levels[0], 'the main thread and the worker computed different heights');
   const mainMs = main.ms.slice(3).sort((a, b) => a - b)[2];
   // Per quad: the page's round trip to its CPU worker (timed in the page) and the worker's own

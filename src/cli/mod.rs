@@ -1,0 +1,5 @@
+//! What each command does, grouped by what it drives; `main.rs` only wires arguments to them.
+
+pub mod sketch;
+pub mod tem;
+pub mod world;

@@ -1,0 +1,282 @@
+//! Sketch to terrain from the command line: `sketch`, `sketch-variants`, `sketch-extract`,
+//! `sketch-export`, `sketch-bench`, `eval-sketch` and `train-sketch` (generator and VAE).
+
+#[allow(unused_imports)]
+use crate::*;
+
+/// The sketch generator from a weights folder.
+pub(crate) fn sketch_generator(weights: Option<PathBuf>) -> Result<terrain::models::sketch::SketchGenCpu, String> {
+    use terrain::models::sketch::{SketchGenCpu, WEIGHT_FILE};
+    let path = weights_dir(weights).join(WEIGHT_FILE);
+    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    SketchGenCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// The probe of `sketch-export` and `sketch-bench`: the first example sketch's network input.
+pub(crate) fn sketch_probe() -> Vec<f32> {
+    terrain::models::sketch::assemble_input(&terrain::sketch::examples::first().1).0
+}
+
+pub(crate) fn sketch_export(weights: Option<PathBuf>, out: &std::path::Path) -> Result<(), String> {
+    use terrain::models::sketch::{IN_CHANNELS, SketchScratch, WIDTHS, conv_layers};
+    use terrain::sketch::SKETCH_PX;
+    let generator = sketch_generator(weights)?;
+    let input = sketch_probe();
+    let output = generator.forward(&input, SKETCH_PX, &mut SketchScratch::default(), 1);
+    let layers: Vec<String> = conv_layers().into_iter().map(|(name, _, _)| name).collect();
+    let json = serde_json::json!({
+        "side": SKETCH_PX, "in_channels": IN_CHANNELS, "widths": WIDTHS, "layers": layers,
+        "convs": generator.convs_json(), "probe_input": input, "probe_output": output,
+    });
+    std::fs::write(out, json.to_string()).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    eprintln!("wrote {}", out.display());
+    Ok(())
+}
+
+pub(crate) fn sketch_bench(repeats: usize, threads: Option<u32>, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::models::sketch::SketchScratch;
+    use terrain::sketch::SKETCH_PX;
+    let generator = sketch_generator(weights)?;
+    let threads = threads.map_or_else(terrain::models::cpu::default_threads, |t| t as usize);
+    let input = sketch_probe();
+    let mut scratch = SketchScratch::default();
+    generator.forward(&input, SKETCH_PX, &mut scratch, threads);
+    let mut ms: Vec<f64> = (0..repeats)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            std::hint::black_box(generator.forward(&input, SKETCH_PX, &mut scratch, threads));
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    ms.sort_by(f64::total_cmp);
+    println!("{}", serde_json::json!({ "threads": threads, "repeats": repeats, "ms_per_sketch": ms[ms.len() / 2], "min_ms_per_sketch": ms[0] }));
+    Ok(())
+}
+
+pub(crate) fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
+    use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
+    let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
+    let generator = sketch_generator(weights)?;
+    let t = std::time::Instant::now();
+    let h = generator.generate_views(&sk, views, &mut Default::default(), terrain::models::cpu::default_threads());
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    write_dem_png16(std::io::BufWriter::new(file), SKETCH_PX, &h).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    eprintln!("wrote {}: {SKETCH_PX}×{SKETCH_PX} 16-bit relative heights ({views} views, {ms:.0} ms)", out.display());
+    Ok(())
+}
+
+#[cfg(feature = "train")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch::SketchConfig, validation: usize, model: SketchModel, init: Option<&std::path::Path>, run_args: &RunArgs, snapshots: bool) -> Result<(), String> {
+    use terrain::train::{pairs, sketch};
+    if !cfg.adversarial.is_finite() || cfg.adversarial < 0.0 {
+        return Err(format!("--adversarial must be a finite number ≥ 0, not {}", cfg.adversarial));
+    }
+    if !(0.0..=1.0).contains(&cfg.format_share) {
+        return Err(format!("--format-share must be between 0 and 1, not {}", cfg.format_share));
+    }
+    if !(cfg.lr.is_finite() && cfg.lr > 0.0) {
+        return Err(format!("--lr must be a positive number, not {}", cfg.lr));
+    }
+    for (flag, m) in [("--max-extent-m", cfg.windows.max_extent_m), ("--min-extent-m", cfg.windows.min_extent_m)] {
+        if m.is_some_and(|m| !(m.is_finite() && m > 0.0)) {
+            return Err(format!("{flag} must be a positive number of metres, not {m:?}"));
+        }
+    }
+    let init = match init {
+        Some(dir) => {
+            let p = dir.join(terrain::models::sketch::WEIGHT_FILE);
+            let bytes = std::fs::read(&p).map_err(|e| format!("{}: {e}", p.display()))?;
+            Some(terrain::models::sketch::SketchGenCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", p.display()))?)
+        }
+        None => None,
+    };
+    let dems = pairs::load_dems(dem_dir)?;
+    if let Some(id) = cfg.windows.dems.iter().find(|id| !dems.iter().any(|d| &d.id == *id)) {
+        return Err(format!("--dems: {id} is not in {}", dem_dir.join("manifest.json").display()));
+    }
+    let (device, mut budget) = run_args.start()?;
+    let t = std::time::Instant::now();
+    if let SketchModel::Vae = model {
+        return train_sketch_vae(&dems, steps, resume, checkpoint, every, terrain::train::sketch_vae::VaeConfig { batch: cfg.batch, pool: cfg.pool, crop: cfg.crop, ..Default::default() }, validation, &device, &mut budget, run_args.backend);
+    }
+    let mut run = sketch::SketchRun::start(cfg, &dems, &device, resume.then_some(checkpoint), init.as_ref())?;
+    let val = sketch::pairs(&dems, pairs::Split::Validation, validation, &run.cfg.windows, 0x5EED);
+    // The held-out files of the format's own pairs, scored beside the extracted validation pairs.
+    let held_out = match &run.cfg.format_pairs {
+        Some(dir) if !run.cfg.format_exclude.is_empty() => {
+            let (all, names) = sketch::format_pairs(dir, &[], false)?;
+            let ex = &run.cfg.format_exclude;
+            all.into_iter().zip(names).filter(|(_, n)| ex.iter().any(|x| n.contains(x.as_str()))).map(|(p, _)| p).collect()
+        }
+        _ => Vec::new(),
+    };
+    eprintln!("sketch generator: {} parameters; {:?}; from step {}; pool and {} validation pairs made in {:.1} s", run.g.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
+    let end = run.progress.step + steps;
+    let mut rate = StepRate::new(run.progress.step);
+    let mut last = None;
+    while run.progress.step < end && !budget.spent() {
+        run.step(&dems)?;
+        let p = &run.progress;
+        rate.after_step(p.step, p.seconds);
+        if p.step % 10 == 0 || p.step == end {
+            eprintln!("step {:6}  l1 {:.5} (×255 = {:.2}) adv {:.3} disc {:.3} {:.2} s/step", p.step, p.l1, p.l1 * 255.0, p.adv, p.disc, p.seconds / p.step as f64);
+        }
+        if p.step % every == 0 || p.step == end || budget.checkpoint_due() {
+            let v = sketch::validate(&run.cpu()?, &val);
+            eprintln!("validation ({} held-out pairs): RMSE {:.3} PSNR {:.2} dB; baseline {:.3} / {:.2} dB", v.pairs, v.rmse, v.psnr, v.rmse_baseline, v.psnr_baseline);
+            if !held_out.is_empty() {
+                let h = sketch::validate(&run.cpu()?, &held_out);
+                eprintln!("held-out format pairs ({}): RMSE {:.3} PSNR {:.2} dB; baseline {:.3} / {:.2} dB", h.pairs, h.rmse, h.psnr, h.rmse_baseline, h.psnr_baseline);
+            }
+            run.save(checkpoint, Some(&v))?;
+            if snapshots {
+                // Each checkpoint's generator kept, for a mean of checkpoints afterwards.
+                let dir = checkpoint.join("snapshots");
+                std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+                let to = dir.join(format!("gen_{:06}.bpk", p.step));
+                std::fs::copy(checkpoint.join(terrain::models::sketch::WEIGHT_FILE), &to).map_err(|e| format!("{}: {e}", to.display()))?;
+            }
+            last = Some(v);
+        }
+    }
+    let p = &run.progress;
+    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "validation": last, "checkpoint": checkpoint, "backend": run_args.backend, "examples_per_s": rate.examples_per_s(p.step, p.seconds, run.cfg.batch) }));
+    Ok(())
+}
+
+pub(crate) fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::path::Path, seed: u64, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
+    use terrain::models::sketch_vae::SketchModels;
+    use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
+    let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
+    let dir = weights_dir(weights);
+    let read = |file: &str| std::fs::read(dir.join(file)).map_err(|e| format!("{}: {e}", dir.join(file).display()));
+    let SketchModels { generator, vae, .. } = SketchModels::from_bytes(&read(terrain::models::sketch::WEIGHT_FILE)?, &read(terrain::models::sketch_vae::WEIGHT_FILE)?).map_err(|e| format!("{}: {e}", dir.display()))?;
+    std::fs::create_dir_all(out_dir).map_err(|e| format!("cannot create {}: {e}", out_dir.display()))?;
+    let threads = terrain::models::cpu::default_threads();
+    let t = std::time::Instant::now();
+    let variants = vae.variants(&sk, n, seed, &mut Default::default(), threads);
+    let mut scratch = Default::default();
+    let dems: Vec<Vec<f32>> = variants.iter().map(|v| generator.generate_views(v, views, &mut scratch, threads)).collect();
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    for (k, (v, h)) in variants.iter().zip(&dems).enumerate() {
+        let write = |name: String, f: &dyn Fn(std::io::BufWriter<std::fs::File>) -> Result<(), terrain::sketch::SketchError>| -> Result<(), String> {
+            let p = out_dir.join(name);
+            let file = std::fs::File::create(&p).map_err(|e| format!("cannot create {}: {e}", p.display()))?;
+            f(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", p.display()))
+        };
+        write(format!("variant_{k}_sketch.png"), &|w| v.write_png(w))?;
+        write(format!("variant_{k}_dem.png"), &|w| write_dem_png16(w, SKETCH_PX, h))?;
+    }
+    eprintln!("wrote {n} variants (sketch + 16-bit terrain) to {} in {ms:.0} ms", out_dir.display());
+    Ok(())
+}
+
+#[cfg(feature = "train")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch_vae::VaeConfig, validation: usize, device: &burn::tensor::Device, budget: &mut terrain::train::Budget, backend: terrain::train::Backend) -> Result<(), String> {
+    use terrain::train::{pairs, sketch, sketch_vae};
+    let t = std::time::Instant::now();
+    let mut run = sketch_vae::VaeRun::start(cfg, dems, device, resume.then_some(checkpoint))?;
+    let val = sketch::pairs(dems, pairs::Split::Validation, validation, &sketch::WindowChoice::ALL, 0x5EED);
+    eprintln!("sketch VAE: {} parameters; {:?}; from step {}; pool and {} validation sketches made in {:.1} s", run.m.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
+    let end = run.progress.step + steps;
+    let mut rate = StepRate::new(run.progress.step);
+    let mut last = None;
+    while run.progress.step < end && !budget.spent() {
+        run.step(dems)?;
+        let p = &run.progress;
+        rate.after_step(p.step, p.seconds);
+        if p.step % 10 == 0 || p.step == end {
+            eprintln!("step {:6}  reconstruction {:.4} KL {:.5} per pixel {:.2} s/step", p.step, p.l1, p.adv, p.seconds / p.step as f64);
+        }
+        if p.step % every == 0 || p.step == end || budget.checkpoint_due() {
+            let v = sketch_vae::validate(&run.cpu()?, &val);
+            eprintln!("validation ({} held-out sketches): bands kept {:.3}, ridge F1 {:.3}, valley F1 {:.3}; variants change {:.3} of the bands", v.sketches, v.band_agreement, v.ridge_f1, v.valley_f1, v.variant_band_change);
+            run.save(checkpoint, Some(&v))?;
+            last = Some(v);
+        }
+    }
+    let p = &run.progress;
+    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "reconstruction": p.l1, "kl": p.adv, "validation": last, "checkpoint": checkpoint, "backend": backend, "examples_per_s": rate.examples_per_s(p.step, p.seconds, run.cfg.batch) }));
+    Ok(())
+}
+
+pub(crate) fn sketch_extract(dem: &std::path::Path, window: &[u32], out: &std::path::Path, dem_out: Option<PathBuf>) -> Result<(), String> {
+    use terrain::dem::{Heightfield, PngScale};
+    use terrain::sketch::{SKETCH_PX, extract, write_dem_png16};
+    let [x0, y0, side] = <[u32; 3]>::try_from(window).map_err(|_| "--window takes X0 Y0 SIDE".to_string())?;
+    let (x0, y0, side) = (x0 as usize, y0 as usize, side as usize);
+    let hf = Heightfield::read_path(dem, Some(1.0), PngScale::default()).map_err(|e| format!("{}: {e}", dem.display()))?;
+    if side < 16 || x0 + side > hf.width || y0 + side > hf.height {
+        return Err(format!("the window {x0} {y0} {side} must be at least 16 samples and lie inside the {}×{} DEM", hf.width, hf.height));
+    }
+    let win = hf.window(x0, y0, side, side);
+    if win.data.iter().any(|v| !v.is_finite()) {
+        return Err("the window has no-data samples".into());
+    }
+    // Bring the window to 256²: bilinear sampling at pixel centres.
+    let f = side as f32 / SKETCH_PX as f32;
+    let at = |x: usize, y: usize| win.data[y.min(side - 1) * side + x.min(side - 1)];
+    let heights: Vec<f32> = (0..SKETCH_PX * SKETCH_PX)
+        .map(|p| {
+            let (sx, sy) = ((((p % SKETCH_PX) as f32 + 0.5) * f - 0.5).max(0.0), (((p / SKETCH_PX) as f32 + 0.5) * f - 0.5).max(0.0));
+            let (ix, iy) = (sx as usize, sy as usize);
+            let (fx, fy) = (sx - ix as f32, sy - iy as f32);
+            let top = at(ix, iy) * (1.0 - fx) + at(ix + 1, iy) * fx;
+            let bottom = at(ix, iy + 1) * (1.0 - fx) + at(ix + 1, iy + 1) * fx;
+            top * (1.0 - fy) + bottom * fy
+        })
+        .collect();
+    let e = extract::extract(&heights).ok_or("the window is flat")?;
+    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    e.sketch.write_png(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    if let Some(p) = dem_out {
+        let file = std::fs::File::create(&p).map_err(|e| format!("cannot create {}: {e}", p.display()))?;
+        write_dem_png16(std::io::BufWriter::new(file), SKETCH_PX, &e.target).map_err(|e| format!("cannot write {}: {e}", p.display()))?;
+    }
+    let (r, v) = e.sketch.stroke_cover();
+    eprintln!("wrote {}: ridges cover {:.1} %, valleys {:.1} %", out.display(), r * 100.0, v * 100.0);
+    Ok(())
+}
+
+pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
+    use terrain::sketch::{self, baseline, extract, score};
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png"))).collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(format!("no .png pairs in {}", dir.display()));
+    }
+    let generator = sketch_generator(weights)?;
+    let mut scratch = Default::default();
+    let threads = terrain::models::cpu::default_threads();
+    let mut rows = Vec::new();
+    let mut ms = Vec::new();
+    println!("{:36} {:>8} {:>8} {:>9} {:>9} {:>6} {:>8} {:>9}", "pair", "RMSE", "PSNR", "base RMSE", "base PSNR", "bands", "ridge F1", "valley F1");
+    for f in &files {
+        let file = std::fs::File::open(f).map_err(|e| format!("{}: {e}", f.display()))?;
+        let (sk, target) = sketch::read_pair(std::io::BufReader::new(file)).map_err(|e| format!("{}: {e}", f.display()))?;
+        let base = baseline::interpolate(&sk);
+        let rmse = score::rmse(&base, &target);
+        let t = std::time::Instant::now();
+        let ours = generator.generate_views(&sk, views, &mut scratch, threads);
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+        let e = score::rmse(&ours, &target);
+        let ex = extract::extract(&target).ok_or_else(|| format!("{}: flat DEM half", f.display()))?;
+        let ag = score::Agreement::between(&ex.sketch, &sk);
+        let name = f.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+        println!("{name:36} {e:8.3} {:8.2} {rmse:9.3} {:9.2} {:6.3} {:8.3} {:9.3}", score::psnr(e), score::psnr(rmse), ag.band, ag.ridge_f1(), ag.valley_f1());
+        rows.push(serde_json::json!({ "pair": name, "rmse": e, "psnr": score::psnr(e), "rmse_baseline": rmse, "psnr_baseline": score::psnr(rmse), "extractor": {
+            "band_agreement": ag.band, "ridge_precision": ag.ridge_precision, "ridge_recall": ag.ridge_recall, "valley_precision": ag.valley_precision, "valley_recall": ag.valley_recall } }));
+    }
+    let mean = |k: &str| rows.iter().map(|r| r[k].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / rows.len() as f64;
+    let mean_ex = |k: &str| rows.iter().map(|r| r["extractor"][k].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / rows.len() as f64;
+    let f1 = |p: f64, r: f64| 2.0 * p * r / (p + r).max(1e-12);
+    println!("{:36} {:8.3} {:8.2} {:9.3} {:9.2} {:6.3} {:8.3} {:9.3}", "mean", mean("rmse"), mean("psnr"), mean("rmse_baseline"), mean("psnr_baseline"), mean_ex("band_agreement"), f1(mean_ex("ridge_precision"), mean_ex("ridge_recall")), f1(mean_ex("valley_precision"), mean_ex("valley_recall")));
+    ms.sort_by(f64::total_cmp);
+    println!("{}", serde_json::json!({ "pairs": rows.len(), "mean": { "rmse": mean("rmse"), "psnr": mean("psnr"), "rmse_baseline": mean("rmse_baseline"), "psnr_baseline": mean("psnr_baseline"),
+        "extractor_band_agreement": mean_ex("band_agreement"), "extractor_ridge_precision": mean_ex("ridge_precision"), "extractor_ridge_recall": mean_ex("ridge_recall"),
+        "extractor_valley_precision": mean_ex("valley_precision"), "extractor_valley_recall": mean_ex("valley_recall") }, "views": views, "generator_ms_median": ms[ms.len() / 2], "per_pair": rows }));
+    Ok(())
+}

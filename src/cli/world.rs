@@ -1,0 +1,221 @@
+//! `terrain world`, `eval-tcm` and `train-tcm`: the learned world from the command line.
+
+#[allow(unused_imports)]
+use crate::*;
+
+/// The tile rectangle of `--tiles X0 Y0 W H`, checked without overflow: W, H ≥ 1, W·H ≤
+/// [`MAX_EXPORT_TILES`], every coordinate within ±2³⁰.
+pub(crate) fn tile_rect(t: &[i64]) -> Result<(i32, i32, u32, u32), String> {
+    let [x0, y0, w, h] = <[i64; 4]>::try_from(t).map_err(|_| "--tiles takes X0 Y0 W H".to_string())?;
+    if w < 1 || h < 1 || (w as i128) * (h as i128) > MAX_EXPORT_TILES as i128 {
+        return Err(format!("W×H must be between 1 and {MAX_EXPORT_TILES} tiles, got {w}×{h}"));
+    }
+    let limit = 1i64 << 30;
+    if [x0, y0, x0.saturating_add(w), y0.saturating_add(h)].iter().any(|v| v.abs() > limit) {
+        return Err(format!("tile coordinates must stay within ±{limit}"));
+    }
+    Ok((x0 as i32, y0 as i32, w as u32, h as u32))
+}
+
+pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, source: Source, weights: Option<PathBuf>) -> Result<(), String> {
+    let (x0, y0, w, h) = tile_rect(tiles)?;
+    let src: Box<dyn TileSource> = match source {
+        Source::Procedural => Box::new(ProceduralSource::new(NoiseParams::default())),
+        Source::Tcm => {
+            let models = terrain::world::learned::LearnedModels::load_dir(&weights_dir(weights))?;
+            Box::new(terrain::world::learned::LearnedSource::new(std::sync::Arc::new(models), terrain::models::cpu::default_threads()))
+        }
+    };
+    let hf = export::region(seed, src, x0, y0, w, h);
+    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    hf.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    eprintln!("wrote {}: {}×{} samples at {} m", out.display(), hf.width, hf.height, hf.spacing_m);
+    Ok(())
+}
+
+#[cfg(feature = "train")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7], [joined, disc_slopes]: [bool; 2], [position, grow_position]: [Option<f32>; 2], init: Option<&std::path::Path>, [tcm_only, grow_only]: [bool; 2], run_args: &RunArgs) -> Result<(), String> {
+    use terrain::train::{grow, pairs, tcm};
+    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage), ("--coarse", coarse), ("--free-l1", free_l1), ("--l1-reach", l1_reach), ("--dome", dome), ("--position", position.unwrap_or(0.0)), ("--grow-position", grow_position.unwrap_or(0.0))] {
+        if !w.is_finite() || w < 0.0 {
+            return Err(format!("{flag} must be a finite number ≥ 0, not {w}"));
+        }
+    }
+    let dems = pairs::load_dems(dem_dir)?;
+    let grids = tcm::grids(&dems);
+    let fine = grow::grids(&dems);
+    let names = |v: Vec<&str>| v.join(", ");
+    if grids.is_empty() || fine.is_empty() {
+        return Err(format!("{} needs DEMs with room for a 3×3-tile window at 128 m ({} found) and for a 224² window at 32 m or finer ({} found) in both splits", dem_dir.display(), grids.len(), fine.len()));
+    }
+    eprintln!("TCM data, {} DEMs at 128 m: {}", grids.len(), names(grids.iter().map(|g| g.id.as_str()).collect()));
+    let (level, level_sd, step) = tcm::tile_mean_stats(&grids);
+    eprintln!("real 4 km tile means: level {level:.0} ± {level_sd:.0} m, rms step between neighbours {step:.0} m");
+    eprintln!("×4 data, {} DEMs at 32 m: {}", fine.len(), names(fine.iter().map(|g| g.id.as_str()).collect()));
+    let fine_ids: Vec<&str> = fine.iter().map(|g| g.id.as_str()).collect();
+    let all: Vec<&pairs::Grid> = grids.iter().collect();
+    let (fine_coarse, rest): (Vec<_>, Vec<_>) = grids.iter().partition(|g| fine_ids.contains(&g.id.as_str()));
+    for (what, set) in [("all", &all), ("32 m or finer", &fine_coarse), ("coarser", &rest)] {
+        for split in [pairs::Split::Train, pairs::Split::Validation] {
+            if let Some((m, sd, p95)) = tcm::ruggedness_stats(set, split) {
+                eprintln!("ruggedness of {what} DEMs ({split:?}): {m:.2} ± {sd:.2}, 95th percentile {p95:.2}");
+            }
+        }
+    }
+    let (device, mut budget) = run_args.start()?;
+    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, free_l1, l1_reach_px: l1_reach, joined, dome, disc_slopes, position: position.unwrap_or(0.0), ..Default::default() };
+    let from = resume.then_some(checkpoint);
+    let start = match init {
+        Some(dir) => {
+            let file = dir.join(tcm::GEN_FILE);
+            let bytes = std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+            // Weights of today's layout as they are, else of the first layout widened.
+            let g = terrain::models::tcm::TcmCpu::from_burnpack(&bytes).or_else(|_| terrain::models::tcm::TcmCpu::widened(&bytes));
+            Some(g.map_err(|e| format!("{}: {e}", file.display()))?)
+        }
+        None => None,
+    };
+    // A part that is not trained needs no checkpoint: it starts fresh and is not saved.
+    let mut run = tcm::start_run(cfg, &device, from.filter(|_| !grow_only), start.as_ref())?;
+    if let Some(w) = position {
+        run.cfg.position = w;
+    }
+    let mut up = grow::GrowRun::start(batch, adversarial, &device, from.filter(|_| !tcm_only))?;
+    if let Some(dir) = init.filter(|_| !tcm_only) {
+        // The shipped file holds float16 weights, which burn's loader does not convert.
+        let file = dir.join(grow::GROW_FILE);
+        let bytes = std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+        let g = terrain::models::grow::GrowCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", file.display()))?;
+        up.g = g.into_model(up.g);
+    }
+    if let Some(w) = grow_position {
+        up.position = w;
+    }
+    eprintln!("TCM: {} parameters, ×4: {} parameters; {:?}; from step {}", run.g.parameters(), up.parameters(), run.cfg, run.progress.step);
+    // The step count of the part being trained.
+    let at = |run: &tcm::TcmRun, up: &grow::GrowRun| if grow_only { up.progress.step } else { run.progress.step };
+    let end = at(&run, &up) + steps;
+    let (mut tcm_rate, mut grow_rate) = (StepRate::new(run.progress.step), StepRate::new(up.progress.step));
+    while at(&run, &up) < end && !budget.spent() {
+        if !grow_only {
+            run.step(&grids)?;
+        }
+        if !tcm_only {
+            up.step(&fine, run.cfg.seed)?;
+        }
+        let (p, q) = (&run.progress, &up.progress);
+        tcm_rate.after_step(p.step, p.seconds);
+        grow_rate.after_step(q.step, q.seconds);
+        let step = at(&run, &up);
+        if step % 10 == 0 || step == end {
+            eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} pits {:.5} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", step, p.l1, p.adv, p.disc, p.depression, p.seconds / p.step.max(1) as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
+        }
+        if step % every == 0 || step == end || budget.checkpoint_due() {
+            if !grow_only {
+                run.save(checkpoint)?;
+            }
+            if !tcm_only {
+                up.save(checkpoint)?;
+            }
+        }
+    }
+    let summary = |p: &tcm::TcmProgress, rate: &StepRate, batch: usize| serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "examples_per_s": rate.examples_per_s(p.step, p.seconds, batch) });
+    println!("{}", serde_json::json!({ "tcm": summary(&run.progress, &tcm_rate, run.cfg.batch), "grow": summary(&up.progress, &grow_rate, up.batch), "checkpoint": checkpoint, "backend": run_args.backend }));
+    Ok(())
+}
+
+#[cfg(feature = "train")]
+pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, seeds: u64) -> Result<(), String> {
+    use std::sync::Arc;
+    use terrain::geomorph::{self, STAT_NAMES};
+    use terrain::train::{pairs, world_eval};
+    use terrain::world::TileCoord;
+    use terrain::world::learned::{LearnedModels, LearnedSource};
+    let dems = pairs::load_dems(dem_dir)?;
+    let models = Arc::new(LearnedModels::load_dir(weights)?);
+    let learned = LearnedSource::new(models.clone(), terrain::models::cpu::default_threads());
+    let procedural = ProceduralSource::new(NoiseParams::default());
+    const SIDE_TILES: usize = 6;
+    // The regions' north-west tile: SIDE_TILES² tiles around the origin.
+    let origin = TileCoord::new(-(SIDE_TILES as i32) / 2, -(SIDE_TILES as i32) / 2);
+    // Each statistic's median over a set of windows, to see which way a world is off.
+    let medians = |st: &[geomorph::Stats]| -> serde_json::Map<String, serde_json::Value> {
+        STAT_NAMES
+            .iter()
+            .enumerate()
+            .map(|(k, n)| {
+                let mut v: Vec<f64> = st.iter().map(|s| s.values()[k]).collect();
+                v.sort_by(f64::total_cmp);
+                (n.to_string(), serde_json::json!(v[v.len() / 2]))
+            })
+            .collect()
+    };
+    let mut regions: Vec<(&str, Vec<terrain::dem::Heightfield>, f64)> = Vec::new();
+    for (name, src) in [("tcm", &learned as &dyn TileSource), ("procedural", &procedural as &dyn TileSource)] {
+        let t0 = std::time::Instant::now();
+        let r: Vec<_> = (1..=seeds).map(|s| world_eval::region(src, s, origin, SIDE_TILES, SIDE_TILES)).collect();
+        let ms = t0.elapsed().as_secs_f64() * 1e3 / (seeds as usize * SIDE_TILES * SIDE_TILES) as f64;
+        regions.push((name, r, ms));
+    }
+    let mut sides = Vec::new();
+    for side in world_eval::WINDOW_SIDES {
+        let real = world_eval::stats_of(&world_eval::real_windows(&dems, side), side);
+        if real.is_empty() {
+            return Err(format!("no NaN-free {side}² validation window at 32 m or finer in {}", dem_dir.display()));
+        }
+        let mut worlds = serde_json::Map::new();
+        let mut means = Vec::new();
+        for (name, rs, _) in &regions {
+            let wins: Vec<Vec<f32>> = rs.iter().flat_map(|r| world_eval::windows_of(r, side)).collect();
+            let st = world_eval::stats_of(&wins, side);
+            let d = geomorph::distance(&st, &real);
+            means.push(d[STAT_NAMES.len()]);
+            let per: serde_json::Map<String, serde_json::Value> = STAT_NAMES.iter().zip(&d).map(|(n, v)| (n.to_string(), serde_json::json!(v))).collect();
+            worlds.insert(name.to_string(), serde_json::json!({ "windows": st.len(), "distance": d[STAT_NAMES.len()], "per_statistic": per, "medians": medians(&st) }));
+        }
+        sides.push(serde_json::json!({ "window": side, "real_windows": real.len(), "real_medians": medians(&real), "worlds": worlds, "ratio_tcm_over_procedural": means[0] / means[1] }));
+    }
+    // Seam figures pooled over the edges of all seeds' regions, and the same figures on
+    // real terrain cut into tiles (the validation windows of 256 samples: one edge each way),
+    // which has no seams: what a seamless world scores.
+    let seam_figures = |fields: &[terrain::dem::Heightfield]| {
+        let seam: Vec<f64> = fields.iter().flat_map(world_eval::seam_ratios).collect();
+        let crease: Vec<f64> = fields.iter().flat_map(world_eval::crease_ratios).collect();
+        let ((m, p), (cm, cp), (sm, sp)) = (world_eval::mean_p95(&seam), world_eval::mean_p95(&crease), world_eval::seam_steps(fields));
+        serde_json::json!({ "edges": seam.len(), "seam_mean": m, "seam_p95": p, "crease_mean": cm, "crease_p95": cp, "edge_step_over_inner_step_mean": sm, "edge_step_over_inner_step_p95": sp })
+    };
+    let mut seams: serde_json::Map<String, serde_json::Value> = regions
+        .iter()
+        .map(|(name, rs, ms)| {
+            let mut f = seam_figures(rs);
+            let strip: Vec<f64> = rs.iter().map(world_eval::edge_strip_ratio).collect();
+            f["edge_strip"] = serde_json::json!(strip.iter().sum::<f64>() / strip.len() as f64);
+            f["ms_per_tile"] = serde_json::json!(ms);
+            (name.to_string(), f)
+        })
+        .collect();
+    let side = world_eval::WINDOW_SIDES[1];
+    let real: Vec<terrain::dem::Heightfield> = world_eval::real_windows(&dems, side).into_iter().map(|w| terrain::dem::Heightfield::new(side, side, terrain::grid::BASE_SPACING_M, w)).collect();
+    seams.insert("real_validation_cut_into_tiles".into(), seam_figures(&real));
+    // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.
+    let mean_sd = |v: &[f64]| {
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        serde_json::json!({ "mean": m, "sd": (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt() })
+    };
+    let (mut asked, mut made) = (Vec::new(), Vec::new());
+    for s in 1..=seeds {
+        for k in 0..SIDE_TILES * SIDE_TILES {
+            let c = origin.offset(k as i32 % SIDE_TILES as i32, k as i32 / SIDE_TILES as i32);
+            asked.push(terrain::world::learned::ruggedness(s, c) as f64);
+            made.push(learned.made_ruggedness(s, c) as f64);
+        }
+    }
+    let ruggedness = serde_json::json!({ "asked": mean_sd(&asked), "made": mean_sd(&made) });
+    // Does the TCM give its tiles a shape of their own by phase (the quilt in hillshades)?
+    let grids = terrain::train::tcm::grids(&dems);
+    let domes = terrain::train::tcm::phase_dome_bias(&models.tcm, &grids, 400, terrain::models::cpu::default_threads());
+    let domes: Vec<serde_json::Value> = domes.iter().enumerate().map(|(p, (m, e))| serde_json::json!({ "phase": p, "made_minus_real_m": m, "standard_error_m": e })).collect();
+    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "seams_and_speed": seams, "ruggedness_128m_tiles": ruggedness, "tile_dome_bias_by_phase_128m_validation": domes })).expect("json"));
+    Ok(())
+}

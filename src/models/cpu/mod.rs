@@ -1,0 +1,564 @@
+//! CPU inference without a tensor framework: 3×3 convolutions with "same" zero padding on
+//! channel-last activation maps, the kind of layer every model of the project is made of.
+//!
+//! Why not burn's CPU backend: for the TEM it was ~9× slower than ONNX Runtime (im2col into a
+//! fresh buffer per layer, one operation at a time). Here each layer is one pass of a
+//! register-blocked kernel: a few output pixels × output channels are accumulated in
+//! registers over the 9 taps × input channels, with bias, ReLU or a skip connection applied
+//! as the block is stored; activation buffers are reused between calls. Kernels: AVX2 + FMA
+//! intrinsics natively (chosen at run time; [`BLOCK`] pixels × 32 channels), SIMD128
+//! intrinsics in the page (4 pixels × 8 channels, any multiple of 8 channels), and portable
+//! Rust elsewhere. Every kernel accumulates in the same order; the fused multiply-adds of the
+//! AVX2 kernel round differently from the separate multiplies and adds of the others, so
+//! native and page results differ in the last bits (0.24 mm on the TEM probe).
+
+/// Output pixels one kernel call accumulates at once (per row).
+pub const BLOCK: usize = 3;
+/// Pixels after a map's last row that the kernels may read (and ignore).
+const SLACK_PX: usize = 8;
+/// Output channels of the x86 32-channel kernel (other multiples of 8 take the 8-channel one).
+#[cfg(target_arch = "x86_64")]
+const LANES: usize = 32;
+
+/// A uniform value in [−1, 1) from a 64-bit LCG state (random layers for tests and untrained
+/// models).
+pub(crate) fn unit(s: &mut u64) -> f32 {
+    *s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    ((*s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+}
+
+/// The convolutions `layers` (name, output channels, input channels) with random weights
+/// ([`Conv3::random`], a seed per layer from `seed`).
+pub fn random_convs(layers: &[(String, usize, usize)], seed: u64, amplitude: f32) -> Vec<Conv3> {
+    layers.iter().enumerate().map(|(k, (_, cout, cin))| Conv3::random(*cout, *cin, seed ^ ((k as u64) << 32), amplitude)).collect()
+}
+
+/// Errors building a layer from stored weights.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum LayerError {
+    /// The weight or bias tensor has the wrong number of values.
+    #[error("a {cout}×{cin}×3×3 convolution needs {want} weights and {cout} biases, got {got_w} and {got_b}")]
+    Size {
+        /// Output channels.
+        cout: usize,
+        /// Input channels.
+        cin: usize,
+        /// Weights expected.
+        want: usize,
+        /// Weights given.
+        got_w: usize,
+        /// Biases given.
+        got_b: usize,
+    },
+    /// A weight or bias is NaN or infinite.
+    #[error("a {cout}×{cin}×3×3 convolution has a non-finite weight")]
+    NonFinite {
+        /// Output channels.
+        cout: usize,
+        /// Input channels.
+        cin: usize,
+    },
+}
+
+/// One 3×3 convolution (stride 1, zero padding 1) with bias.
+#[derive(Clone, Debug)]
+pub struct Conv3 {
+    cin: usize,
+    cout: usize,
+    /// Weights as [tap = 3·ky + kx][cin][cout].
+    w: Vec<f32>,
+    b: Vec<f32>,
+}
+
+impl Conv3 {
+    /// Builds the layer from PyTorch/burn-ordered weights `[cout][cin][3][3]` and `cout`
+    /// biases (`None`: zero).
+    pub fn from_oihw(cout: usize, cin: usize, w: &[f32], b: Option<&[f32]>) -> Result<Self, LayerError> {
+        let zeros = vec![0.0; cout];
+        let b = b.unwrap_or(&zeros);
+        if w.len() != cout * cin * 9 || b.len() != cout {
+            return Err(LayerError::Size { cout, cin, want: cout * cin * 9, got_w: w.len(), got_b: b.len() });
+        }
+        if !w.iter().chain(b).all(|v| v.is_finite()) {
+            return Err(LayerError::NonFinite { cout, cin });
+        }
+        let mut t = vec![0.0; w.len()];
+        for o in 0..cout {
+            for i in 0..cin {
+                for tap in 0..9 {
+                    t[(tap * cin + i) * cout + o] = w[(o * cin + i) * 9 + tap];
+                }
+            }
+        }
+        Ok(Self { cin, cout, w: t, b: b.to_vec() })
+    }
+
+    /// The weights back in `[cout][cin][3][3]` order, and the biases.
+    pub fn to_oihw(&self) -> (Vec<f32>, Vec<f32>) {
+        let (cin, cout) = (self.cin, self.cout);
+        let mut w = vec![0.0; self.w.len()];
+        for o in 0..cout {
+            for i in 0..cin {
+                for tap in 0..9 {
+                    w[(o * cin + i) * 9 + tap] = self.w[(tap * cin + i) * cout + o];
+                }
+            }
+        }
+        (w, self.b.clone())
+    }
+
+    /// The same layer with zero output channels appended up to a multiple of the vectorised
+    /// kernels' channel block (8): a layer whose outputs are not a multiple of 8 runs on the
+    /// portable kernel, about 7× slower (the sketch VAE's 6-channel output: 48 ms → 7 ms at
+    /// 256²). The first `cout` channels of its output are unchanged.
+    pub fn padded_for_simd(&self) -> Self {
+        if self.cout == 1 {
+            return self.clone();
+        }
+        self.widened(self.cout.next_multiple_of(ROWS8_CH), self.cin)
+    }
+
+    /// The same layer with zero output channels appended up to `cout` and zero-weighted input
+    /// channels appended up to `cin` (both at least the layer's own): a network whose widths
+    /// are not multiples of 8 runs on the vectorised kernels with its channels widened, and
+    /// the first channels of every output are unchanged.
+    pub fn widened(&self, cout: usize, cin: usize) -> Self {
+        assert!(cout >= self.cout && cin >= self.cin, "a layer is only widened");
+        let (w, mut b) = self.to_oihw();
+        let mut wide = vec![0.0; cout * cin * 9];
+        for o in 0..self.cout {
+            wide[o * cin * 9..][..self.cin * 9].copy_from_slice(&w[o * self.cin * 9..][..self.cin * 9]);
+        }
+        b.resize(cout, 0.0);
+        Self::from_oihw(cout, cin, &wide, Some(&b)).expect("zero-padded weights are finite and sized")
+    }
+
+    /// A layer with every weight and bias uniform in ±`amplitude`, drawn from `seed` with
+    /// integer arithmetic (tests: untrained networks that still compute something).
+    pub fn random(cout: usize, cin: usize, seed: u64, amplitude: f32) -> Self {
+        let mut k = seed;
+        let w: Vec<f32> = (0..cout * cin * 9).map(|_| unit(&mut k) * amplitude).collect();
+        let b: Vec<f32> = (0..cout).map(|_| unit(&mut k) * amplitude).collect();
+        Self::from_oihw(cout, cin, &w, Some(&b)).expect("sizes match")
+    }
+
+    /// Input channels.
+    pub fn cin(&self) -> usize {
+        self.cin
+    }
+
+    /// Output channels.
+    pub fn cout(&self) -> usize {
+        self.cout
+    }
+}
+
+/// A channel-last activation map of `h`×`w` pixels and `c` channels, stored with a one-pixel
+/// zero border (the convolutions' padding) and some slack after the last row, so the blocked
+/// kernel may read a few pixels past a row's end.
+#[derive(Clone, Debug, Default)]
+pub struct Map {
+    h: usize,
+    w: usize,
+    c: usize,
+    data: Vec<f32>,
+}
+
+impl Map {
+    /// Reshapes the map to `h`×`w`×`c`, reusing its buffer: the border is zero; the interior
+    /// is zero too unless the shape is unchanged (then it keeps old values, for callers
+    /// that overwrite every pixel).
+    pub fn reset(&mut self, h: usize, w: usize, c: usize) {
+        if (h, w, c) == (self.h, self.w, self.c) && !self.data.is_empty() {
+            // Every value is about to be overwritten but the border and the slack, which
+            // nothing writes: no need to clear.
+            self.data[(h + 1) * (w + 2) * c..].fill(0.0);
+            return;
+        }
+        self.h = h;
+        self.w = w;
+        self.c = c;
+        let len = ((h + 2) * (w + 2) + SLACK_PX) * c;
+        self.data.clear();
+        self.data.resize(len, 0.0);
+    }
+
+    /// Height (pixels).
+    pub fn height(&self) -> usize {
+        self.h
+    }
+
+    /// Width (pixels).
+    pub fn width(&self) -> usize {
+        self.w
+    }
+
+    /// Channels.
+    pub fn channels(&self) -> usize {
+        self.c
+    }
+
+    /// Index of channel 0 of pixel (`y`, `x`) (unpadded coordinates).
+    fn at(&self, y: usize, x: usize) -> usize {
+        ((y + 1) * (self.w + 2) + x + 1) * self.c
+    }
+
+    /// The `c` channels of pixel (`y`, `x`).
+    pub fn pixel(&self, y: usize, x: usize) -> &[f32] {
+        let i = self.at(y, x);
+        &self.data[i..i + self.c]
+    }
+
+    /// Reshapes the map to `h`×`w`×`c` and fills it from a channel-first array
+    /// (`src[(k·h + y)·w + x]`, the layout of burn's tensors).
+    pub fn set_chw(&mut self, src: &[f32], c: usize, h: usize, w: usize) {
+        assert_eq!(src.len(), c * h * w, "channel-first size");
+        self.reset(h, w, c);
+        for y in 0..h {
+            for x in 0..w {
+                for (k, v) in self.pixel_mut(y, x).iter_mut().enumerate() {
+                    *v = src[(k * h + y) * w + x];
+                }
+            }
+        }
+    }
+
+    /// The map as a channel-first array (the inverse of [`set_chw`](Self::set_chw)).
+    pub fn to_chw(&self) -> Vec<f32> {
+        let (h, w) = (self.h, self.w);
+        let mut out = vec![0f32; self.c * h * w];
+        for y in 0..h {
+            for x in 0..w {
+                for (k, v) in self.pixel(y, x).iter().enumerate() {
+                    out[(k * h + y) * w + x] = *v;
+                }
+            }
+        }
+        out
+    }
+
+    /// The `c` channels of pixel (`y`, `x`), writable.
+    pub fn pixel_mut(&mut self, y: usize, x: usize) -> &mut [f32] {
+        let i = self.at(y, x);
+        let c = self.c;
+        &mut self.data[i..i + c]
+    }
+}
+
+/// What happens to a convolution's output before it is stored.
+#[derive(Clone, Copy, Debug)]
+pub enum Post<'a> {
+    /// Stored as is.
+    None,
+    /// max(0, ·).
+    Relu,
+    /// Plus the same pixel of another map of the same shape (a skip connection).
+    Add(&'a Map),
+}
+
+/// Applies `layer` to `src` into `dst` (reshaped to `src`'s size and the layer's output
+/// channels) using up to `threads` threads (rows are split between them; 1 = this thread).
+pub fn conv(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize) {
+    conv_impl(layer, src, dst, post, threads, false)
+}
+
+/// [`conv`], optionally on the portable kernels even where AVX2 + FMA exist (tests run both).
+fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize, portable: bool) {
+    assert_eq!(src.c, layer.cin, "input channels");
+    if let Post::Add(s) = post {
+        assert!(s.h == src.h && s.w == src.w && s.c == layer.cout, "skip shape");
+    }
+    dst.reset(src.h, src.w, layer.cout);
+    let row_len = (src.w + 2) * layer.cout;
+    let (h, w) = (src.h, src.w);
+    // Output rows 0..h are padded rows 1..=h of dst.
+    let rows = &mut dst.data[row_len..row_len * (h + 1)];
+    let threads = threads.clamp(1, h.max(1));
+    if threads == 1 {
+        conv_rows(layer, src, rows, 0, h, w, post, portable);
+        return;
+    }
+    #[cfg(target_arch = "wasm32")]
+    {
+        conv_rows(layer, src, rows, 0, h, w, post, portable);
+    }
+    #[cfg(not(target_arch = "wasm32"))]
+    {
+        // On rayon's pool: its threads stay awake between the layers of a network, where
+        // starting threads per layer cost ~70 µs a layer and half the second core's gain.
+        use rayon::prelude::*;
+        let per = h.div_ceil(threads);
+        rows.par_chunks_mut(per * row_len).enumerate().for_each(|(k, chunk)| conv_rows(layer, src, chunk, k * per, chunk.len() / row_len, w, post, portable));
+    }
+}
+
+/// Whether this CPU runs the AVX2 + FMA kernels.
+#[cfg(target_arch = "x86_64")]
+fn has_avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// Output rows `y0..y0 + n` (`out` holds exactly those padded rows).
+#[allow(clippy::too_many_arguments)]
+fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post, portable: bool) {
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = portable; // only x86 has a choice of kernels
+    #[cfg(all(target_arch = "wasm32", target_feature = "simd128"))]
+    if layer.cout % simd128::CH == 0 {
+        simd128::rows(layer, src, out, y0, n, w, post);
+        return;
+    }
+    if layer.cout == 1 && layer.cin % 8 == 0 {
+        #[cfg(target_arch = "x86_64")]
+        if !portable && has_avx2_fma() && layer.cin == 8 {
+            // SAFETY: the CPU has AVX2 and FMA (checked just above).
+            unsafe { x86::rows_dot8(layer, src, out, y0, n, w, post) };
+            return;
+        }
+        rows_dot(layer, src, out, y0, n, w, post);
+    } else if layer.cout % ROWS8_CH == 0 {
+        #[cfg(target_arch = "x86_64")]
+        if !portable && has_avx2_fma() {
+            // SAFETY: the CPU has AVX2 and FMA (checked just above).
+            unsafe {
+                if layer.cout == LANES {
+                    x86::rows32(layer, src, out, y0, n, w, post);
+                } else {
+                    x86::rows8(layer, src, out, y0, n, w, post);
+                }
+            }
+            return;
+        }
+        rows8(layer, src, out, y0, n, w, post);
+    } else {
+        rows_plain(layer, src, out, y0, n, w, post);
+    }
+}
+
+/// The 32-channel kernel with AVX2 + FMA intrinsics: 3 pixels × 4 vectors of 8 channels are
+/// 12 accumulator registers, plus 3 broadcast inputs and one weight vector: all 16 registers,
+/// no spills (the compiler's own vectorisation of the portable [`rows8`] spilled, or stayed
+/// scalar).
+#[cfg(target_arch = "x86_64")]
+mod x86;
+
+/// The page's kernel with SIMD128 intrinsics for any multiple of 8 output channels: blocks of
+/// [`simd128::PX`] pixels × 8 channels, 8 vector accumulators, which stay in a browser's 16
+/// vector registers (the compiler left the portable kernel scalar for wasm, ~15× slower than
+/// native). Multiplies and adds in the same order as the portable kernel.
+#[cfg(all(target_arch = "wasm32", target_feature = "simd128"))]
+mod simd128;
+
+/// Pixels per block of [`rows8`].
+const ROWS8_PX: usize = 4;
+/// Output channels per pass of [`rows8`].
+const ROWS8_CH: usize = 8;
+
+/// Any multiple of 8 output channels (the portable kernel; natively the tests' reference for
+/// the AVX2 kernels): blocks of [`ROWS8_PX`] pixels × 8 channels, the same blocking and order
+/// as the page's SIMD128 kernel.
+#[inline(always)]
+fn rows8(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+    let (cin, cout) = (layer.cin, layer.cout);
+    let sw = src.w + 2;
+    let row_len = sw * cout;
+    assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + ROWS8_PX) * cin);
+    assert!(cout % ROWS8_CH == 0 && layer.w.len() == 9 * cin * cout && layer.b.len() == cout && out.len() == n * row_len);
+    for r in 0..n {
+        let y = y0 + r;
+        let mut x0 = 0;
+        while x0 < w {
+            for c0 in (0..cout).step_by(ROWS8_CH) {
+                let bias: [f32; ROWS8_CH] = layer.b[c0..c0 + ROWS8_CH].try_into().expect("8 biases");
+                let mut acc = [bias; ROWS8_PX];
+                for tap in 0..9 {
+                    let (ky, kx) = (tap / 3, tap % 3);
+                    let base = ((y + ky) * sw + x0 + kx) * cin;
+                    let wbase = tap * cin * cout + c0;
+                    for ci in 0..cin {
+                        let wv: &[f32; ROWS8_CH] = layer.w[wbase + ci * cout..][..ROWS8_CH].try_into().expect("8 weights");
+                        for (p, a) in acc.iter_mut().enumerate() {
+                            // SAFETY: below the bound asserted above.
+                            let v = unsafe { *src.data.get_unchecked(base + p * cin + ci) };
+                            for c in 0..ROWS8_CH {
+                                a[c] += v * wv[c];
+                            }
+                        }
+                    }
+                }
+                for (p, a) in acc.iter().enumerate().take(ROWS8_PX.min(w - x0)) {
+                    let o = r * row_len + (x0 + p + 1) * cout + c0;
+                    let dst = &mut out[o..o + ROWS8_CH];
+                    for c in 0..ROWS8_CH {
+                        dst[c] = match post {
+                            Post::None => a[c],
+                            Post::Relu => a[c].max(0.0),
+                            Post::Add(s) => a[c] + s.data[s.at(y, x0 + p) + c0 + c],
+                        };
+                    }
+                }
+            }
+            x0 += ROWS8_PX;
+        }
+    }
+}
+
+/// One output channel from a multiple of 8 input channels (the TEM's 8 → 1 tail): per pixel,
+/// 8 partial sums over the taps, added up in a fixed order.
+#[inline(always)]
+fn rows_dot(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+    let cin = layer.cin;
+    let sw = src.w + 2;
+    let (wrows, _) = layer.w.as_chunks::<8>();
+    for r in 0..n {
+        let y = y0 + r;
+        for x in 0..w {
+            let mut acc = [0f32; 8];
+            for tap in 0..9 {
+                let (ky, kx) = (tap / 3, tap % 3);
+                let (px, _) = src.data[((y + ky) * sw + x + kx) * cin..][..cin].as_chunks::<8>();
+                for (v, wv) in px.iter().zip(&wrows[tap * cin / 8..(tap + 1) * cin / 8]) {
+                    for l in 0..8 {
+                        acc[l] += v[l] * wv[l];
+                    }
+                }
+            }
+            let a = layer.b[0] + ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
+            out[r * sw + x + 1] = match post {
+                Post::None => a,
+                Post::Relu => a.max(0.0),
+                Post::Add(s) => a + s.pixel(y, x)[0],
+            };
+        }
+    }
+}
+
+/// Any channel count: one output pixel at a time.
+fn rows_plain(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+    let (cin, cout) = (layer.cin, layer.cout);
+    let sw = src.w + 2;
+    let row_len = sw * cout;
+    let mut acc = vec![0f32; cout];
+    for r in 0..n {
+        let y = y0 + r;
+        for x in 0..w {
+            acc.copy_from_slice(&layer.b);
+            for tap in 0..9 {
+                let (ky, kx) = (tap / 3, tap % 3);
+                let px = &src.data[((y + ky) * sw + x + kx) * cin..][..cin];
+                let wt = &layer.w[tap * cin * cout..(tap + 1) * cin * cout];
+                for (ci, v) in px.iter().enumerate() {
+                    for (a, wv) in acc.iter_mut().zip(&wt[ci * cout..(ci + 1) * cout]) {
+                        *a += v * wv;
+                    }
+                }
+            }
+            let o = r * row_len + (x + 1) * cout;
+            for (co, a) in acc.iter().enumerate() {
+                out[o + co] = match post {
+                    Post::None => *a,
+                    Post::Relu => a.max(0.0),
+                    Post::Add(s) => a + s.pixel(y, x)[co],
+                };
+            }
+        }
+    }
+}
+
+/// Rearranges `src` (`c`·4 channels) into a map of twice the size with `c` channels:
+/// output channel k of pixel (2y + dy, 2x + dx) is input channel 4k + 2dy + dx of (y, x)
+/// (PyTorch's and burn's PixelShuffle with factor 2).
+pub fn pixel_shuffle2(src: &Map, dst: &mut Map) {
+    assert_eq!(src.c % 4, 0, "channels must be a multiple of 4");
+    let c = src.c / 4;
+    dst.reset(2 * src.h, 2 * src.w, c);
+    for y in 0..src.h {
+        for x in 0..src.w {
+            let i = src.at(y, x);
+            for dy in 0..2 {
+                for dx in 0..2 {
+                    let o = dst.at(2 * y + dy, 2 * x + dx);
+                    for k in 0..c {
+                        dst.data[o + k] = src.data[i + 4 * k + 2 * dy + dx];
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// 2×2 mean pooling: `dst` becomes `src` at half the size (odd last rows/columns dropped).
+pub fn pool2(src: &Map, dst: &mut Map) {
+    let (h, w, c) = (src.h / 2, src.w / 2, src.c);
+    dst.reset(h, w, c);
+    for y in 0..h {
+        for x in 0..w {
+            let o = dst.at(y, x);
+            let (a, b, d, e) = (src.at(2 * y, 2 * x), src.at(2 * y, 2 * x + 1), src.at(2 * y + 1, 2 * x), src.at(2 * y + 1, 2 * x + 1));
+            for k in 0..c {
+                // The same order as a mean over a [2, 2] block: the pair of each row, then rows.
+                let top = (src.data[a + k] + src.data[b + k]) * 0.5;
+                let bottom = (src.data[d + k] + src.data[e + k]) * 0.5;
+                dst.data[o + k] = (top + bottom) * 0.5;
+            }
+        }
+    }
+}
+
+/// `src` upsampled ×2 (nearest): `dst` becomes twice the size with the same channels.
+pub fn up2(src: &Map, dst: &mut Map) {
+    let c = src.c;
+    dst.reset(2 * src.h, 2 * src.w, c);
+    for y in 0..2 * src.h {
+        for x in 0..2 * src.w {
+            let (o, i) = (dst.at(y, x), src.at(y / 2, x / 2));
+            dst.data[o..o + c].copy_from_slice(&src.data[i..i + c]);
+        }
+    }
+}
+
+/// The `side`² centre of `coarse` upsampled ×2 (nearest) followed by the `side`² centre of
+/// `skip`, as one map of `coarse.c + skip.c` channels (a UNet decoder's input).
+pub fn up2_concat(coarse: &Map, skip: &Map, side: usize, dst: &mut Map) {
+    let (cu, cs) = (coarse.c, skip.c);
+    dst.reset(side, side, cu + cs);
+    let (ou, os) = ((2 * coarse.h - side) / 2, (skip.h - side) / 2);
+    for y in 0..side {
+        for x in 0..side {
+            let o = dst.at(y, x);
+            let u = coarse.at((y + ou) / 2, (x + ou) / 2);
+            dst.data[o..o + cu].copy_from_slice(&coarse.data[u..u + cu]);
+            let k = skip.at(y + os, x + os);
+            dst.data[o + cu..o + cu + cs].copy_from_slice(&skip.data[k..k + cs]);
+        }
+    }
+}
+
+mod weights;
+pub use weights::*;
+
+/// Runs `a` and `b` and returns both results: side by side on the kernels' thread pool where
+/// `parallel` (natively), else one after the other (and always so in the page).
+pub fn join<A: Send, B: Send>(parallel: bool, a: impl FnOnce() -> A + Send, b: impl FnOnce() -> B + Send) -> (A, B) {
+    #[cfg(not(target_arch = "wasm32"))]
+    if parallel {
+        return rayon::join(a, b);
+    }
+    let _ = parallel;
+    (a(), b())
+}
+
+/// Threads the CPU path uses by default: every core natively, one in the page.
+pub fn default_threads() -> usize {
+    #[cfg(target_arch = "wasm32")]
+    {
+        1
+    }
+    #[cfg(not(target_arch = "wasm32"))]
+    {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    }
+}
+
+#[cfg(test)]
+mod tests;

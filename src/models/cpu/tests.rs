@@ -1,0 +1,184 @@
+//! Tests of the module.
+
+use super::*;
+
+/// The average of two weight files is their midpoint, weight by weight; files of another
+/// network (other shapes) or an empty list are refused.
+#[test]
+fn the_average_of_two_weight_files_is_their_midpoint_and_other_shapes_are_refused() {
+    let layers: Vec<(String, usize, usize)> = vec![("a".into(), 8, 4), ("b".into(), 4, 8)];
+    let (x, y) = (random_convs(&layers, 1, 0.5), random_convs(&layers, 2, 0.5));
+    let avg = average_burnpacks(&[convs_to_burnpack(&layers, &x), convs_to_burnpack(&layers, &y)]).unwrap();
+    let back = convs_from_burnpack(&avg, &layers).unwrap();
+    for ((p, q), m) in x.iter().zip(&y).zip(&back) {
+        let ((wp, bp), (wq, bq), (wm, bm)) = (p.to_oihw(), q.to_oihw(), m.to_oihw());
+        for ((a, b), c) in wp.iter().chain(&bp).zip(wq.iter().chain(&bq)).zip(wm.iter().chain(&bm)) {
+            assert!((c - (a + b) / 2.0).abs() < 1e-6, "{c} vs {a} and {b}");
+        }
+    }
+    let other: Vec<(String, usize, usize)> = vec![("a".into(), 8, 4), ("b".into(), 4, 9)];
+    let z = convs_to_burnpack(&other, &random_convs(&other, 3, 0.5));
+    assert!(average_burnpacks(&[convs_to_burnpack(&layers, &x), z]).is_err());
+    assert!(average_burnpacks(&[]).is_err());
+}
+
+/// Weight files round-trip: written as float32 they read back bit for bit; halved, every
+/// weight and bias is within half a float16 step (relative 2⁻¹¹) of the original and the
+/// file is at most 55 % of the float32 file's size. A float64 tensor is refused by name.
+#[test]
+fn weight_files_round_trip_in_float32_and_float16() {
+    let layers: Vec<(String, usize, usize)> = vec![("a".into(), 64, 32), ("b".into(), 32, 64)];
+    let convs = random_convs(&layers, 11, 0.5);
+    let bytes = convs_to_burnpack(&layers, &convs);
+    let back = convs_from_burnpack(&bytes, &layers).unwrap();
+    for (x, y) in convs.iter().zip(&back) {
+        assert_eq!(x.to_oihw(), y.to_oihw());
+    }
+    let half = to_half_burnpack(&bytes).unwrap();
+    assert!(half.len() * 100 <= bytes.len() * 55, "{} of {} bytes", half.len(), bytes.len());
+    let back = convs_from_burnpack(&half, &layers).unwrap();
+    for (x, y) in convs.iter().zip(&back) {
+        let ((w0, b0), (w1, b1)) = (x.to_oihw(), y.to_oihw());
+        for (a, b) in w0.iter().chain(&b0).zip(w1.iter().chain(&b1)) {
+            assert!((a - b).abs() <= a.abs() * 2f32.powi(-11) + 1e-7, "{a} vs {b}");
+        }
+    }
+    let f64_file = burn_pack::Writer::new(vec![burn_pack::Tensor::new("a.weight".into(), burn_pack::DType::F64, vec![1], None, burn_pack::Bytes::from_bytes_vec(vec![0; 8]))]).into_bytes().unwrap().to_vec();
+    let err = convs_from_burnpack(&f64_file, &layers[..1]).unwrap_err();
+    assert!(matches!(&err, crate::models::WeightError::Type { name, dtype } if name == "a.weight" && dtype == "F64"), "{err}");
+}
+
+/// A 16 → 6 layer padded to 8 outputs gives the same first 6 channels on every pixel of
+/// a 40×40 map (bit for bit on the portable kernel, within 1e-5 on AVX2), and zeros in
+/// the 2 added ones.
+#[test]
+fn padding_the_output_channels_keeps_the_outputs() {
+    let layer = Conv3::random(6, 16, 3, 0.3);
+    let padded = layer.padded_for_simd();
+    assert_eq!((padded.cin, padded.cout), (16, 8));
+    let mut src = Map::default();
+    let input: Vec<f32> = (0..16 * 40 * 40).map(|k| ((k * 7919) % 1000) as f32 / 500.0 - 1.0).collect();
+    src.set_chw(&input, 16, 40, 40);
+    for portable in [true, false] {
+        let (mut a, mut b) = (Map::default(), Map::default());
+        conv_impl(&layer, &src, &mut a, Post::None, 1, portable);
+        conv_impl(&padded, &src, &mut b, Post::None, 1, portable);
+        let tol = if portable { 0.0 } else { 1e-5 };
+        for p in 0..40 * 40 {
+            let (x, y) = (a.pixel(p / 40, p % 40), b.pixel(p / 40, p % 40));
+            for c in 0..6 {
+                assert!((x[c] - y[c]).abs() <= tol, "pixel {p} channel {c}: {} vs {}", x[c], y[c]);
+            }
+            assert_eq!(&y[6..], &[0.0, 0.0]);
+        }
+    }
+}
+
+use super::unit as lcg;
+
+/// Direct evaluation of the definition (NCHW, zero padding) for comparison.
+fn naive(w: &[f32], b: &[f32], cout: usize, cin: usize, x: &[f32], h: usize, wd: usize) -> Vec<f32> {
+    let mut y = vec![0f32; cout * h * wd];
+    for o in 0..cout {
+        for r in 0..h {
+            for c in 0..wd {
+                let mut acc = b[o] as f64;
+                for i in 0..cin {
+                    for ky in 0..3 {
+                        for kx in 0..3 {
+                            let (rr, cc) = (r as i64 + ky as i64 - 1, c as i64 + kx as i64 - 1);
+                            if rr >= 0 && cc >= 0 && (rr as usize) < h && (cc as usize) < wd {
+                                acc += (w[((o * cin + i) * 3 + ky) * 3 + kx] * x[(i * h + rr as usize) * wd + cc as usize]) as f64;
+                            }
+                        }
+                    }
+                }
+                y[(o * h + r) * wd + c] = acc as f32;
+            }
+        }
+    }
+    y
+}
+
+fn map_from_nchw(x: &[f32], c: usize, h: usize, w: usize) -> Map {
+    let mut m = Map::default();
+    m.reset(h, w, c);
+    for i in 0..c {
+        for r in 0..h {
+            for q in 0..w {
+                m.pixel_mut(r, q)[i] = x[(i * h + r) * w + q];
+            }
+        }
+    }
+    m
+}
+
+/// Every kernel (32 output channels blocked — AVX2 + FMA and portable —, 1 from 8 or 16 as dot
+/// products, 3 plain), widths that are and are not a
+/// multiple of BLOCK, 1 and 3 threads, with ReLU and a skip: every output within 1e-4 of
+/// the definition evaluated in f64, and the zero border stays zero.
+#[test]
+fn convolutions_match_the_definition_for_every_kernel_and_thread_count() {
+    let mut seed = 7;
+    for (cout, cin, h, w) in [(32, 4, 9, 13), (32, 32, 6, 8), (3, 5, 7, 6), (32, 8, 5, 5), (1, 16, 7, 9), (1, 8, 6, 11), (24, 7, 9, 10), (48, 24, 5, 7), (16, 13, 6, 6)] {
+        let wt: Vec<f32> = (0..cout * cin * 9).map(|_| lcg(&mut seed)).collect();
+        let b: Vec<f32> = (0..cout).map(|_| lcg(&mut seed)).collect();
+        let x: Vec<f32> = (0..cin * h * w).map(|_| lcg(&mut seed)).collect();
+        let skip_v: Vec<f32> = (0..cout * h * w).map(|_| lcg(&mut seed)).collect();
+        let want = naive(&wt, &b, cout, cin, &x, h, w);
+        let layer = Conv3::from_oihw(cout, cin, &wt, Some(&b)).unwrap();
+        let src = map_from_nchw(&x, cin, h, w);
+        let skip = map_from_nchw(&skip_v, cout, h, w);
+        for (threads, portable) in [(1, false), (3, false), (1, true), (3, true)] {
+            for post in [Post::None, Post::Relu, Post::Add(&skip)] {
+                let mut dst = Map::default();
+                conv_impl(&layer, &src, &mut dst, post, threads, portable);
+                let mut worst = 0f32;
+                for o in 0..cout {
+                    for r in 0..h {
+                        for q in 0..w {
+                            let k = (o * h + r) * w + q;
+                            let e = match post {
+                                Post::None => want[k],
+                                Post::Relu => want[k].max(0.0),
+                                Post::Add(_) => want[k] + skip_v[k],
+                            };
+                            worst = worst.max((dst.pixel(r, q)[o] - e).abs());
+                        }
+                    }
+                }
+                assert!(worst < 1e-4, "{cout}x{cin} {h}x{w} threads {threads} portable {portable} {post:?}: off by {worst}");
+                let border: f32 = (0..w + 2).map(|q| dst.data[q * cout..(q + 1) * cout].iter().map(|v| v.abs()).sum::<f32>()).sum();
+                assert_eq!(border, 0.0, "top border written");
+            }
+        }
+    }
+}
+
+#[test]
+fn pixel_shuffle_moves_channel_4k_plus_2dy_plus_dx_to_the_subpixel() {
+    let mut src = Map::default();
+    src.reset(2, 3, 8);
+    for y in 0..2 {
+        for x in 0..3 {
+            for c in 0..8 {
+                src.pixel_mut(y, x)[c] = (100 * y + 10 * x + c) as f32;
+            }
+        }
+    }
+    let mut dst = Map::default();
+    pixel_shuffle2(&src, &mut dst);
+    assert_eq!((dst.height(), dst.width(), dst.channels()), (4, 6, 2));
+    // pixel (3, 4) = (2·1 + 1, 2·2 + 0): input (1, 2), channels 4k + 2.
+    assert_eq!(dst.pixel(3, 4), &[122.0, 126.0]);
+    assert_eq!(dst.pixel(0, 1), &[1.0, 5.0]);
+}
+
+#[test]
+fn wrong_sizes_and_non_finite_weights_are_refused() {
+    assert!(matches!(Conv3::from_oihw(2, 2, &[0.0; 35], None), Err(LayerError::Size { want: 36, got_w: 35, .. })));
+    assert!(matches!(Conv3::from_oihw(1, 1, &[0.0; 9], Some(&[0.0, 1.0])), Err(LayerError::Size { got_b: 2, .. })));
+    let mut w = [0.0; 9];
+    w[4] = f32::NAN;
+    assert_eq!(Conv3::from_oihw(1, 1, &w, None).unwrap_err(), LayerError::NonFinite { cout: 1, cin: 1 });
+}
