@@ -141,7 +141,9 @@ fn sketch(c: &mut Criterion) {
         let mut s = SketchScratch::default();
         g.bench_function(format!("generator, one sketch -> 256² terrain, {t} thread(s)"), |bn| bn.iter(|| black_box(m.generator.generate(a, &mut s, t))));
         let views = generator::CLI_VIEWS;
-        g.bench_function(format!("generator, {views} views averaged (terrain sketch's default), {t} thread(s)"), |bn| bn.iter(|| black_box(m.generator.generate_views(a, views, &mut s, t))));
+        g.bench_function(format!("generator, {views} views averaged (terrain sketch's default), {t} thread(s)"), |bn| {
+            bn.iter(|| black_box(m.generator.generate_views(a, views, &mut s, t)))
+        });
         g.bench_function(format!("4 variants with their terrains, {t} thread(s)"), |bn| {
             bn.iter(|| {
                 let v = m.vae.variants(a, 4, 7, &mut Default::default(), t);

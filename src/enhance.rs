@@ -108,7 +108,14 @@ pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, usize);
 /// the output covers the same extent with 2^levels times the pixels per side; no-data input
 /// pixels stay no-data (their area in the output is NaN). Returns the result and the
 /// refinement counters.
-pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &TemSet, batch: usize, progress: Progress) -> Result<(Heightfield, crate::world::RefineStats), EnhanceError> {
+pub fn enhance(
+    input: &Heightfield,
+    input_res_m: f64,
+    output_res_m: f64,
+    tem: &TemSet,
+    batch: usize,
+    progress: Progress,
+) -> Result<(Heightfield, crate::world::RefineStats), EnhanceError> {
     let (first, last) = levels_for(input_res_m, output_res_m)?;
     if input.width == 0 || input.height == 0 {
         return Err(EnhanceError::Empty);
@@ -141,7 +148,11 @@ pub fn enhance(input: &Heightfield, input_res_m: f64, output_res_m: f64, tem: &T
     let mut data = Vec::with_capacity(w * h);
     for py in 0..h {
         for px in 0..w {
-            let v = if input.at(px / f, py / f).is_nan() { f32::NAN } else { store.pixel(last, px as i64, py as i64).ok_or_else(|| EnhanceError::Refine { level: last, reason: format!("pixel ({px}, {py}) is missing") })? };
+            let v = if input.at(px / f, py / f).is_nan() {
+                f32::NAN
+            } else {
+                store.pixel(last, px as i64, py as i64).ok_or_else(|| EnhanceError::Refine { level: last, reason: format!("pixel ({px}, {py}) is missing") })?
+            };
             data.push(v);
         }
     }

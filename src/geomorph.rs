@@ -19,7 +19,8 @@
 //! deviation when the quartiles coincide.
 
 /// Names of the statistics, in the order of [`Stats::values`].
-pub const STAT_NAMES: [&str; 7] = ["slope_mean_deg", "slope_p90_over_p50", "laplacian_skewness", "laplacian_kurtosis", "spectral_slope_4_16px", "depression_area_fraction", "local_relief_m"];
+pub const STAT_NAMES: [&str; 7] =
+    ["slope_mean_deg", "slope_p90_over_p50", "laplacian_skewness", "laplacian_kurtosis", "spectral_slope_4_16px", "depression_area_fraction", "local_relief_m"];
 
 /// Depth (metres) below which a filled pit does not count as a closed depression.
 pub const DEPRESSION_DEPTH_M: f32 = 0.5;
@@ -340,7 +341,15 @@ mod tests {
     /// reference's spread gives 1 for it.
     #[test]
     fn distance_is_zero_for_equal_sets_and_counts_standard_deviations() {
-        let base = Stats { slope_mean_deg: 10.0, slope_p90_over_p50: 2.0, laplacian_skewness: 0.0, laplacian_kurtosis: 1.0, spectral_slope: -3.0, depression_fraction: 0.01, local_relief_m: 50.0 };
+        let base = Stats {
+            slope_mean_deg: 10.0,
+            slope_p90_over_p50: 2.0,
+            laplacian_skewness: 0.0,
+            laplacian_kurtosis: 1.0,
+            spectral_slope: -3.0,
+            depression_fraction: 0.01,
+            local_relief_m: 50.0,
+        };
         let set: Vec<Stats> = (0..100).map(|k| Stats { slope_mean_deg: k as f64, ..base }).collect();
         assert!(distance(&set, &set).iter().all(|&d| d == 0.0));
         let sd = spread(&set.iter().map(|s| s.slope_mean_deg).collect::<Vec<_>>());

@@ -555,9 +555,44 @@ fn main() -> ExitCode {
         Command::Sketch { input, out, weights, views } => sketch(&input, &out, weights, views.count as usize),
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
-        Command::TrainSketch { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, crop, pool, adversarial, validation, model, init, max_extent_m, min_extent_m, dems, format_pairs, format_exclude, format_share, loss, lr, run, snapshots } => {
+        Command::TrainSketch {
+            dem_dir,
+            steps,
+            resume,
+            checkpoint,
+            checkpoint_every,
+            batch,
+            crop,
+            pool,
+            adversarial,
+            validation,
+            model,
+            init,
+            max_extent_m,
+            min_extent_m,
+            dems,
+            format_pairs,
+            format_exclude,
+            format_share,
+            loss,
+            lr,
+            run,
+            snapshots,
+        } => {
             let format_share = if format_pairs.is_some() { format_share } else { 0.0 };
-            let cfg = terrain::train::sketch::SketchConfig { batch: batch as usize, crop, pool: pool as usize, adversarial, windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m }, format_pairs, format_exclude, format_share, lr, loss, ..Default::default() };
+            let cfg = terrain::train::sketch::SketchConfig {
+                batch: batch as usize,
+                crop,
+                pool: pool as usize,
+                adversarial,
+                windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m },
+                format_pairs,
+                format_exclude,
+                format_share,
+                lr,
+                loss,
+                ..Default::default()
+            };
             train_sketch(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, cfg, validation, model, init.as_deref(), &run, snapshots)
         }
         Command::SketchVariants { input, n, out_dir, seed, weights, views } => sketch_variants(&input, n as usize, &out_dir, seed, weights, views.count as usize),
@@ -566,9 +601,42 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::EvalTcm { dem_dir, weights, seeds } => eval_tcm(&dem_dir, &weights, seeds),
         #[cfg(feature = "train")]
-        Command::TrainTcm { dem_dir, steps, resume, checkpoint, checkpoint_every, batch, adversarial, init, ruggedness, drainage, coarse, free_l1, l1_reach, joined, dome, disc_slopes, position, tcm_only, grow_only, grow_position, run } => {
-            train_tcm(&dem_dir, steps, resume, &checkpoint, checkpoint_every as usize, batch as usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome], [joined, disc_slopes], [position, grow_position], init.as_deref(), [tcm_only, grow_only], &run)
-        }
+        Command::TrainTcm {
+            dem_dir,
+            steps,
+            resume,
+            checkpoint,
+            checkpoint_every,
+            batch,
+            adversarial,
+            init,
+            ruggedness,
+            drainage,
+            coarse,
+            free_l1,
+            l1_reach,
+            joined,
+            dome,
+            disc_slopes,
+            position,
+            tcm_only,
+            grow_only,
+            grow_position,
+            run,
+        } => train_tcm(
+            &dem_dir,
+            steps,
+            resume,
+            &checkpoint,
+            checkpoint_every as usize,
+            batch as usize,
+            [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome],
+            [joined, disc_slopes],
+            [position, grow_position],
+            init.as_deref(),
+            [tcm_only, grow_only],
+            &run,
+        ),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

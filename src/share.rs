@@ -146,7 +146,17 @@ impl ShareState {
             "v={LINK_VERSION}&seed={}&src={}{weights}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}",
             self.seed,
             self.source.key(),
-            self.yaw, self.pitch, self.radius_tiles, self.lod_px, n.octaves, n.persistence, n.lacunarity, n.wavelength_m, n.amplitude_m, n.base_m, self.autopilot_mps
+            self.yaw,
+            self.pitch,
+            self.radius_tiles,
+            self.lod_px,
+            n.octaves,
+            n.persistence,
+            n.lacunarity,
+            n.wavelength_m,
+            n.amplitude_m,
+            n.base_m,
+            self.autopilot_mps
         )
     }
 
@@ -220,7 +230,15 @@ impl ShareState {
                     if oct.fract() != 0.0 || !(0.0..=64.0).contains(&oct) {
                         return Err(ShareError(format!("octaves '{oct}' is not a small whole number")));
                     }
-                    let noise = NoiseParams { kind, octaves: oct as u32, persistence: pers as f32, lacunarity: lac as f32, wavelength_m: wave as f32, amplitude_m: amp as f32, base_m: base as f32 };
+                    let noise = NoiseParams {
+                        kind,
+                        octaves: oct as u32,
+                        persistence: pers as f32,
+                        lacunarity: lac as f32,
+                        wavelength_m: wave as f32,
+                        amplitude_m: amp as f32,
+                        base_m: base as f32,
+                    };
                     noise.validate().map_err(ShareError)?;
                     s.noise = noise;
                 }
@@ -288,7 +306,8 @@ mod tests {
 
     #[test]
     fn a_noisy_sketch_link_is_too_long_and_falls_back_to_a_short_link_without_the_sketch() {
-        let example = ShareState { source: SourceKind::Sketch, sketch: Some(crate::sketch::code::encode(&crate::sketch::examples::first().1)), relief_m: 1500.0, ..ShareState::default() };
+        let example =
+            ShareState { source: SourceKind::Sketch, sketch: Some(crate::sketch::code::encode(&crate::sketch::examples::first().1)), relief_m: 1500.0, ..ShareState::default() };
         assert_eq!(example.share_fragment(), Ok(example.to_fragment()));
         let mut noisy = crate::sketch::Sketch::filled(0);
         for p in 0..crate::sketch::SKETCH_PX * crate::sketch::SKETCH_PX {

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Every test: native unit, property and integration tests (world, schedule, LOD, links, DEM
+# Every test: formatting and clippy (native and wasm32), native unit, property and integration tests (world, schedule, LOD, links, DEM
 # readers, CLI, burn on Vulkan/lavapipe, smoke trainings), the release build of the page with
 # trunk, and the headless-Chromium end-to-end test of that page on WebGPU. Prints each step's
 # time, the page's size and the e2e report.
@@ -15,6 +15,9 @@ t0=$(date +%s); last=$t0; report=""
 step() { local now; now=$(date +%s); report+="$1 $((now - last)) s, "; echo "== $1: $((now - last)) s"; last=$now; }
 
 bash tests/setup.sh system
+# rustfmt, clippy and the page's target, before the page job (which would add the target too).
+rustup component list --installed | grep -q '^clippy' || rustup component add clippy rustfmt
+rustup target list --installed | grep -q wasm32-unknown-unknown || rustup target add wasm32-unknown-unknown
 step "system packages"
 
 # The page (its tools, wasm-bindgen-cli and trunk, then its release build) is made while the
@@ -31,6 +34,13 @@ page_log="$CARGO_TARGET_DIR/page-build.log"
   echo "page job: tools $((p1 - p0)) s, trunk build $(( $(date +%s) - p1 )) s"
 ) > "$page_log" 2>&1 &
 page_pid=$!
+
+# Habits: the code is formatted (rustfmt.toml) and clippy-clean with warnings as errors, natively
+# and for the page's wasm32 build.
+cargo fmt --check
+cargo clippy --all-targets -- -D warnings
+cargo clippy --target wasm32-unknown-unknown --no-default-features --lib -- -D warnings
+step "fmt and clippy"
 
 cargo test --all-targets --no-run --timings
 step "native build"

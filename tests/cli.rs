@@ -70,12 +70,9 @@ fn bad_arguments_are_clear_errors() {
 /// Misspelt subcommands and flags are refused with the likely meaning.
 #[test]
 fn typos_are_refused_with_a_suggestion() {
-    for (args, tip) in [
-        (vec!["wrld"], "world"),
-        (vec!["enhanse"], "enhance"),
-        (vec!["world", "--sed", "1"], "--seed"),
-        (vec!["enhance", "--output-resolution", "1"], "--output-res"),
-    ] {
+    for (args, tip) in
+        [(vec!["wrld"], "world"), (vec!["enhanse"], "enhance"), (vec!["world", "--sed", "1"], "--seed"), (vec!["enhance", "--output-resolution", "1"], "--output-res")]
+    {
         let o = run(&args);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(2), "{args:?}");
@@ -291,10 +288,12 @@ fn sketch_makes_a_full_range_16_bit_dem_whose_height_quarters_follow_the_bands()
 fn sketch_terrain_of_a_mirrored_sketch_is_the_mirrored_terrain_and_nine_views_are_refused() {
     let e = synthetic_sketch();
     let rgb = e.sketch.to_rgb();
-    let mirrored: Vec<u8> = (0..256 * 256).flat_map(|p| {
-        let (y, x) = (p / 256, 255 - p % 256);
-        rgb[(y * 256 + x) * 3..(y * 256 + x) * 3 + 3].to_vec()
-    }).collect();
+    let mirrored: Vec<u8> = (0..256 * 256)
+        .flat_map(|p| {
+            let (y, x) = (p / 256, 255 - p % 256);
+            rgb[(y * 256 + x) * 3..(y * 256 + x) * 3 + 3].to_vec()
+        })
+        .collect();
     let (a, b, out_a, out_b) = (tmp("views_a.png"), tmp("views_b.png"), tmp("views_a_dem.png"), tmp("views_b_dem.png"));
     terrain::sketch::write_rgb_png(std::fs::File::create(&a).unwrap(), 256, 256, &rgb).unwrap();
     terrain::sketch::write_rgb_png(std::fs::File::create(&b).unwrap(), 256, 256, &mirrored).unwrap();

@@ -158,7 +158,14 @@ mod tests {
         assert_eq!(ModelSet::Tem.files().len(), LEVELS);
         assert_eq!(ModelSet::World.files(), vec![TCM_FILE.to_string(), GROW_FILE.to_string()]);
         assert_eq!(ModelSet::Sketch.files().len(), 2);
-        let errors = [LoadError::Failed("x".into()), LoadError::Fetch("x".into()), LoadError::Broken("x".into()), LoadError::WorkerStopped("x".into()), LoadError::NoWorker("x".into()), LoadError::Run { backend: "WebGPU".into(), why: "x".into() }];
+        let errors = [
+            LoadError::Failed("x".into()),
+            LoadError::Fetch("x".into()),
+            LoadError::Broken("x".into()),
+            LoadError::WorkerStopped("x".into()),
+            LoadError::NoWorker("x".into()),
+            LoadError::Run { backend: "WebGPU".into(), why: "x".into() },
+        ];
         for e in &errors {
             assert!(reason(ModelSet::Tem, e).ends_with("showing the 32 m world"), "{e:?}");
             assert!(notice(ModelSet::World, &reason(ModelSet::World, e)).unwrap().ends_with("Showing the procedural world."));

@@ -10,18 +10,18 @@ use glam::DVec3;
 pub mod loads;
 pub mod page;
 
+use crate::grid::mix64;
+use crate::grid::schedule::tile_seed;
 use crate::jobs::{Job, JobQueue, JobStats, Outcome};
+use crate::models::tem::LEVELS;
 use crate::render::camera::{Camera, CameraController, ControlInput};
 use crate::render::gpu::{FrameParams, sun_direction};
 use crate::share::ShareState;
 use crate::sketch::canvas::Canvas;
 use crate::sketch::{SKETCH_PX, Sketch};
-use crate::world::sketched::SketchSource;
-use crate::models::tem::LEVELS;
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
 use crate::world::refine::{INPUT_SIDE, PatchKey, PatchStore, RefineJob};
-use crate::grid::mix64;
-use crate::grid::schedule::tile_seed;
+use crate::world::sketched::SketchSource;
 use crate::world::{ProceduralSource, SourceKind, TILE_SAMPLES, TILE_SIZE_M, Tile, TileCoord, TileSource, WorldStream};
 
 /// Milliseconds per frame that tile generation may use at least before it waits for the next
@@ -305,7 +305,16 @@ impl TerrainApp {
             _ => None,
         };
         let sketch = (source == SourceKind::Sketch).then(|| self.sketch_code.1.clone());
-        ShareState { position_m: self.camera.position_m.to_array(), yaw: self.camera.yaw, pitch: self.camera.pitch, source, weights, link_version: crate::share::LINK_VERSION, sketch, ..self.settings.clone() }
+        ShareState {
+            position_m: self.camera.position_m.to_array(),
+            yaw: self.camera.yaw,
+            pitch: self.camera.pitch,
+            source,
+            weights,
+            link_version: crate::share::LINK_VERSION,
+            sketch,
+            ..self.settings.clone()
+        }
     }
 
     /// Whether procedural tiles are made elsewhere (`true`: by whoever takes

@@ -554,7 +554,12 @@ impl PageCore {
     pub fn opening_view(restart: Option<(ShareState, String)>, fragment: &str, options_notice: Option<String>) -> (ShareState, Option<String>) {
         match (restart, ShareState::from_fragment(fragment)) {
             (Some((state, note)), _) => (state, Some(note)),
-            (None, Ok(s)) if s.link_version == 1 => (s, Some("This link is from an older version of the page (version 1): it opens the procedural world it was made with, which may differ from what its sender saw.".into())),
+            (None, Ok(s)) if s.link_version == 1 => (
+                s,
+                Some(
+                    "This link is from an older version of the page (version 1): it opens the procedural world it was made with, which may differ from what its sender saw.".into(),
+                ),
+            ),
             (None, Ok(s)) => (s, options_notice),
             (None, Err(e)) => (ShareState::default(), Some(format!("{e}. Showing the default world instead."))),
         }
@@ -606,7 +611,9 @@ impl PageCore {
         match self.app.share_state().share_fragment() {
             Ok(f) => (format!("{page}#{f}"), None),
             Err(too_long) => {
-                self.message = Some(format!("{too_long}. The link copied has everything but the sketch, which was downloaded as sketch.png: send both; the receiver opens the link, then Import PNG."));
+                self.message = Some(format!(
+                    "{too_long}. The link copied has everything but the sketch, which was downloaded as sketch.png: send both; the receiver opens the link, then Import PNG."
+                ));
                 (format!("{page}#{}", too_long.without_sketch), Some(self.app.canvas.sketch().clone()))
             }
         }

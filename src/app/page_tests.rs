@@ -16,10 +16,13 @@ fn start(worker: Result<(), String>) -> PageStart {
     PageStart { tem: TemChoice::Auto, gpu: Err("no GPU in this test".into()), software_adapter: false, worker, status: String::new() }
 }
 
+/// A stand-in for a file's download: `Some(answer)` for the files it changes.
+type Swap = dyn Fn(&str) -> Option<Result<Vec<u8>, String>>;
+
 /// A shell: files from `weights/` (or `swap`'s answer for a file name), requests to `runner`.
 struct Shell<'a> {
     runner: Runner,
-    swap: &'a dyn Fn(&str) -> Option<Result<Vec<u8>, String>>,
+    swap: &'a Swap,
     posted: Vec<(Target, &'static str)>,
 }
 
@@ -107,7 +110,10 @@ fn broken_and_missing_weight_files_fail_their_set_with_the_fallback_said() {
     shell.frames(&mut core, 2);
     let Load::Failed(tem) = &core.loads.tem else { panic!("{:?}", core.loads.tem) };
     assert!(tem.contains("tem_2_4m.bpk") && tem.starts_with("TEM weights are broken") && tem.ends_with("showing the 32 m world"), "{tem}");
-    assert_eq!(core.message.as_deref(), Some("The learned world is not available: its weights could not be loaded (weights/grow_32m.bpk: HTTP 404). Showing the procedural world."));
+    assert_eq!(
+        core.message.as_deref(),
+        Some("The learned world is not available: its weights could not be loaded (weights/grow_32m.bpk: HTTP 404). Showing the procedural world.")
+    );
     assert_eq!(core.app.source(), SourceKind::Procedural);
     assert_eq!(core.app.stats().refine_backend, "");
 }

@@ -68,7 +68,19 @@ pub(crate) fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Op
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch::SketchConfig, validation: usize, model: SketchModel, init: Option<&std::path::Path>, run_args: &RunArgs, snapshots: bool) -> Result<(), String> {
+pub(crate) fn train_sketch(
+    dem_dir: &std::path::Path,
+    steps: usize,
+    resume: bool,
+    checkpoint: &std::path::Path,
+    every: usize,
+    cfg: terrain::train::sketch::SketchConfig,
+    validation: usize,
+    model: SketchModel,
+    init: Option<&std::path::Path>,
+    run_args: &RunArgs,
+    snapshots: bool,
+) -> Result<(), String> {
     use terrain::train::{pairs, sketch};
     if !cfg.adversarial.is_finite() || cfg.adversarial < 0.0 {
         return Err(format!("--adversarial must be a finite number ≥ 0, not {}", cfg.adversarial));
@@ -99,7 +111,18 @@ pub(crate) fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool
     let (device, mut budget) = run_args.start()?;
     let t = std::time::Instant::now();
     if let SketchModel::Vae = model {
-        return train_sketch_vae(&dems, steps, resume, checkpoint, every, terrain::train::sketch_vae::VaeConfig { batch: cfg.batch, pool: cfg.pool, crop: cfg.crop, ..Default::default() }, validation, &device, &mut budget, run_args.backend);
+        return train_sketch_vae(
+            &dems,
+            steps,
+            resume,
+            checkpoint,
+            every,
+            terrain::train::sketch_vae::VaeConfig { batch: cfg.batch, pool: cfg.pool, crop: cfg.crop, ..Default::default() },
+            validation,
+            &device,
+            &mut budget,
+            run_args.backend,
+        );
     }
     let mut run = sketch::SketchRun::start(cfg, &dems, &device, resume.then_some(checkpoint), init.as_ref())?;
     let val = sketch::pairs(&dems, pairs::Split::Validation, validation, &run.cfg.windows, 0x5EED);
@@ -112,7 +135,14 @@ pub(crate) fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool
         }
         _ => Vec::new(),
     };
-    eprintln!("sketch generator: {} parameters; {:?}; from step {}; pool and {} validation pairs made in {:.1} s", run.g.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
+    eprintln!(
+        "sketch generator: {} parameters; {:?}; from step {}; pool and {} validation pairs made in {:.1} s",
+        run.g.parameters(),
+        run.cfg,
+        run.progress.step,
+        val.len(),
+        t.elapsed().as_secs_f64()
+    );
     let end = run.progress.step + steps;
     let mut rate = StepRate::new(run.progress.step);
     let mut last = None;
@@ -142,7 +172,10 @@ pub(crate) fn train_sketch(dem_dir: &std::path::Path, steps: usize, resume: bool
         }
     }
     let p = &run.progress;
-    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "validation": last, "checkpoint": checkpoint, "backend": run_args.backend, "examples_per_s": rate.examples_per_s(p.step, p.seconds, run.cfg.batch) }));
+    println!(
+        "{}",
+        serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "validation": last, "checkpoint": checkpoint, "backend": run_args.backend, "examples_per_s": rate.examples_per_s(p.step, p.seconds, run.cfg.batch) })
+    );
     Ok(())
 }
 
@@ -152,7 +185,8 @@ pub(crate) fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::
     let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
     let dir = weights_dir(weights);
     let read = |file: &str| std::fs::read(dir.join(file)).map_err(|e| format!("{}: {e}", dir.join(file).display()));
-    let SketchModels { generator, vae, .. } = SketchModels::from_bytes(&read(terrain::models::sketch::WEIGHT_FILE)?, &read(terrain::models::sketch_vae::WEIGHT_FILE)?).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let SketchModels { generator, vae, .. } =
+        SketchModels::from_bytes(&read(terrain::models::sketch::WEIGHT_FILE)?, &read(terrain::models::sketch_vae::WEIGHT_FILE)?).map_err(|e| format!("{}: {e}", dir.display()))?;
     std::fs::create_dir_all(out_dir).map_err(|e| format!("cannot create {}: {e}", out_dir.display()))?;
     let threads = terrain::models::cpu::default_threads();
     let t = std::time::Instant::now();
@@ -175,12 +209,30 @@ pub(crate) fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, cfg: terrain::train::sketch_vae::VaeConfig, validation: usize, device: &burn::tensor::Device, budget: &mut terrain::train::Budget, backend: terrain::train::Backend) -> Result<(), String> {
+pub(crate) fn train_sketch_vae(
+    dems: &[terrain::train::pairs::Dem],
+    steps: usize,
+    resume: bool,
+    checkpoint: &std::path::Path,
+    every: usize,
+    cfg: terrain::train::sketch_vae::VaeConfig,
+    validation: usize,
+    device: &burn::tensor::Device,
+    budget: &mut terrain::train::Budget,
+    backend: terrain::train::Backend,
+) -> Result<(), String> {
     use terrain::train::{pairs, sketch, sketch_vae};
     let t = std::time::Instant::now();
     let mut run = sketch_vae::VaeRun::start(cfg, dems, device, resume.then_some(checkpoint))?;
     let val = sketch::pairs(dems, pairs::Split::Validation, validation, &sketch::WindowChoice::ALL, 0x5EED);
-    eprintln!("sketch VAE: {} parameters; {:?}; from step {}; pool and {} validation sketches made in {:.1} s", run.m.parameters(), run.cfg, run.progress.step, val.len(), t.elapsed().as_secs_f64());
+    eprintln!(
+        "sketch VAE: {} parameters; {:?}; from step {}; pool and {} validation sketches made in {:.1} s",
+        run.m.parameters(),
+        run.cfg,
+        run.progress.step,
+        val.len(),
+        t.elapsed().as_secs_f64()
+    );
     let end = run.progress.step + steps;
     let mut rate = StepRate::new(run.progress.step);
     let mut last = None;
@@ -193,13 +245,19 @@ pub(crate) fn train_sketch_vae(dems: &[terrain::train::pairs::Dem], steps: usize
         }
         if p.step % every == 0 || p.step == end || budget.checkpoint_due() {
             let v = sketch_vae::validate(&run.cpu()?, &val);
-            eprintln!("validation ({} held-out sketches): bands kept {:.3}, ridge F1 {:.3}, valley F1 {:.3}; variants change {:.3} of the bands", v.sketches, v.band_agreement, v.ridge_f1, v.valley_f1, v.variant_band_change);
+            eprintln!(
+                "validation ({} held-out sketches): bands kept {:.3}, ridge F1 {:.3}, valley F1 {:.3}; variants change {:.3} of the bands",
+                v.sketches, v.band_agreement, v.ridge_f1, v.valley_f1, v.variant_band_change
+            );
             run.save(checkpoint, Some(&v))?;
             last = Some(v);
         }
     }
     let p = &run.progress;
-    println!("{}", serde_json::json!({ "steps": p.step, "seconds": p.seconds, "reconstruction": p.l1, "kl": p.adv, "validation": last, "checkpoint": checkpoint, "backend": backend, "examples_per_s": rate.examples_per_s(p.step, p.seconds, run.cfg.batch) }));
+    println!(
+        "{}",
+        serde_json::json!({ "steps": p.step, "seconds": p.seconds, "reconstruction": p.l1, "kl": p.adv, "validation": last, "checkpoint": checkpoint, "backend": backend, "examples_per_s": rate.examples_per_s(p.step, p.seconds, run.cfg.batch) })
+    );
     Ok(())
 }
 
@@ -243,7 +301,11 @@ pub(crate) fn sketch_extract(dem: &std::path::Path, window: &[u32], out: &std::p
 
 pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
     use terrain::sketch::{self, baseline, extract, score};
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png"))).collect();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| format!("{}: {e}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
+        .collect();
     files.sort();
     if files.is_empty() {
         return Err(format!("no .png pairs in {}", dir.display()));
@@ -273,10 +335,23 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
     let mean = |k: &str| rows.iter().map(|r| r[k].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / rows.len() as f64;
     let mean_ex = |k: &str| rows.iter().map(|r| r["extractor"][k].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / rows.len() as f64;
     let f1 = |p: f64, r: f64| 2.0 * p * r / (p + r).max(1e-12);
-    println!("{:36} {:8.3} {:8.2} {:9.3} {:9.2} {:6.3} {:8.3} {:9.3}", "mean", mean("rmse"), mean("psnr"), mean("rmse_baseline"), mean("psnr_baseline"), mean_ex("band_agreement"), f1(mean_ex("ridge_precision"), mean_ex("ridge_recall")), f1(mean_ex("valley_precision"), mean_ex("valley_recall")));
+    println!(
+        "{:36} {:8.3} {:8.2} {:9.3} {:9.2} {:6.3} {:8.3} {:9.3}",
+        "mean",
+        mean("rmse"),
+        mean("psnr"),
+        mean("rmse_baseline"),
+        mean("psnr_baseline"),
+        mean_ex("band_agreement"),
+        f1(mean_ex("ridge_precision"), mean_ex("ridge_recall")),
+        f1(mean_ex("valley_precision"), mean_ex("valley_recall"))
+    );
     ms.sort_by(f64::total_cmp);
-    println!("{}", serde_json::json!({ "pairs": rows.len(), "mean": { "rmse": mean("rmse"), "psnr": mean("psnr"), "rmse_baseline": mean("rmse_baseline"), "psnr_baseline": mean("psnr_baseline"),
+    println!(
+        "{}",
+        serde_json::json!({ "pairs": rows.len(), "mean": { "rmse": mean("rmse"), "psnr": mean("psnr"), "rmse_baseline": mean("rmse_baseline"), "psnr_baseline": mean("psnr_baseline"),
         "extractor_band_agreement": mean_ex("band_agreement"), "extractor_ridge_precision": mean_ex("ridge_precision"), "extractor_ridge_recall": mean_ex("ridge_recall"),
-        "extractor_valley_precision": mean_ex("valley_precision"), "extractor_valley_recall": mean_ex("valley_recall") }, "views": views, "generator_ms_median": ms[ms.len() / 2], "per_pair": rows }));
+        "extractor_valley_precision": mean_ex("valley_precision"), "extractor_valley_recall": mean_ex("valley_recall") }, "views": views, "generator_ms_median": ms[ms.len() / 2], "per_pair": rows })
+    );
     Ok(())
 }

@@ -26,12 +26,21 @@ pub(crate) fn enhance(input: &std::path::Path, input_res: f64, output_res: f64, 
             last_report = (level, done * 10 / total.max(1));
             eprintln!("level {level} ({} m): {done}/{total} patches", terrain::models::tem::LEVEL_SPACING_M[level]);
         }
-    }).map_err(|e| e.to_string())?;
+    })
+    .map_err(|e| e.to_string())?;
     let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     result.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
     eprintln!(
         "wrote {}: {}×{} at {} m from {}×{} at {input_res} m; {} patches in {:.1} s ({:.1} ms per patch)",
-        out.display(), result.width, result.height, result.spacing_m, hf.width, hf.height, stats.quads_made, t.elapsed().as_secs_f64(), stats.ms_per_quad()
+        out.display(),
+        result.width,
+        result.height,
+        result.spacing_m,
+        hf.width,
+        hf.height,
+        stats.quads_made,
+        t.elapsed().as_secs_f64(),
+        stats.ms_per_quad()
     );
     Ok(())
 }
@@ -132,7 +141,10 @@ pub(crate) fn train_tem(a: TrainArgs) -> Result<(), String> {
     })?;
     saved?;
     train::save_models(&models, &out)?;
-    println!("{}", serde_json::json!({ "steps": done, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_scale_units": losses, "backend": a.run.backend, "seconds": step_s, "examples_per_s": rate.examples_per_s(done, step_s, cfg.batch) }));
+    println!(
+        "{}",
+        serde_json::json!({ "steps": done, "batch": cfg.batch, "chain_levels": cfg.chain_levels, "lr": cfg.lr, "seed": cfg.seed, "final_l1_per_level_scale_units": losses, "backend": a.run.backend, "seconds": step_s, "examples_per_s": rate.examples_per_s(done, step_s, cfg.batch) })
+    );
     Ok(())
 }
 
@@ -149,7 +161,16 @@ pub(crate) fn eval_tem(dir: PathBuf, weights: PathBuf, windows: usize) -> Result
         let edge: Vec<String> = e.rmse_by_edge_distance.iter().map(|v| format!("{v:.3}")).collect();
         println!(
             "{:5}  {:5} m  {:12}  {:7}  {:10.4} m  {:8.4} m  {:5.1}%  {:9.2} dB  {:7.2} dB  {}",
-            e.level, e.spacing_m, if e.real { "real" } else { "self-similar" }, e.windows, e.rmse_bicubic, e.rmse_tem, gain, e.psnr_bicubic, e.psnr_tem, edge.join(" ")
+            e.level,
+            e.spacing_m,
+            if e.real { "real" } else { "self-similar" },
+            e.windows,
+            e.rmse_bicubic,
+            e.rmse_tem,
+            gain,
+            e.psnr_bicubic,
+            e.psnr_tem,
+            edge.join(" ")
         );
     }
     // Chained from the coarsest input through the `enhance` path.
@@ -173,13 +194,28 @@ pub(crate) fn eval_tem(dir: PathBuf, weights: PathBuf, windows: usize) -> Result
     let refs: Vec<&terrain::dem::Heightfield> = sixteen.iter().collect();
     chained.extend(train::eval_chained(&tem, &train::validation_windows(&refs, 256, 4), 32.0, "real (16 m)")?);
     println!();
-    println!("chained (terrain enhance path)     in→out     windows  RMSE bicubic  RMSE TEM   gain   PSNR bic  PSNR TEM  seam ratio TEM/bicubic/truth  TEM RMSE by distance to quad edge (px: 0,1,2-3,4-7,8-15,16+)");
+    println!(
+        "chained (terrain enhance path)     in→out     windows  RMSE bicubic  RMSE TEM   gain   PSNR bic  PSNR TEM  seam ratio TEM/bicubic/truth  TEM RMSE by distance to quad edge (px: 0,1,2-3,4-7,8-15,16+)"
+    );
     for e in &chained {
         let gain = 100.0 * (1.0 - e.rmse_tem / e.rmse_bicubic.max(1e-12));
         let edge: Vec<String> = e.rmse_by_quad_edge_distance.iter().map(|v| format!("{v:.3}")).collect();
         println!(
             "{:34} {:>3}→{:<3} m ×{:<3} {:5}  {:10.4} m  {:8.4} m  {:5.1}%  {:7.2}  {:8.2}  {:5.3}/{:5.3}/{:5.3}  {}",
-            e.data, e.input_m, e.output_m, (e.input_m / e.output_m) as u32, e.windows, e.rmse_bicubic, e.rmse_tem, gain, e.psnr_bicubic, e.psnr_tem, e.seam_ratio, e.seam_ratio_bicubic, e.seam_ratio_truth, edge.join(" ")
+            e.data,
+            e.input_m,
+            e.output_m,
+            (e.input_m / e.output_m) as u32,
+            e.windows,
+            e.rmse_bicubic,
+            e.rmse_tem,
+            gain,
+            e.psnr_bicubic,
+            e.psnr_tem,
+            e.seam_ratio,
+            e.seam_ratio_bicubic,
+            e.seam_ratio_truth,
+            edge.join(" ")
         );
     }
     println!("{}", serde_json::json!({ "one_level": evals, "chained": chained }));

@@ -35,9 +35,32 @@ pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, source: Sou
 
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, checkpoint: &std::path::Path, every: usize, batch: usize, [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7], [joined, disc_slopes]: [bool; 2], [position, grow_position]: [Option<f32>; 2], init: Option<&std::path::Path>, [tcm_only, grow_only]: [bool; 2], run_args: &RunArgs) -> Result<(), String> {
+pub(crate) fn train_tcm(
+    dem_dir: &std::path::Path,
+    steps: usize,
+    resume: bool,
+    checkpoint: &std::path::Path,
+    every: usize,
+    batch: usize,
+    [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7],
+    [joined, disc_slopes]: [bool; 2],
+    [position, grow_position]: [Option<f32>; 2],
+    init: Option<&std::path::Path>,
+    [tcm_only, grow_only]: [bool; 2],
+    run_args: &RunArgs,
+) -> Result<(), String> {
     use terrain::train::{grow, pairs, tcm};
-    for (flag, w) in [("--adversarial", adversarial), ("--ruggedness", ruggedness), ("--drainage", drainage), ("--coarse", coarse), ("--free-l1", free_l1), ("--l1-reach", l1_reach), ("--dome", dome), ("--position", position.unwrap_or(0.0)), ("--grow-position", grow_position.unwrap_or(0.0))] {
+    for (flag, w) in [
+        ("--adversarial", adversarial),
+        ("--ruggedness", ruggedness),
+        ("--drainage", drainage),
+        ("--coarse", coarse),
+        ("--free-l1", free_l1),
+        ("--l1-reach", l1_reach),
+        ("--dome", dome),
+        ("--position", position.unwrap_or(0.0)),
+        ("--grow-position", grow_position.unwrap_or(0.0)),
+    ] {
         if !w.is_finite() || w < 0.0 {
             return Err(format!("{flag} must be a finite number ≥ 0, not {w}"));
         }
@@ -47,7 +70,12 @@ pub(crate) fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, c
     let fine = grow::grids(&dems);
     let names = |v: Vec<&str>| v.join(", ");
     if grids.is_empty() || fine.is_empty() {
-        return Err(format!("{} needs DEMs with room for a 3×3-tile window at 128 m ({} found) and for a 224² window at 32 m or finer ({} found) in both splits", dem_dir.display(), grids.len(), fine.len()));
+        return Err(format!(
+            "{} needs DEMs with room for a 3×3-tile window at 128 m ({} found) and for a 224² window at 32 m or finer ({} found) in both splits",
+            dem_dir.display(),
+            grids.len(),
+            fine.len()
+        ));
     }
     eprintln!("TCM data, {} DEMs at 128 m: {}", grids.len(), names(grids.iter().map(|g| g.id.as_str()).collect()));
     let (level, level_sd, step) = tcm::tile_mean_stats(&grids);
@@ -64,7 +92,20 @@ pub(crate) fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, c
         }
     }
     let (device, mut budget) = run_args.start()?;
-    let cfg = tcm::TcmConfig { batch, adversarial, ruggedness, drainage, coarse, free_l1, l1_reach_px: l1_reach, joined, dome, disc_slopes, position: position.unwrap_or(0.0), ..Default::default() };
+    let cfg = tcm::TcmConfig {
+        batch,
+        adversarial,
+        ruggedness,
+        drainage,
+        coarse,
+        free_l1,
+        l1_reach_px: l1_reach,
+        joined,
+        dome,
+        disc_slopes,
+        position: position.unwrap_or(0.0),
+        ..Default::default()
+    };
     let from = resume.then_some(checkpoint);
     let start = match init {
         Some(dir) => {
@@ -109,7 +150,19 @@ pub(crate) fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, c
         grow_rate.after_step(q.step, q.seconds);
         let step = at(&run, &up);
         if step % 10 == 0 || step == end {
-            eprintln!("step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} pits {:.5} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step", step, p.l1, p.adv, p.disc, p.depression, p.seconds / p.step.max(1) as f64, q.l1, q.adv, q.disc, q.seconds / q.step.max(1) as f64);
+            eprintln!(
+                "step {:6}  TCM l1 {:.4} adv {:.3} disc {:.3} pits {:.5} {:.2} s/step | ×4 l1 {:.4} adv {:.3} disc {:.3} {:.2} s/step",
+                step,
+                p.l1,
+                p.adv,
+                p.disc,
+                p.depression,
+                p.seconds / p.step.max(1) as f64,
+                q.l1,
+                q.adv,
+                q.disc,
+                q.seconds / q.step.max(1) as f64
+            );
         }
         if step % every == 0 || step == end || budget.checkpoint_due() {
             if !grow_only {
@@ -121,7 +174,10 @@ pub(crate) fn train_tcm(dem_dir: &std::path::Path, steps: usize, resume: bool, c
         }
     }
     let summary = |p: &tcm::TcmProgress, rate: &StepRate, batch: usize| serde_json::json!({ "steps": p.step, "seconds": p.seconds, "l1": p.l1, "adv": p.adv, "disc": p.disc, "examples_per_s": rate.examples_per_s(p.step, p.seconds, batch) });
-    println!("{}", serde_json::json!({ "tcm": summary(&run.progress, &tcm_rate, run.cfg.batch), "grow": summary(&up.progress, &grow_rate, up.batch), "checkpoint": checkpoint, "backend": run_args.backend }));
+    println!(
+        "{}",
+        serde_json::json!({ "tcm": summary(&run.progress, &tcm_rate, run.cfg.batch), "grow": summary(&up.progress, &grow_rate, up.batch), "checkpoint": checkpoint, "backend": run_args.backend })
+    );
     Ok(())
 }
 
@@ -174,7 +230,9 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
             let per: serde_json::Map<String, serde_json::Value> = STAT_NAMES.iter().zip(&d).map(|(n, v)| (n.to_string(), serde_json::json!(v))).collect();
             worlds.insert(name.to_string(), serde_json::json!({ "windows": st.len(), "distance": d[STAT_NAMES.len()], "per_statistic": per, "medians": medians(&st) }));
         }
-        sides.push(serde_json::json!({ "window": side, "real_windows": real.len(), "real_medians": medians(&real), "worlds": worlds, "ratio_tcm_over_procedural": means[0] / means[1] }));
+        sides.push(
+            serde_json::json!({ "window": side, "real_windows": real.len(), "real_medians": medians(&real), "worlds": worlds, "ratio_tcm_over_procedural": means[0] / means[1] }),
+        );
     }
     // Seam figures pooled over the edges of all seeds' regions, and the same figures on
     // real terrain cut into tiles (the validation windows of 256 samples: one edge each way),
@@ -196,7 +254,8 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
         })
         .collect();
     let side = world_eval::WINDOW_SIDES[1];
-    let real: Vec<terrain::dem::Heightfield> = world_eval::real_windows(&dems, side).into_iter().map(|w| terrain::dem::Heightfield::new(side, side, terrain::grid::BASE_SPACING_M, w)).collect();
+    let real: Vec<terrain::dem::Heightfield> =
+        world_eval::real_windows(&dems, side).into_iter().map(|w| terrain::dem::Heightfield::new(side, side, terrain::grid::BASE_SPACING_M, w)).collect();
     seams.insert("real_validation_cut_into_tiles".into(), seam_figures(&real));
     // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.
     let mean_sd = |v: &[f64]| {

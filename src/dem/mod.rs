@@ -229,13 +229,8 @@ impl Heightfield {
         let geo = self.geo.unwrap_or(GeoRef { origin_m: [0.0, 0.0], epsg: None });
         image.encoder().write_tag(Tag::Unknown(MODEL_PIXEL_SCALE), &[self.spacing_m, self.spacing_m, 0.0][..])?;
         image.encoder().write_tag(Tag::Unknown(MODEL_TIEPOINT), &[0.0, 0.0, 0.0, geo.origin_m[0], geo.origin_m[1], 0.0][..])?;
-        let keys: [u16; 20] = [
-            1, 1, 0, 4,
-            geokey::MODEL_TYPE, 0, 1, 1,
-            geokey::RASTER_TYPE, 0, 1, 1,
-            geokey::PROJECTED_CS, 0, 1, geo.epsg.unwrap_or(32767),
-            geokey::LINEAR_UNITS, 0, 1, 9001,
-        ];
+        let keys: [u16; 20] =
+            [1, 1, 0, 4, geokey::MODEL_TYPE, 0, 1, 1, geokey::RASTER_TYPE, 0, 1, 1, geokey::PROJECTED_CS, 0, 1, geo.epsg.unwrap_or(32767), geokey::LINEAR_UNITS, 0, 1, 9001];
         image.encoder().write_tag(Tag::Unknown(GEO_KEY_DIRECTORY), &keys[..])?;
         image.encoder().write_tag(Tag::Unknown(GDAL_NODATA), "nan")?;
         image.write_data(&self.data)?;
@@ -310,13 +305,11 @@ impl Heightfield {
                 (ColorType::Grayscale, BitDepth::Eight) => data.extend(row.iter().take(w).map(|&p| grey(p as f64))),
                 (ColorType::Rgb | ColorType::Rgba, BitDepth::Eight) => {
                     let n = if frame.color_type == ColorType::Rgb { 3 } else { 4 };
-                    data.extend(row.chunks_exact(n).take(w).map(|p| {
-                        if n == 4 && p[3] == 0 {
-                            f32::NAN
-                        } else {
-                            (-10_000.0 + ((p[0] as u32) << 16 | (p[1] as u32) << 8 | p[2] as u32) as f64 * 0.1) as f32
-                        }
-                    }))
+                    data.extend(
+                        row.chunks_exact(n)
+                            .take(w)
+                            .map(|p| if n == 4 && p[3] == 0 { f32::NAN } else { (-10_000.0 + ((p[0] as u32) << 16 | (p[1] as u32) << 8 | p[2] as u32) as f64 * 0.1) as f32 }),
+                    )
                 }
                 (c, d) => return Err(DemError::Format(format!("PNG of {c:?} at {d:?} is not a heightmap (expected 16/8-bit grey or 8-bit RGB terrain-RGB)"))),
             }

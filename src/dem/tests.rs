@@ -62,7 +62,8 @@ fn shared_dems_read_with_their_spacing_and_no_data() {
     let path = shared("dem/landlab_chiri_1m.tif");
     let chiri = Heightfield::read_path(&path, Some(1.0), PngScale::default()).unwrap();
     let mut dec = Decoder::new(std::fs::File::open(&path).unwrap()).unwrap();
-    let nodata: f64 = dec.get_tag_ascii_string(Tag::Unknown(GDAL_NODATA)).ok().and_then(|s| s.trim_matches(|c: char| c.is_whitespace() || c == '\0').parse().ok()).unwrap_or(f64::NAN);
+    let nodata: f64 =
+        dec.get_tag_ascii_string(Tag::Unknown(GDAL_NODATA)).ok().and_then(|s| s.trim_matches(|c: char| c.is_whitespace() || c == '\0').parse().ok()).unwrap_or(f64::NAN);
     let raw: Vec<f64> = match dec.read_image().unwrap() {
         DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
         DecodingResult::F64(v) => v,

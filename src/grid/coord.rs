@@ -35,10 +35,7 @@ impl TileCoord {
 
     /// The tile that contains the world point (x, z) in metres.
     pub fn containing(x_m: f64, z_m: f64) -> Self {
-        Self {
-            i: (x_m / TILE_SIZE_M).floor() as i32,
-            j: (z_m / TILE_SIZE_M).floor() as i32,
-        }
+        Self { i: (x_m / TILE_SIZE_M).floor() as i32, j: (z_m / TILE_SIZE_M).floor() as i32 }
     }
 
     /// World position (metres) of this tile's sample (0, 0), its north-west corner.

@@ -112,19 +112,19 @@ impl Runner {
         }
         let (out, ms) = timed(|| -> Result<Option<Vec<f32>>, String> {
             match &mut task.work {
-            Work::Tile { seed, tile } => {
-                let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
-                if world.prepare(*seed, *tile) {
-                    return Ok(None);
+                Work::Tile { seed, tile } => {
+                    let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
+                    if world.prepare(*seed, *tile) {
+                        return Ok(None);
+                    }
+                    Ok(Some(world.generate(*seed, *tile, &Neighbourhood::default()).heights))
                 }
-                Ok(Some(world.generate(*seed, *tile, &Neighbourhood::default()).heights))
-            }
-            Work::Enhance { level, side, windows, out } => {
-                let tem = self.tem.as_ref().ok_or("the CPU worker has no TEM loaded".to_string())?;
-                let window = windows.remove(0);
-                out.extend(tem.enhance_blocking(*level, window, 1, *side)?);
-                Ok(windows.is_empty().then(|| std::mem::take(out)))
-            }
+                Work::Enhance { level, side, windows, out } => {
+                    let tem = self.tem.as_ref().ok_or("the CPU worker has no TEM loaded".to_string())?;
+                    let window = windows.remove(0);
+                    out.extend(tem.enhance_blocking(*level, window, 1, *side)?);
+                    Ok(windows.is_empty().then(|| std::mem::take(out)))
+                }
             }
         });
         task.ms += ms;
@@ -172,7 +172,9 @@ impl Runner {
                 self.sketch = Some(models);
                 Ok(Reply::Loaded { hash })
             }
-            Request::Tile { seed, tile, noise: Some(noise) } => Ok(Reply::Heights { heights: ProceduralSource::new(noise).generate(seed, tile, &Neighbourhood::default()).heights, ms: 0.0 }),
+            Request::Tile { seed, tile, noise: Some(noise) } => {
+                Ok(Reply::Heights { heights: ProceduralSource::new(noise).generate(seed, tile, &Neighbourhood::default()).heights, ms: 0.0 })
+            }
             Request::Sketch { sketch: s } => {
                 let s = sketch_of(&s)?;
                 let m = self.sketch.as_ref().ok_or(NO_SKETCH)?;
@@ -400,10 +402,12 @@ mod tests {
         }
         let mut state = 1u64;
         for len in 0..2000usize {
-            let bytes: Vec<u8> = (0..len % 64).map(|_| {
-                state = crate::grid::mix64(state);
-                state as u8
-            }).collect();
+            let bytes: Vec<u8> = (0..len % 64)
+                .map(|_| {
+                    state = crate::grid::mix64(state);
+                    state as u8
+                })
+                .collect();
             if let Accepted::Paced(mut t) = r.accept_bytes(&bytes) {
                 let _ = r.step(&mut t);
             }

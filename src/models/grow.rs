@@ -21,9 +21,9 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
 use crate::dem::Heightfield;
+use crate::grid::mix64;
 use crate::models::cpu::{self, Conv3, Map, Post};
 use crate::models::tcm::{COARSE_SPACING_M, TILE_PX, gauss};
-use crate::grid::mix64;
 
 /// Samples of the 128 m field read beyond the tile on every side (more than the network's
 /// reach of 8 samples plus bicubic's 2).

@@ -218,6 +218,28 @@ pub fn self_check_blocking(device: &Device) -> Result<f32, String> {
     max_error(check_tensor(device).into_data())
 }
 
+/// `m` with every parameter drawn uniformly from ±`amplitude` by a hash of `seed` (tests: a
+/// zero-initialised tail or untrained layers would prove nothing).
+#[cfg(all(test, feature = "train"))]
+pub(crate) fn random_weights<M: burn::module::Module>(m: M, device: &Device, seed: u64, amplitude: f32) -> M {
+    use crate::grid::mix64;
+    use burn::module::{ModuleMapper, Param};
+    struct Random(Device, u64, f32);
+    impl ModuleMapper for Random {
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            let (device, a) = (self.0.clone(), self.2);
+            self.1 = mix64(self.1);
+            let seed = self.1;
+            param.map(|t| {
+                let n = t.shape().num_elements();
+                let v: Vec<f32> = (0..n as u64).map(|k| ((mix64(seed ^ k) >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0) * a).collect();
+                Tensor::<D>::from_data(TensorData::new(v, t.shape()), &device)
+            })
+        }
+    }
+    m.map(&mut Random(device.clone(), seed, amplitude))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -294,26 +316,4 @@ mod tests {
         let e = sketch::SketchGenGpu::from_burnpack(b"not a burnpack file", &test_gpu()).unwrap_err();
         assert!(e.to_string().starts_with(&format!("{}: not a weight file", sketch::WEIGHT_FILE)), "{e}");
     }
-}
-
-/// `m` with every parameter drawn uniformly from ±`amplitude` by a hash of `seed` (tests: a
-/// zero-initialised tail or untrained layers would prove nothing).
-#[cfg(all(test, feature = "train"))]
-pub(crate) fn random_weights<M: burn::module::Module>(m: M, device: &Device, seed: u64, amplitude: f32) -> M {
-    use burn::module::{ModuleMapper, Param};
-    use crate::grid::mix64;
-    struct Random(Device, u64, f32);
-    impl ModuleMapper for Random {
-        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-            let (device, a) = (self.0.clone(), self.2);
-            self.1 = mix64(self.1);
-            let seed = self.1;
-            param.map(|t| {
-                let n = t.shape().num_elements();
-                let v: Vec<f32> = (0..n as u64).map(|k| ((mix64(seed ^ k) >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0) * a).collect();
-                Tensor::<D>::from_data(TensorData::new(v, t.shape()), &device)
-            })
-        }
-    }
-    m.map(&mut Random(device.clone(), seed, amplitude))
 }

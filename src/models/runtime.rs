@@ -95,7 +95,7 @@ mod tests {
     #[test]
     fn the_worker_rests_only_beside_a_software_adapter_after_the_first_picture() {
         assert_eq!(worker_rest_per_work(true, true), SOFTWARE_WORKER_REST_PER_WORK);
-        assert!(SOFTWARE_WORKER_REST_PER_WORK >= 1.0);
+        const { assert!(SOFTWARE_WORKER_REST_PER_WORK >= 1.0) };
         assert_eq!(worker_rest_per_work(true, false), 0.0);
         assert_eq!(worker_rest_per_work(false, true), 0.0);
         assert_eq!(worker_rest_per_work(false, false), 0.0);

@@ -139,7 +139,7 @@ const KERNEL_WIDTHS: [usize; SCALES] = {
 const _: () = {
     let mut k = 1;
     while k < SCALES {
-        assert!(WIDTHS[k] % 8 == 0, "only the full-size width may be padded");
+        assert!(WIDTHS[k].is_multiple_of(8), "only the full-size width may be padded");
         k += 1;
     }
 };
@@ -326,7 +326,8 @@ mod tests {
         let cpu_g = SketchGenCpu::from_model(&g).unwrap();
         let side = 64;
         let x: Vec<f32> = (0..IN_CHANNELS * side * side).map(|i| ((i * 37 % 101) as f32 / 101.0) * if i % 7 == 0 { -1.0 } else { 1.0 }).collect();
-        let burn_out: Vec<f32> = g.forward(Tensor::<4>::from_data(burn::tensor::TensorData::new(x.clone(), [1, IN_CHANNELS, side, side]), &device)).into_data().try_to_vec::<f32>().unwrap();
+        let burn_out: Vec<f32> =
+            g.forward(Tensor::<4>::from_data(burn::tensor::TensorData::new(x.clone(), [1, IN_CHANNELS, side, side]), &device)).into_data().try_to_vec::<f32>().unwrap();
         let mut scratch = SketchScratch::default();
         for threads in [1, 2] {
             let ours = cpu_g.forward(&x, side, &mut scratch, threads);

@@ -15,10 +15,10 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
+use crate::grid::mix64;
 use crate::models::cpu::{self, Conv3, Map, Post};
 use crate::models::tcm::{pool2, up2};
 use crate::sketch::{BANDS, INPUT_CHANNELS, SKETCH_PX, Sketch};
-use crate::grid::mix64;
 
 /// Side of the code's grid (pixels).
 pub const CODE_PX: usize = 4;
@@ -65,7 +65,13 @@ impl SketchVae {
     pub fn new(device: &Device) -> Self {
         let enc = (0..6).map(|k| conv3(if k == 0 { INPUT_CHANNELS } else { ENC_WIDTHS[k - 1] }, ENC_WIDTHS[k], device)).collect();
         let dec = (0..6).map(|k| conv3(if k == 0 { DEC_IN } else { DEC_WIDTHS[k - 1] }, DEC_WIDTHS[k], device)).collect();
-        Self { enc, head: conv3(ENC_WIDTHS[5], 2 * LATENT_CHANNELS, device), from_code: conv3(LATENT_CHANNELS, DEC_IN, device), dec, out: conv3(DEC_WIDTHS[5], OUT_CHANNELS, device) }
+        Self {
+            enc,
+            head: conv3(ENC_WIDTHS[5], 2 * LATENT_CHANNELS, device),
+            from_code: conv3(LATENT_CHANNELS, DEC_IN, device),
+            dec,
+            out: conv3(DEC_WIDTHS[5], OUT_CHANNELS, device),
+        }
     }
 
     /// Number of learned parameters.

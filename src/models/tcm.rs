@@ -26,9 +26,9 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
-use crate::models::cpu::{self, Conv3, Map, Post};
 use crate::grid::mix64;
 use crate::grid::schedule::{PHASES, dependency_offsets};
+use crate::models::cpu::{self, Conv3, Map, Post};
 
 /// Spacing of the TCM's tiles (metres per sample).
 pub const COARSE_SPACING_M: f64 = 128.0;
@@ -531,7 +531,11 @@ mod tests {
             let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
             let rugged = [-1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 0.2, 0.3, 0.4];
             let x = assemble_input(&tiles, &[250.0, 260.0, 270.0, 280.0, 290.0, 300.0, 310.0, 320.0, 330.0], &rugged, 9 + p as u64);
-            let burn_out: Vec<f32> = g.forward(Tensor::<4>::from_data(burn::tensor::TensorData::new(x.clone(), [1, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX]), &device)).into_data().try_to_vec::<f32>().unwrap();
+            let burn_out: Vec<f32> = g
+                .forward(Tensor::<4>::from_data(burn::tensor::TensorData::new(x.clone(), [1, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX]), &device))
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap();
             for threads in [1, 2] {
                 let ours = cpu_g.forward(&x, &mut scratch, threads);
                 let worst = ours.iter().zip(&burn_out).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);

@@ -77,10 +77,7 @@ impl Tem {
             body: (0..4).map(|_| conv(WIDTH, WIDTH, device)).collect(),
             merge: conv(WIDTH, WIDTH, device),
             shuffle: PixelShuffleConfig::new(2).init(),
-            tail: Conv2dConfig::new([WIDTH / 4, 1], [3, 3])
-                .with_padding(PaddingConfig2d::Same)
-                .with_initializer(Initializer::Zeros)
-                .init(device),
+            tail: Conv2dConfig::new([WIDTH / 4, 1], [3, 3]).with_padding(PaddingConfig2d::Same).with_initializer(Initializer::Zeros).init(device),
         }
     }
 
@@ -99,7 +96,6 @@ impl Tem {
         base + residual * scale_m
     }
 }
-
 
 /// File name of level `k`'s weights (burnpack) in `weights/`.
 pub fn weight_file(k: usize) -> String {
@@ -274,9 +270,11 @@ impl TemSet {
         #[cfg(not(target_arch = "wasm32"))]
         {
             use rayon::prelude::*;
-            parts.par_iter_mut().zip(pool.par_iter_mut()).zip(inputs.par_chunks(per * side * side)).for_each(|((part, scratch), xs)| {
-                *part = xs.chunks_exact(side * side).flat_map(|x| model.forward(x, side, scale, scratch, 1)).collect()
-            });
+            parts
+                .par_iter_mut()
+                .zip(pool.par_iter_mut())
+                .zip(inputs.par_chunks(per * side * side))
+                .for_each(|((part, scratch), xs)| *part = xs.chunks_exact(side * side).flat_map(|x| model.forward(x, side, scale, scratch, 1)).collect());
         }
         #[cfg(target_arch = "wasm32")]
         for ((part, scratch), xs) in parts.iter_mut().zip(pool.iter_mut()).zip(inputs.chunks(per * side * side)) {
@@ -637,7 +635,8 @@ mod tests {
         let data: Vec<f32> = (0..2 * 13 * 17).map(|k| ((k % 17) as f32 * 0.9).sin() * 50.0 + (k / 17) as f32 * 3.0 + 800.0).collect();
         let x = Tensor::<4>::from_data(TensorData::new(data, [2, 1, 13, 17]), &device);
         let a: Vec<f32> = m.bicubic2(x.clone()).into_data().try_to_vec::<f32>().unwrap();
-        let b: Vec<f32> = interpolate(x, InterpolateOptions::new(InterpolateMode::Bicubic).with_align_corners(false).with_output_size([26, 34])).into_data().try_to_vec::<f32>().unwrap();
+        let b: Vec<f32> =
+            interpolate(x, InterpolateOptions::new(InterpolateMode::Bicubic).with_align_corners(false).with_output_size([26, 34])).into_data().try_to_vec::<f32>().unwrap();
         assert_eq!(a.len(), b.len());
         let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
         assert!(worst < 1e-3, "{worst} m");

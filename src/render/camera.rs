@@ -69,13 +69,7 @@ impl Camera {
 
     /// What node selection needs for a viewport `height_px` pixels tall with aspect `aspect`.
     pub fn lod_view(&self, aspect: f32, height_px: f32, target_px: f64, max_depth: u8) -> LodView {
-        LodView {
-            eye_m: self.position_m,
-            frustum: self.frustum(aspect),
-            pixels_per_radian: (height_px as f64 * 0.5) / (self.fov_y as f64 * 0.5).tan(),
-            target_px,
-            max_depth,
-        }
+        LodView { eye_m: self.position_m, frustum: self.frustum(aspect), pixels_per_radian: (height_px as f64 * 0.5) / (self.fov_y as f64 * 0.5).tan(), target_px, max_depth }
     }
 }
 

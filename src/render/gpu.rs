@@ -80,7 +80,6 @@ pub struct RenderStats {
     pub submit_ms: f64,
 }
 
-
 struct Target {
     size: [u32; 2],
     color: wgpu::TextureView,
@@ -110,7 +109,7 @@ pub struct TerrainRenderer {
 const MESH_BYTES: u64 = (NODE_VERTICES * std::mem::size_of::<Vertex>()) as u64;
 /// Slots the mesh buffer starts with (it doubles when full).
 const FIRST_SLOTS: u32 = 64;
-const _: () = assert!(MESH_BYTES % wgpu::COPY_BUFFER_ALIGNMENT == 0);
+const _: () = assert!(MESH_BYTES.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT));
 
 impl TerrainRenderer {
     /// Creates pipelines and shared buffers on `device`.
@@ -135,42 +134,36 @@ impl TerrainRenderer {
             layout: &layout,
             entries: &[wgpu::BindGroupEntry { binding: 0, resource: globals.as_entire_binding() }],
         });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("terrain"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("terrain"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
         let module = |name: &str, src: &str| {
-            device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(name),
-                source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{src}").into()),
-            })
+            device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(name), source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{src}").into()) })
         };
-        let pipeline = |name: &str, src: &str, buffers: &[Option<wgpu::VertexBufferLayout<'_>>], depth_write: bool, compare: wgpu::CompareFunction, blend: Option<wgpu::BlendState>| {
-            let m = module(name, src);
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(name),
-                layout: Some(&pipeline_layout),
-                vertex: wgpu::VertexState { module: &m, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers },
-                primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, cull_mode: None, ..Default::default() },
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: DEPTH_FORMAT,
-                    depth_write_enabled: Some(depth_write),
-                    depth_compare: Some(compare),
-                    stencil: Default::default(),
-                    bias: Default::default(),
-                }),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &m,
-                    entry_point: Some("fs_main"),
-                    compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend, write_mask: wgpu::ColorWrites::ALL })],
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
-        };
+        let pipeline =
+            |name: &str, src: &str, buffers: &[Option<wgpu::VertexBufferLayout<'_>>], depth_write: bool, compare: wgpu::CompareFunction, blend: Option<wgpu::BlendState>| {
+                let m = module(name, src);
+                device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                    label: Some(name),
+                    layout: Some(&pipeline_layout),
+                    vertex: wgpu::VertexState { module: &m, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers },
+                    primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, cull_mode: None, ..Default::default() },
+                    depth_stencil: Some(wgpu::DepthStencilState {
+                        format: DEPTH_FORMAT,
+                        depth_write_enabled: Some(depth_write),
+                        depth_compare: Some(compare),
+                        stencil: Default::default(),
+                        bias: Default::default(),
+                    }),
+                    multisample: Default::default(),
+                    fragment: Some(wgpu::FragmentState {
+                        module: &m,
+                        entry_point: Some("fs_main"),
+                        compilation_options: Default::default(),
+                        targets: &[Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend, write_mask: wgpu::ColorWrites::ALL })],
+                    }),
+                    multiview_mask: None,
+                    cache: None,
+                })
+            };
         let vertex_layout = wgpu::VertexBufferLayout {
             array_stride: std::mem::size_of::<Vertex>() as u64,
             step_mode: wgpu::VertexStepMode::Vertex,
@@ -185,17 +178,28 @@ impl TerrainRenderer {
         let terrain = pipeline("terrain", TERRAIN_WGSL, &[Some(vertex_layout), Some(instance_layout)], true, wgpu::CompareFunction::Greater, None);
         let water = pipeline("water", WATER_WGSL, &[], true, wgpu::CompareFunction::Greater, Some(wgpu::BlendState::ALPHA_BLENDING));
         let idx = node_indices();
-        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("node indices"),
-            contents: bytemuck::cast_slice(&idx),
-            usage: wgpu::BufferUsages::INDEX,
-        });
+        let indices =
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("node indices"), contents: bytemuck::cast_slice(&idx), usage: wgpu::BufferUsages::INDEX });
         let instance_capacity = 256;
         let instances = Self::instance_buffer(device, instance_capacity);
         let mut slots = Slots::default();
         slots.grow(FIRST_SLOTS);
         let slab = Self::slab_buffer(device, FIRST_SLOTS);
-        Self { globals, bind_group, sky, terrain, water, indices, index_count: idx.len() as u32, instances, instance_capacity, meshes: ResidentMeshes::default(), slots, slab, target: None }
+        Self {
+            globals,
+            bind_group,
+            sky,
+            terrain,
+            water,
+            indices,
+            index_count: idx.len() as u32,
+            instances,
+            instance_capacity,
+            meshes: ResidentMeshes::default(),
+            slots,
+            slab,
+            target: None,
+        }
     }
 
     fn slab_buffer(device: &wgpu::Device, slots: u32) -> wgpu::Buffer {

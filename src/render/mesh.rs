@@ -83,8 +83,8 @@ pub fn node_indices() -> Vec<u16> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::world::quadtree::{NODE_APRON_GRID, NodeId};
     use crate::world::TileCoord;
+    use crate::world::quadtree::{NODE_APRON_GRID, NodeId};
     use std::collections::HashMap;
 
     fn edge_counts(idx: &[u16]) -> HashMap<(u16, u16), usize> {

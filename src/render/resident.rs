@@ -124,8 +124,8 @@ impl Slots {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::world::quadtree::{NODE_APRON_GRID, NodeData};
     use crate::world::TileCoord;
+    use crate::world::quadtree::{NODE_APRON_GRID, NodeData};
 
     fn node(h: f32) -> NodeData {
         NodeData::new(NodeId::root(TileCoord::new(0, 0)), vec![h; NODE_APRON_GRID * NODE_APRON_GRID], 1.0)

@@ -68,7 +68,7 @@ impl BandMap {
     pub fn fit(h: &[f32], band: &[u8], side: usize) -> Option<Self> {
         assert!(h.len() == side * side && band.len() == h.len(), "heights and bands of a {side}² sketch");
         let (lo, hi) = h.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-        if !(hi > lo) {
+        if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
             return None;
         }
         let mut knots = vec![(lo, 0.0)];
@@ -132,7 +132,8 @@ fn border_heights(h: &[f32], band: &[u8], side: usize, k: u8) -> Vec<f32> {
                 b if b + 1 == k => k,
                 _ => continue,
             };
-            let touches = (x > 0 && band[p - 1] == other) || (x + 1 < side && band[p + 1] == other) || (y > 0 && band[p - side] == other) || (y + 1 < side && band[p + side] == other);
+            let touches =
+                (x > 0 && band[p - 1] == other) || (x + 1 < side && band[p + 1] == other) || (y > 0 && band[p - side] == other) || (y + 1 < side && band[p + side] == other);
             if touches {
                 along.push(h[p]);
             }

@@ -73,13 +73,11 @@ mod tests {
         let d = distance_to(&inside, w, h);
         for y in 0..h {
             for x in 0..w {
-                let best = (0..w * h)
-                    .filter(|&q| inside[q])
-                    .map(|q| (((q % w) as f32 - x as f32).powi(2) + ((q / w) as f32 - y as f32).powi(2)).sqrt())
-                    .fold(f32::INFINITY, f32::min);
+                let best =
+                    (0..w * h).filter(|&q| inside[q]).map(|q| (((q % w) as f32 - x as f32).powi(2) + ((q / w) as f32 - y as f32).powi(2)).sqrt()).fold(f32::INFINITY, f32::min);
                 assert!((d[y * w + x] - best).abs() < 1e-3, "({x}, {y}): {} vs {best}", d[y * w + x]);
             }
         }
-        assert!(distance_to(&vec![false; 12], 4, 3).iter().all(|v| v.is_infinite()));
+        assert!(distance_to(&[false; 12], 4, 3).iter().all(|v| v.is_infinite()));
     }
 }

@@ -10,8 +10,8 @@ pub mod baseline;
 pub mod calibrate;
 pub mod canvas;
 pub mod code;
-pub mod examples;
 pub mod distance;
+pub mod examples;
 pub mod extract;
 pub mod score;
 
@@ -136,7 +136,7 @@ impl Sketch {
 
     /// Reads a [`SKETCH_PX`]² sketch PNG (8-bit RGB or RGBA; alpha is ignored).
     pub fn read_png<R: BufRead + Seek>(input: R) -> Result<Self, SketchError> {
-        let rgb = read_rgb(input, SKETCH_PX, |w, h| SketchError::Size(w, h))?;
+        let rgb = read_rgb(input, SKETCH_PX, SketchError::Size)?;
         Self::from_rgb(&rgb)
     }
 

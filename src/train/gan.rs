@@ -30,7 +30,8 @@ impl Disc {
     /// the condition) on `device`.
     pub fn with_inputs(channels: usize, device: &Device) -> Self {
         let widths = [channels, 32, 64, 128];
-        let convs = widths.windows(2).map(|w| Conv2dConfig::new([w[0], w[1]], [3, 3]).with_stride([2, 2]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device)).collect();
+        let convs =
+            widths.windows(2).map(|w| Conv2dConfig::new([w[0], w[1]], [3, 3]).with_stride([2, 2]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device)).collect();
         Self { convs, head: Conv2dConfig::new([128, 1], [3, 3]).with_padding(PaddingConfig2d::Same).init(device) }
     }
 
@@ -87,7 +88,16 @@ pub fn gen_adversarial(d: &Disc, fake: Tensor<4>, region: Option<(usize, usize)>
 /// `{prefix}_adam.bin`, `{prefix}_disc_adam.bin` (the optimisers' moments) and
 /// `{prefix}_state.json` (`state`).
 #[allow(clippy::too_many_arguments)]
-pub fn save_run<G: ModuleSnapshot>(dir: &Path, prefix: &str, gen_file: &str, g: &G, d: &Disc, og: &ModuleOptimizer, od: &ModuleOptimizer, state: &serde_json::Value) -> Result<(), String> {
+pub fn save_run<G: ModuleSnapshot>(
+    dir: &Path,
+    prefix: &str,
+    gen_file: &str,
+    g: &G,
+    d: &Disc,
+    og: &ModuleOptimizer,
+    od: &ModuleOptimizer,
+    state: &serde_json::Value,
+) -> Result<(), String> {
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     save(g, &dir.join(gen_file))?;
     save(d, &dir.join(format!("{prefix}_disc.bpk")))?;

@@ -109,7 +109,18 @@ fn tensor(data: Vec<f32>, shape: [usize; 4], device: &Device) -> Tensor<4> {
 impl GrowRun {
     /// Starts a run on `device` (an autodiff device) or resumes the one saved in `dir`.
     pub fn start(batch: usize, adversarial: f32, device: &Device, resume_from: Option<&Path>) -> Result<Self, String> {
-        let mut run = Self { g: Grow::new(device), d: Disc::new(device), og: gan::adam(), od: gan::adam(), batch, lr: 2e-4, adversarial, position: 0.0, progress: TcmProgress::default(), device: device.clone() };
+        let mut run = Self {
+            g: Grow::new(device),
+            d: Disc::new(device),
+            og: gan::adam(),
+            od: gan::adam(),
+            batch,
+            lr: 2e-4,
+            adversarial,
+            position: 0.0,
+            progress: TcmProgress::default(),
+            device: device.clone(),
+        };
         if let Some(dir) = resume_from {
             let state;
             (run.og, run.od, state) = gan::load_run(dir, "grow", GROW_FILE, &mut run.g, &mut run.d)?;

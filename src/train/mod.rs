@@ -180,7 +180,13 @@ pub fn core(raw: Tensor<4>) -> Tensor<4> {
 /// from `init` (e.g. the shipped weights, loaded onto `device`) or from random weights. `log`
 /// gets (step, total loss, seconds so far, the models) and returns whether to go on. Returns
 /// the models and the running loss per level.
-pub fn train_tem(dems: &[Dem], cfg: &TrainConfig, device: &Device, init: Option<Vec<Tem>>, mut log: impl FnMut(usize, f64, f64, &[Tem]) -> bool) -> Result<(Vec<Tem>, LevelLosses), String> {
+pub fn train_tem(
+    dems: &[Dem],
+    cfg: &TrainConfig,
+    device: &Device,
+    init: Option<Vec<Tem>>,
+    mut log: impl FnMut(usize, f64, f64, &[Tem]) -> bool,
+) -> Result<(Vec<Tem>, LevelLosses), String> {
     let mut models: Vec<Tem> = match init {
         Some(m) if m.len() == LEVELS => m,
         Some(m) => return Err(format!("the TEM has {LEVELS} levels, not {}", m.len())),

@@ -6,8 +6,8 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use crate::dem::{Heightfield, PngScale, dihedral};
-use crate::models::tem::LEVEL_SPACING_M;
 use crate::grid::mix64;
+use crate::models::tem::LEVEL_SPACING_M;
 
 pub use crate::models::tem::{MARGIN, PATCH, QUAD, WINDOW};
 
@@ -212,7 +212,12 @@ mod tests {
         // truth's chosen quadrant equals the second truth box-downsampled, and the input's
         // centre equals the first truth box-downsampled.
         let n = chain_extent(2);
-        let hf = Heightfield::new(3 * n / 2 + 20, n, 1.0, (0..(3 * n / 2 + 20) * n).map(|k| ((k % (3 * n / 2 + 20)) as f32 * 0.05).sin() * 9.0 + (k / (3 * n / 2 + 20)) as f32 * 0.1).collect());
+        let hf = Heightfield::new(
+            3 * n / 2 + 20,
+            n,
+            1.0,
+            (0..(3 * n / 2 + 20) * n).map(|k| ((k % (3 * n / 2 + 20)) as f32 * 0.05).sin() * 9.0 + (k / (3 * n / 2 + 20)) as f32 * 0.1).collect(),
+        );
         assert!(fits(&hf, Split::Train, 2));
         let mut rng = Rng(3);
         let c = chain_sample(&hf, Split::Train, 2, &[3], &mut rng).unwrap();

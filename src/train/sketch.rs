@@ -202,7 +202,19 @@ pub enum PixelLoss {
 
 impl Default for SketchConfig {
     fn default() -> Self {
-        Self { batch: 8, crop: 128, pool: 384, lr: 2e-4, adversarial: 0.01, seed: 1, windows: WindowChoice::ALL, format_pairs: None, format_exclude: Vec::new(), format_share: 0.0, loss: PixelLoss::L1 }
+        Self {
+            batch: 8,
+            crop: 128,
+            pool: 384,
+            lr: 2e-4,
+            adversarial: 0.01,
+            seed: 1,
+            windows: WindowChoice::ALL,
+            format_pairs: None,
+            format_exclude: Vec::new(),
+            format_share: 0.0,
+            loss: PixelLoss::L1,
+        }
     }
 }
 
@@ -235,7 +247,7 @@ impl SketchRun {
     /// split of `dems`: resumes the checkpoint in `resume_from`, or else starts the generator
     /// from `init` (e.g. the shipped weights) or from random weights.
     pub fn start(cfg: SketchConfig, dems: &[Dem], device: &Device, resume_from: Option<&Path>, init: Option<&SketchGenCpu>) -> Result<Self, String> {
-        if cfg.crop == 0 || cfg.crop % 16 != 0 || cfg.crop > SKETCH_PX {
+        if cfg.crop == 0 || !cfg.crop.is_multiple_of(16) || cfg.crop > SKETCH_PX {
             return Err(format!("the crop side must be a multiple of 16 up to {SKETCH_PX}, not {}", cfg.crop));
         }
         if cfg.loss == PixelLoss::BandL1 && cfg.crop != SKETCH_PX {
@@ -278,11 +290,7 @@ impl SketchRun {
         let (mut xs, mut ys) = (Vec::with_capacity(b * IN_CHANNELS * c * c), Vec::with_capacity(b * c * c));
         let format_per_mille = (self.cfg.format_share.clamp(0.0, 1.0) * 1000.0).round() as usize;
         for _ in 0..b {
-            let p = if !self.format.is_empty() && rng.below(1000) < format_per_mille {
-                &self.format[rng.below(self.format.len())]
-            } else {
-                &self.pool[rng.below(self.pool.len())]
-            };
+            let p = if !self.format.is_empty() && rng.below(1000) < format_per_mille { &self.format[rng.below(self.format.len())] } else { &self.pool[rng.below(self.pool.len())] };
             let (x0, y0) = (rng.below(n - c + 1), rng.below(n - c + 1));
             for ch in 0..IN_CHANNELS {
                 for y in y0..y0 + c {
@@ -295,7 +303,8 @@ impl SketchRun {
         }
         let dev = &self.device;
         // Each crop's bands, for the band-scale loss.
-        let bands: Vec<Vec<u8>> = if self.cfg.loss == PixelLoss::BandL1 { xs.chunks_exact(IN_CHANNELS * c * c).map(|x| Sketch::from_channels(x, c).band).collect() } else { Vec::new() };
+        let bands: Vec<Vec<u8>> =
+            if self.cfg.loss == PixelLoss::BandL1 { xs.chunks_exact(IN_CHANNELS * c * c).map(|x| Sketch::from_channels(x, c).band).collect() } else { Vec::new() };
         let x = tensor(xs, [b, IN_CHANNELS, c, c], dev);
         let real = tensor(ys, [b, 1, c, c], dev);
         let cond = x.clone().narrow(1, 0, crate::sketch::INPUT_CHANNELS);
@@ -535,7 +544,11 @@ mod tests {
     /// extent and L1.
     #[test]
     fn a_checkpoint_config_round_trips_its_window_choice_and_loss_and_older_ones_read_as_every_dem_and_l1() {
-        let cfg = SketchConfig { windows: WindowChoice { dems: vec!["a".into(), "b".into()], min_extent_m: Some(400.0), max_extent_m: Some(3100.0) }, loss: PixelLoss::L2, ..Default::default() };
+        let cfg = SketchConfig {
+            windows: WindowChoice { dems: vec!["a".into(), "b".into()], min_extent_m: Some(400.0), max_extent_m: Some(3100.0) },
+            loss: PixelLoss::L2,
+            ..Default::default()
+        };
         let json = serde_json::to_value(&cfg).unwrap();
         assert_eq!(json["min_extent_m"], 400.0);
         assert_eq!(json["loss"], "l2");

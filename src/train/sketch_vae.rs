@@ -70,7 +70,7 @@ impl VaeRun {
     pub fn start(cfg: VaeConfig, dems: &[Dem], device: &Device, resume_from: Option<&Path>) -> Result<Self, String> {
         let mut m = SketchVae::new(device);
         let mut opt = gan::adam();
-        if cfg.crop == 0 || cfg.crop % 64 != 0 || cfg.crop > SKETCH_PX {
+        if cfg.crop == 0 || !cfg.crop.is_multiple_of(64) || cfg.crop > SKETCH_PX {
             return Err(format!("the VAE's crop side must be a multiple of 64 up to {SKETCH_PX}, not {}", cfg.crop));
         }
         let mut cfg = cfg;

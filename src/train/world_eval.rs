@@ -231,7 +231,7 @@ mod tests {
     fn seam_steps_are_one_for_continuous_fields_and_large_for_steps() {
         let n = TILE_SAMPLES;
         let smooth = Heightfield::new(2 * n, 2 * n, 32.0, (0..4 * n * n).map(|p| ((p % (2 * n)) as f32 * 0.1).sin() * 5.0 + (p / (2 * n)) as f32 * 0.7).collect());
-        let (mean, p95) = seam_steps(&[smooth.clone()]);
+        let (mean, p95) = seam_steps(std::slice::from_ref(&smooth));
         assert!((mean - 1.0).abs() < 0.1 && (p95 - 1.0).abs() < 0.1, "{mean} {p95}");
         let stepped = Heightfield::new(2 * n, 2 * n, 32.0, smooth.data.iter().enumerate().map(|(p, v)| v + if p % (2 * n) >= n { 10.0 } else { 0.0 }).collect());
         let (mean, p95) = seam_steps(&[smooth, stepped]);

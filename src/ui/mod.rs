@@ -100,7 +100,15 @@ pub fn control_input(ctx: &egui::Context, resp: &egui::Response) -> ControlInput
 /// sketch panel's canvas and buttons are on screen (CSS pixels: x, y, width, height).
 /// `frame_work` holds [total, tiles, nodes, drawing, uploads, encoding + submit] ms and the
 /// meshes uploaded of recent frames; the worst frame's is reported.
-pub fn stats_json(core: &PageCore, env: &Environment, panel: &sketch::SketchPanel, overlay: &Overlay, frame_work: &std::collections::VecDeque<[f64; 7]>, device_restarts: u32, link_too_long: u32) -> String {
+pub fn stats_json(
+    core: &PageCore,
+    env: &Environment,
+    panel: &sketch::SketchPanel,
+    overlay: &Overlay,
+    frame_work: &std::collections::VecDeque<[f64; 7]>,
+    device_restarts: u32,
+    link_too_long: u32,
+) -> String {
     let rect = |r: egui::Rect| [r.min.x, r.min.y, r.width(), r.height()];
     let app = &core.app;
     let sketch = app.source() == SourceKind::Sketch;
@@ -160,7 +168,18 @@ impl Overlay {
     /// Draws the overlay. `speed_mps`, `show_lod` and `refine` (learned detail on/off) are
     /// edited in place.
     #[allow(clippy::too_many_arguments)]
-    pub fn show(&mut self, ctx: &egui::Context, stats: &AppStats, env: &Environment, mode: CameraMode, speed_mps: &mut f64, show_lod: &mut bool, refine: &mut bool, message: Option<&str>, link_copied: bool) -> UiActions {
+    pub fn show(
+        &mut self,
+        ctx: &egui::Context,
+        stats: &AppStats,
+        env: &Environment,
+        mode: CameraMode,
+        speed_mps: &mut f64,
+        show_lod: &mut bool,
+        refine: &mut bool,
+        message: Option<&str>,
+        link_copied: bool,
+    ) -> UiActions {
         let mut act = UiActions::default();
         if let Some(msg) = message {
             egui::Window::new("Notice").anchor(egui::Align2::CENTER_TOP, [0.0, 8.0]).collapsible(false).resizable(false).title_bar(false).show(ctx, |ui| {
@@ -193,7 +212,12 @@ impl Overlay {
                 ui.monospace(format!("sketch → terrain {:.0} ms on {}", stats.sketch_ms, env.sketch_backend));
             }
             if stats.source == SourceKind::Learned.label() {
-                ui.monospace(format!("tile queue {} waiting, {} in flight, {:.0} ms/tile", stats.tiles_pending.saturating_sub(stats.tile_jobs.in_flight), stats.tile_jobs.in_flight, stats.ms_per_tile));
+                ui.monospace(format!(
+                    "tile queue {} waiting, {} in flight, {:.0} ms/tile",
+                    stats.tiles_pending.saturating_sub(stats.tile_jobs.in_flight),
+                    stats.tile_jobs.in_flight,
+                    stats.ms_per_tile
+                ));
             }
             if let Some((done, total)) = env.tem_loading {
                 ui.add(egui::ProgressBar::new(done as f32 / total.max(1) as f32).text(format!("loading TEM weights {done}/{total}")));
@@ -239,10 +263,10 @@ impl Overlay {
                 }
                 ui.toggle_value(&mut self.show_settings, "Settings");
             });
-            if self.show_settings {
-                if let Some(s) = self.settings_ui(ui) {
-                    act.settings = Some(s);
-                }
+            if self.show_settings
+                && let Some(s) = self.settings_ui(ui)
+            {
+                act.settings = Some(s);
             }
             ui.collapsing("Controls", |ui| {
                 ui.label("Drag: look · WASD: move · Q/E: down/up · Shift: faster · wheel: speed (fly) or zoom (orbit)");

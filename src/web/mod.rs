@@ -174,7 +174,8 @@ fn location_hash() -> String {
 async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     let window = web_sys::window().ok_or("no window")?;
     let document = window.document().ok_or("no document")?;
-    let canvas: web_sys::HtmlCanvasElement = document.get_element_by_id("terrain_canvas").ok_or("the page has no #terrain_canvas")?.dyn_into().map_err(|_| "#terrain_canvas is not a canvas")?;
+    let canvas: web_sys::HtmlCanvasElement =
+        document.get_element_by_id("terrain_canvas").ok_or("the page has no #terrain_canvas")?.dyn_into().map_err(|_| "#terrain_canvas is not a canvas")?;
     let gpu = js_sys::Reflect::get(&window.navigator(), &"gpu".into()).unwrap_or(JsValue::UNDEFINED);
     if gpu.is_undefined() || gpu.is_null() {
         return Err(NO_WEBGPU.into());
@@ -182,7 +183,10 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
     desc.backends = wgpu::Backends::BROWSER_WEBGPU;
     let instance = wgpu::Instance::new(desc);
-    let adapter = instance.request_adapter(&wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() }).await.map_err(|e| format!("{NO_WEBGPU} ({e})"))?;
+    let adapter = instance
+        .request_adapter(&wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() })
+        .await
+        .map_err(|e| format!("{NO_WEBGPU} ({e})"))?;
     let features = adapter.features().difference(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
     let (device, queue) = adapter
         .request_device(&wgpu::DeviceDescriptor { label: Some("terrain"), required_features: features, required_limits: adapter.limits(), ..Default::default() })
@@ -224,7 +228,10 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     let hash = location_hash();
     let (share, message) = PageCore::opening_view(restart, &hash, options_notice);
     let options = eframe::WebOptions {
-        wgpu_options: eframe::egui_wgpu::WgpuConfiguration { wgpu_setup: eframe::egui_wgpu::WgpuSetup::Existing(eframe::egui_wgpu::WgpuSetupExisting { instance, adapter, device, queue }), ..Default::default() },
+        wgpu_options: eframe::egui_wgpu::WgpuConfiguration {
+            wgpu_setup: eframe::egui_wgpu::WgpuSetup::Existing(eframe::egui_wgpu::WgpuSetupExisting { instance, adapter, device, queue }),
+            ..Default::default()
+        },
         ..Default::default()
     };
     let web_runner = eframe::WebRunner::new();

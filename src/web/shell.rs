@@ -79,7 +79,12 @@ impl WebApp {
                 inbox.borrow_mut().push(d);
             });
         }
-        let probe = self.core.loads.tem.is_ready().then(|| TemProbe { runners: self.runners.clone(), target: self.core.tem_target(), backend: self.core.tem_backend(), epoch: self.core.app.epoch() });
+        let probe = self.core.loads.tem.is_ready().then(|| TemProbe {
+            runners: self.runners.clone(),
+            target: self.core.tem_target(),
+            backend: self.core.tem_backend(),
+            epoch: self.core.app.epoch(),
+        });
         TEM_PROBE.with(|p| *p.borrow_mut() = probe);
     }
 

@@ -20,7 +20,11 @@ use std::collections::BinaryHeap;
 /// Rise (metres per sample) given to filled flats so that they drain.
 pub const FLAT_GRADIENT_M: f32 = 1e-3;
 
+/// A height in the flood's heap. The heap orders by the derived `PartialOrd` (f32's own
+/// comparison; NaN samples never enter it), which every world made so far depends on; `Ord`
+/// only completes the trait bound.
 #[derive(PartialEq, PartialOrd)]
+#[allow(clippy::derive_ord_xor_partial_ord)]
 struct Height(f32);
 impl Eq for Height {}
 impl Ord for Height {
@@ -188,7 +192,7 @@ pub fn open_channels(h: &mut [f32], n: usize, cut: &[f32], wall_m: f32) -> usize
     if !(wall_m.is_finite() && wall_m > 0.0) {
         return 0;
     }
-    let inner = |p: usize| p % n != 0 && p % n != n - 1 && p / n != 0 && p / n != n - 1;
+    let inner = |p: usize| !p.is_multiple_of(n) && p % n != n - 1 && p / n != 0 && p / n != n - 1;
     // Per sample: the lowest cone over it and the depth of the channel sample it comes from.
     let mut cone = vec![(f32::INFINITY, 0f32); n * n];
     let mut heap = BinaryHeap::new();

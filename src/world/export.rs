@@ -1,9 +1,9 @@
 //! Writing a rectangle of tiles as one heightfield: the CLI's `terrain world`.
 
-use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TILE_SIZE_M, TileCoord};
 use super::stream::WorldStream;
 use super::tile::TileSource;
 use crate::dem::{GeoRef, Heightfield};
+use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TILE_SIZE_M, TileCoord};
 
 /// The 32 m heights (metres) of tiles [x0, x0 + w) × [y0, y0 + h) of world `seed`, as one
 /// heightfield of (w·128) × (h·128) samples, row 0 at the north (lowest z).

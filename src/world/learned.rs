@@ -33,12 +33,12 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-use crate::grid::coord::{TILE_SAMPLES, TileCoord};
 use super::drainage;
 use super::noise::perlin;
-use crate::grid::schedule::{dependencies, tile_seed};
 use super::seam;
 use super::tile::{Neighbourhood, Tile, TileSource, cut, paste};
+use crate::grid::coord::{TILE_SAMPLES, TileCoord};
+use crate::grid::schedule::{dependencies, tile_seed};
 use crate::models::grow::{self, GrowCpu, GrowScratch};
 use crate::models::tcm::{self, HEIGHT_SCALE_M, TILE_PX, TcmCpu, TcmScratch};
 
@@ -176,10 +176,13 @@ pub const TCM_FILE: &str = "tcm_128m.bpk";
 /// File name of the ×4 network's weights in `weights/`.
 pub const GROW_FILE: &str = "grow_32m.bpk";
 
+/// 128 m network tiles by (world seed, tile).
+type CoarseCache = HashMap<(u64, TileCoord), Arc<Vec<f32>>>;
+
 /// The learned world's tile source (see the module documentation).
 pub struct LearnedSource {
     models: Arc<LearnedModels>,
-    coarse: Mutex<HashMap<(u64, TileCoord), Arc<Vec<f32>>>>,
+    coarse: Mutex<CoarseCache>,
     filled: Mutex<BlockCache>,
     drained: Mutex<BlockCache>,
     /// 32 m tiles as the networks made them, before drainage (see [`LearnedSource::prepare`]).
@@ -191,7 +194,15 @@ pub struct LearnedSource {
 impl LearnedSource {
     /// A source running `models` on `threads` threads.
     pub fn new(models: Arc<LearnedModels>, threads: usize) -> Self {
-        Self { models, coarse: Mutex::default(), filled: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), drained: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)), raw: Mutex::new(BlockCache::new(RAW_CACHE_TILES)), scratch: Mutex::default(), threads: threads.max(1) }
+        Self {
+            models,
+            coarse: Mutex::default(),
+            filled: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)),
+            drained: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)),
+            raw: Mutex::new(BlockCache::new(RAW_CACHE_TILES)),
+            scratch: Mutex::default(),
+            threads: threads.max(1),
+        }
     }
 
     /// The same source keeping at most `blocks` filled blocks per stage (tests of eviction).

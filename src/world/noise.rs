@@ -4,9 +4,9 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::tile::{Neighbourhood, Tile, TileSource};
 use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
 use crate::grid::mix64;
-use super::tile::{Neighbourhood, Tile, TileSource};
 
 /// How octaves are combined.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -38,24 +38,14 @@ pub struct NoiseParams {
 
 impl Default for NoiseParams {
     fn default() -> Self {
-        Self {
-            kind: NoiseKind::Ridged,
-            octaves: 8,
-            persistence: 0.5,
-            lacunarity: 2.0,
-            wavelength_m: 20_000.0,
-            amplitude_m: 2_400.0,
-            base_m: -250.0,
-        }
+        Self { kind: NoiseKind::Ridged, octaves: 8, persistence: 0.5, lacunarity: 2.0, wavelength_m: 20_000.0, amplitude_m: 2_400.0, base_m: -250.0 }
     }
 }
 
 impl NoiseParams {
     /// Checks that every field is in a range that makes a terrain; the message names the field.
     pub fn validate(&self) -> Result<(), String> {
-        let finite = [self.persistence, self.lacunarity, self.wavelength_m, self.amplitude_m, self.base_m]
-            .iter()
-            .all(|v| v.is_finite());
+        let finite = [self.persistence, self.lacunarity, self.wavelength_m, self.amplitude_m, self.base_m].iter().all(|v| v.is_finite());
         if !finite {
             return Err("noise parameters must be finite numbers".into());
         }
@@ -93,10 +83,10 @@ fn gradient_dot(h: u64, dx: f64, dy: f64) -> f64 {
         1 => dy - dx,
         2 => dx - dy,
         3 => -dx - dy,
-        4 => dx * 1.414_213_562_373_095,
-        5 => -dx * 1.414_213_562_373_095,
-        6 => dy * 1.414_213_562_373_095,
-        _ => -dy * 1.414_213_562_373_095,
+        4 => dx * std::f64::consts::SQRT_2,
+        5 => -dx * std::f64::consts::SQRT_2,
+        6 => dy * std::f64::consts::SQRT_2,
+        _ => -dy * std::f64::consts::SQRT_2,
     }
 }
 

@@ -7,10 +7,10 @@ use std::sync::Arc;
 
 use glam::{DVec3, Mat4, Vec3, Vec4};
 
-use crate::grid::coord::{TILE_SAMPLES, TILE_SIZE_M, TileCoord};
 use super::refine::{PATCH_MARGIN, PatchKey, PatchStore, STORED_SIDE};
-use crate::models::tem::{LEVELS, PATCH};
 use super::stream::WorldStream;
+use crate::grid::coord::{TILE_SAMPLES, TILE_SIZE_M, TileCoord};
+use crate::models::tem::{LEVELS, PATCH};
 
 /// Quads along one side of every node's mesh, at every depth.
 pub const NODE_QUADS: usize = 32;
@@ -183,11 +183,7 @@ impl Frustum {
     /// lies entirely outside one plane.
     pub fn intersects_box(&self, min: Vec3, max: Vec3) -> bool {
         self.planes.iter().all(|p| {
-            let v = Vec3::new(
-                if p.x >= 0.0 { max.x } else { min.x },
-                if p.y >= 0.0 { max.y } else { min.y },
-                if p.z >= 0.0 { max.z } else { min.z },
-            );
+            let v = Vec3::new(if p.x >= 0.0 { max.x } else { min.x }, if p.y >= 0.0 { max.y } else { min.y }, if p.z >= 0.0 { max.z } else { min.z });
             p.truncate().dot(v) + p.w >= 0.0
         })
     }
@@ -406,9 +402,9 @@ impl NodeData {
 mod tests {
     use super::*;
     use crate::grid::coord::BASE_SPACING_M;
+    use crate::models::tem::{Exec, TemSet};
     use crate::world::noise::ProceduralSource;
     use crate::world::refine::tests::{run_all, scrambled, world as patch_world};
-    use crate::models::tem::{Exec, TemSet};
 
     fn world() -> WorldStream {
         let mut w = WorldStream::new(11, Box::new(ProceduralSource::default()), 2.0);

@@ -18,8 +18,8 @@
 use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 
-use crate::grid::coord::TileCoord;
 use super::stream::WorldStream;
+use crate::grid::coord::TileCoord;
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, QUAD, RECEPTIVE_OUT_PX};
 
 /// Margin (pixels) kept around a stored patch's core and read around a quadrant. It must
@@ -335,7 +335,6 @@ pub fn run_blocking(store: &mut PatchStore, tem: &crate::models::tem::TemSet, jo
     }
     Ok(made)
 }
-
 
 #[cfg(test)]
 pub(crate) mod tests {

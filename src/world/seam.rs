@@ -205,8 +205,18 @@ fn join_slopes(tile: &mut [f32], n: usize, sides: &[Continuation], neighbours: &
     let pz_on_x: Vec<(usize, Vec<f32>, Vec<f32>)> = x_sides
         .iter()
         .map(|(side, _, _)| {
-            let value: Vec<f32> = (0..n).map(|k| { let (u, v) = at_side(*side, n, 0, k); pz[v * n + u] }).collect();
-            let step: Vec<f32> = (0..n).map(|k| { let (u, v) = at_side(*side, n, 1, k); pz[v * n + u] - value[k] }).collect();
+            let value: Vec<f32> = (0..n)
+                .map(|k| {
+                    let (u, v) = at_side(*side, n, 0, k);
+                    pz[v * n + u]
+                })
+                .collect();
+            let step: Vec<f32> = (0..n)
+                .map(|k| {
+                    let (u, v) = at_side(*side, n, 1, k);
+                    pz[v * n + u] - value[k]
+                })
+                .collect();
             (*side, value, step)
         })
         .collect();
@@ -287,10 +297,14 @@ mod tests {
         let world = |x: i32, z: i32| 300.0 + 0.02 * (x * x) as f32 - 0.015 * (z * z) as f32 + 0.01 * (x * z) as f32;
         let cut = |di: i32, dj: i32| -> Vec<f32> { (0..n * n).map(|p| world(di * n as i32 + (p % n) as i32, dj * n as i32 + (p / n) as i32)).collect() };
         let (left, top) = (cut(-1, 0), cut(0, -1));
-        let tilted: Vec<f32> = cut(0, 0).iter().enumerate().map(|(p, h)| {
-            let (x, z) = ((p % n) as f32, (p / n) as f32);
-            h + 0.6 * x - 0.4 * z + 3.0 * (0.08 * (x + z)).sin() - 12.0
-        }).collect();
+        let tilted: Vec<f32> = cut(0, 0)
+            .iter()
+            .enumerate()
+            .map(|(p, h)| {
+                let (x, z) = ((p % n) as f32, (p / n) as f32);
+                h + 0.6 * x - 0.4 * z + 3.0 * (0.08 * (x + z)).sin() - 12.0
+            })
+            .collect();
         let worst_fold = |tile: &[f32]| {
             let mut worst = 0f32;
             for k in CORNER_FADE_PX..n - CORNER_FADE_PX {

@@ -6,9 +6,9 @@ use std::sync::Arc;
 
 use web_time::Instant;
 
+use super::tile::{Neighbourhood, Tile, TileSource};
 use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
 use crate::grid::schedule::dependencies;
-use super::tile::{Neighbourhood, Tile, TileSource};
 
 /// Counters of the streamer, shown in the overlay and read by the tests.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -136,11 +136,7 @@ impl WorldStream {
     /// Tiles within the radius of (x, z) metres whose eight neighbours are cached too: these
     /// can be drawn without cracks or one-sided normals.
     pub fn drawable(&self, x_m: f64, z_m: f64) -> Vec<TileCoord> {
-        self.wanted(x_m, z_m)
-            .into_iter()
-            .filter(|c| c.distance_tiles(x_m, z_m) <= self.radius_tiles)
-            .filter(|c| c.window3x3().iter().all(|n| self.tiles.contains_key(n)))
-            .collect()
+        self.wanted(x_m, z_m).into_iter().filter(|c| c.distance_tiles(x_m, z_m) <= self.radius_tiles).filter(|c| c.window3x3().iter().all(|n| self.tiles.contains_key(n))).collect()
     }
 
     /// Generates missing wanted tiles around (x, z) metres, nearest first, until `budget_ms`

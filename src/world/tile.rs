@@ -40,9 +40,7 @@ impl Tile {
     /// If `heights` does not hold exactly `TILE_SAMPLES`² values: that is a bug in a source.
     pub fn new(coord: TileCoord, heights: Vec<f32>) -> Self {
         assert_eq!(heights.len(), TILE_SAMPLES * TILE_SAMPLES, "a tile holds {0}×{0} samples", TILE_SAMPLES);
-        let (min_m, max_m) = heights
-            .iter()
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &h| (lo.min(h), hi.max(h)));
+        let (min_m, max_m) = heights.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &h| (lo.min(h), hi.max(h)));
         let checksum = heights.iter().fold(crate::grid::Fnv::default(), |h, v| h.word(v.to_bits() as u64)).0;
         Self { coord, heights, min_m, max_m, checksum }
     }
@@ -129,7 +127,15 @@ mod tests {
     fn paste_puts_a_piece_where_cut_takes_it_from() {
         let mut field = vec![0f32; 16];
         paste(&mut field, 4, &[1.0, 2.0, 3.0, 4.0], 2, 1, 2);
-        let want: Vec<f32> = (0..16).map(|p| match p { 9 => 1.0, 10 => 2.0, 13 => 3.0, 14 => 4.0, _ => 0.0 }).collect();
+        let want: Vec<f32> = (0..16)
+            .map(|p| match p {
+                9 => 1.0,
+                10 => 2.0,
+                13 => 3.0,
+                14 => 4.0,
+                _ => 0.0,
+            })
+            .collect();
         assert_eq!(field, want);
         assert_eq!(cut(&field, 4, 2, 1, 2), vec![1.0, 2.0, 3.0, 4.0]);
     }

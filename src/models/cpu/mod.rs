@@ -304,11 +304,11 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
     #[cfg(not(target_arch = "x86_64"))]
     let _ = portable; // only x86 has a choice of kernels
     #[cfg(all(target_arch = "wasm32", target_feature = "simd128"))]
-    if layer.cout % simd128::CH == 0 {
+    if layer.cout.is_multiple_of(simd128::CH) {
         simd128::rows(layer, src, out, y0, n, w, post);
         return;
     }
-    if layer.cout == 1 && layer.cin % 8 == 0 {
+    if layer.cout == 1 && layer.cin.is_multiple_of(8) {
         #[cfg(target_arch = "x86_64")]
         if !portable && has_avx2_fma() && layer.cin == 8 {
             // SAFETY: the CPU has AVX2 and FMA (checked just above).
@@ -316,7 +316,7 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
             return;
         }
         rows_dot(layer, src, out, y0, n, w, post);
-    } else if layer.cout % ROWS8_CH == 0 {
+    } else if layer.cout.is_multiple_of(ROWS8_CH) {
         #[cfg(target_arch = "x86_64")]
         if !portable && has_avx2_fma() {
             // SAFETY: the CPU has AVX2 and FMA (checked just above).

@@ -43,7 +43,10 @@ fn weight_files_round_trip_in_float32_and_float16() {
             assert!((a - b).abs() <= a.abs() * 2f32.powi(-11) + 1e-7, "{a} vs {b}");
         }
     }
-    let f64_file = burn_pack::Writer::new(vec![burn_pack::Tensor::new("a.weight".into(), burn_pack::DType::F64, vec![1], None, burn_pack::Bytes::from_bytes_vec(vec![0; 8]))]).into_bytes().unwrap().to_vec();
+    let f64_file = burn_pack::Writer::new(vec![burn_pack::Tensor::new("a.weight".into(), burn_pack::DType::F64, vec![1], None, burn_pack::Bytes::from_bytes_vec(vec![0; 8]))])
+        .into_bytes()
+        .unwrap()
+        .to_vec();
     let err = convs_from_burnpack(&f64_file, &layers[..1]).unwrap_err();
     assert!(matches!(&err, crate::models::WeightError::Type { name, dtype } if name == "a.weight" && dtype == "F64"), "{err}");
 }

@@ -12,8 +12,8 @@ use burn::tensor::{Device, Tensor, TensorData};
 use super::gan::{self, Disc};
 use super::pairs::{Dem, Grid, Rng, Split, grids_at, random_window};
 use crate::dem::Heightfield;
+use crate::models::tcm::{COARSE_SPACING_M, CONTEXT_PX, HEIGHT_SCALE_M, IN_CHANNELS, RUGGEDNESS_BOX_PX, TILE_PX, Tcm, TcmCpu, assemble_input, centre, phase_mask, tile_ruggedness};
 use crate::world::seam;
-use crate::models::tcm::{CONTEXT_PX, COARSE_SPACING_M, HEIGHT_SCALE_M, IN_CHANNELS, RUGGEDNESS_BOX_PX, TILE_PX, Tcm, TcmCpu, assemble_input, centre, phase_mask, tile_ruggedness};
 use burn::tensor::module::avg_pool2d;
 use burn::tensor::ops::AvgPoolOptions;
 
@@ -188,7 +188,21 @@ fn one() -> f32 {
 
 impl Default for TcmConfig {
     fn default() -> Self {
-        Self { batch: 8, lr: 2e-4, adversarial: 1.0, seed: 1, ruggedness: 0.0, drainage: 0.0, coarse: 0.0, free_l1: 1.0, l1_reach_px: 0.0, joined: false, dome: 0.0, disc_slopes: false, position: 0.0 }
+        Self {
+            batch: 8,
+            lr: 2e-4,
+            adversarial: 1.0,
+            seed: 1,
+            ruggedness: 0.0,
+            drainage: 0.0,
+            coarse: 0.0,
+            free_l1: 1.0,
+            l1_reach_px: 0.0,
+            joined: false,
+            dome: 0.0,
+            disc_slopes: false,
+            position: 0.0,
+        }
     }
 }
 
@@ -280,7 +294,10 @@ pub fn dome_gap(made: Tensor<4>, real: Tensor<4>, phases: &[usize]) -> Tensor<1>
         }
         let pick = Tensor::<1>::from_data(TensorData::new(share, [b]), &domes.device());
         let term = (domes.clone() * pick).sum().abs() / b as f32;
-        total = Some(match total { Some(t) => t + term, None => term });
+        total = Some(match total {
+            Some(t) => t + term,
+            None => term,
+        });
     }
     total.unwrap_or_else(|| Tensor::<1>::zeros([1], &domes.device()))
 }
@@ -403,7 +420,7 @@ impl TcmProgress {
         (self.l1, self.adv, self.disc) = (mix(self.l1, l1), mix(self.adv, adv), mix(self.disc, disc));
         self.step += 1;
         self.seconds += seconds;
-        if self.step % 50 == 0 {
+        if self.step.is_multiple_of(50) {
             self.curve.push((self.step, self.l1, self.adv, self.disc, self.seconds));
         }
     }
@@ -486,10 +503,13 @@ pub fn joined_offsets(made: &[f32], real: &[f32], masks: &[[bool; 9]]) -> Vec<f3
     let mut out = vec![0f32; made.len()];
     for (b, mask) in masks.iter().enumerate() {
         let window = &real[b * c2..(b + 1) * c2];
-        let tiles: Vec<Option<Vec<f32>>> = seam::SIDES.iter().map(|&(di, dj)| {
-            let t = ((dj + 1) * 3 + di + 1) as usize;
-            mask[t].then(|| tile_of(window, t))
-        }).collect();
+        let tiles: Vec<Option<Vec<f32>>> = seam::SIDES
+            .iter()
+            .map(|&(di, dj)| {
+                let t = ((dj + 1) * 3 + di + 1) as usize;
+                mask[t].then(|| tile_of(window, t))
+            })
+            .collect();
         let mut tile = made[b * t2..(b + 1) * t2].to_vec();
         seam::join_edges(&mut tile, TILE_PX, std::array::from_fn(|k| tiles[k].as_deref()));
         for (o, (j, m)) in out[b * t2..(b + 1) * t2].iter_mut().zip(tile.iter().zip(&made[b * t2..(b + 1) * t2])) {
@@ -541,7 +561,6 @@ pub fn start_run(cfg: TcmConfig, device: &Device, resume_from: Option<&Path>, in
 
 /// The generator's checkpoint and weight file name (the learned world reads it).
 pub use crate::world::learned::TCM_FILE as GEN_FILE;
-
 
 impl TcmRun {
     /// One optimiser step of both networks on a batch cut from `grids` (train split, phases

@@ -93,7 +93,8 @@ fn gpu_and_cpu_backends_train_the_same_three_tcm_and_x4_steps() {
 fn ruggedness_term_is_the_log_relief_gap_of_the_centre_tiles() {
     let device = Device::flex();
     let mut rng = Rng(5);
-    let metres: Vec<f32> = (0..CONTEXT_PX * CONTEXT_PX).map(|p| 40.0 * ((p % 7) as f32 * 0.9).sin() + (p / CONTEXT_PX) as f32 * 3.0 + (rng.next_u64() % 1000) as f32 * 0.05).collect();
+    let metres: Vec<f32> =
+        (0..CONTEXT_PX * CONTEXT_PX).map(|p| 40.0 * ((p % 7) as f32 * 0.9).sin() + (p / CONTEXT_PX) as f32 * 3.0 + (rng.next_u64() % 1000) as f32 * 0.05).collect();
     let units: Vec<f32> = metres.iter().map(|h| h / HEIGHT_SCALE_M).collect();
     let w = tensor(units.clone(), [1, 1, CONTEXT_PX, CONTEXT_PX], &device);
     let ours = centre_log_relief(w.clone()).into_scalar::<f32>();
@@ -118,7 +119,7 @@ fn coarse_term_is_the_mean_gap_of_block_means() {
     let bowl: Vec<f32> = (0..t * t).map(|p| base[p] - if (8..24).contains(&(p % t)) && (8..24).contains(&(p / t)) { 1.0 } else { 0.0 }).collect();
     let gap = coarse_gap(tensor(bowl, [1, 1, t, t], &device), a.clone()).into_scalar::<f32>();
     assert!((gap - 0.25).abs() < 1e-6, "{gap}");
-    let checker: Vec<f32> = (0..t * t).map(|p| base[p] + if (p % t + p / t) % 2 == 0 { 0.5 } else { -0.5 }).collect();
+    let checker: Vec<f32> = (0..t * t).map(|p| base[p] + if (p % t + p / t).is_multiple_of(2) { 0.5 } else { -0.5 }).collect();
     assert!(coarse_gap(tensor(checker, [1, 1, t, t], &device), a).into_scalar::<f32>() < 1e-6);
 }
 
@@ -189,7 +190,12 @@ fn dome_gap_is_the_phase_mean_dome_error_weighted_by_share() {
     let n = TILE_PX;
     let c = (n as f32 - 1.0) / 2.0;
     let real: Vec<f32> = (0..n * n).map(|p| ((p % n) as f32 * 0.37).sin()).collect();
-    let bump: Vec<f32> = (0..n * n).map(|p| { let (x, y) = ((p % n) as f32 - c, (p / n) as f32 - c); 100.0 - x * x - y * y }).collect();
+    let bump: Vec<f32> = (0..n * n)
+        .map(|p| {
+            let (x, y) = ((p % n) as f32 - c, (p / n) as f32 - c);
+            100.0 - x * x - y * y
+        })
+        .collect();
     let h = dome_height(&bump) as f32;
     let plane: Vec<f32> = (0..n * n).map(|p| (p % n) as f32 * 0.5 + (p / n) as f32).collect();
     let both = |a: &[f32], b: &[f32]| tensor([a.to_vec(), b.to_vec()].concat(), [2, 1, n, n], &device);
@@ -228,7 +234,7 @@ fn with_slopes_appends_the_scaled_forward_differences() {
 fn position_gap_is_zero_for_uniform_roughness_and_the_profiles_deviation_otherwise() {
     let n = TILE_PX;
     let dev = Device::flex();
-    let checker: Vec<f32> = (0..2 * n * n).map(|p| if (p % n + p / n) % 2 == 0 { 1.0 } else { -1.0 }).collect();
+    let checker: Vec<f32> = (0..2 * n * n).map(|p| if (p % n + p / n).is_multiple_of(2) { 1.0 } else { -1.0 }).collect();
     let got = position_gap(tensor(checker, [2, 1, n, n], &dev)).into_scalar::<f32>();
     assert!(got.abs() < 1e-4, "{got}");
     // A ridge along one column c: |d2x| is 2 at c, 1 at c ± 1 and 0 elsewhere; no d2y.
@@ -284,7 +290,12 @@ fn drainage_term_is_the_mean_depth_of_the_centre_tiles_pits() {
     // The pit spills over its rim on its low (west) side: at the first sample west of
     // the centre that the pit does not lower; the plane beyond drains.
     let spill = (0..cx).rev().map(|x| cy * n + x).find(|&p| pit(p) == 0.0).map(|p| h[p]).unwrap();
-    let want: f64 = (0..n * n).filter(|&p| (TILE_PX..2 * TILE_PX).contains(&(p % n)) && (TILE_PX..2 * TILE_PX).contains(&(p / n))).filter(|&p| pit(p) > 0.0).map(|p| (spill - h[p]).max(0.0) as f64).sum::<f64>() / (TILE_PX * TILE_PX) as f64;
+    let want: f64 = (0..n * n)
+        .filter(|&p| (TILE_PX..2 * TILE_PX).contains(&(p % n)) && (TILE_PX..2 * TILE_PX).contains(&(p / n)))
+        .filter(|&p| pit(p) > 0.0)
+        .map(|p| (spill - h[p]).max(0.0) as f64)
+        .sum::<f64>()
+        / (TILE_PX * TILE_PX) as f64;
     let w = tensor(h.clone(), [1, 1, n, n], &device).require_grad();
     let d = depression_depth(w.clone());
     assert!((d.clone().into_scalar::<f32>() as f64 - want).abs() < 1e-6, "{} vs {want}", d.clone().into_scalar::<f32>());
