@@ -79,9 +79,11 @@ fn gpu_and_cpu_backends_train_the_same_three_tcm_and_x4_steps() {
     let gap = gpu.iter().flatten().zip(cpu.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0f64, f64::max);
     eprintln!("TCM, ×4 running L1: gpu {gpu:?}, cpu {cpu:?}, largest gap {gap:.2e}");
     assert!(gap < 1e-4, "losses differ by {gap}");
-    // The TCM's running L1 moves by far more than the gap (the ×4 step's, a running mean
-    // of a smaller loss, by about 1e-5 in three steps).
-    assert!((cpu[2][0] - cpu[0][0]).abs() > 10.0 * gap.max(1e-6), "the steps did not change the TCM's loss: {cpu:?}");
+    // The TCM's running L1 moves by far more than the gap at some step (the ×4 step's, a
+    // running mean of a smaller loss, by about 1e-5 in three steps; a running mean can come
+    // back near where it started, so the largest move counts, not the last).
+    let moved = cpu.iter().map(|l| (l[0] - cpu[0][0]).abs()).fold(0f64, f64::max);
+    assert!(moved > 10.0 * gap.max(1e-6), "the steps did not change the TCM's loss: {cpu:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
