@@ -9,7 +9,7 @@ use libfuzzer_sys::fuzz_target;
 
 /// The app's readers, compiled from the app's own source file.
 #[allow(dead_code, missing_docs)]
-#[path = "../../src/dem.rs"]
+#[path = "../../src/dem/mod.rs"]
 mod dem;
 
 use dem::{Heightfield, PngScale};
