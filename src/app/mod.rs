@@ -9,6 +9,7 @@ use glam::DVec3;
 
 pub mod loads;
 pub mod page;
+pub mod runners;
 
 use crate::grid::mix64;
 use crate::grid::schedule::tile_seed;
@@ -604,11 +605,27 @@ impl TerrainApp {
         self.refine.stats()
     }
 
-    /// Runs up to `max` TEM jobs now on `tem` (blocking; native). Returns how many ran.
+    /// Runs up to `max` TEM jobs now on `tem` (blocking; native) and stores them through
+    /// [`refine_done`](Self::refine_done), the completion path the page's batches take.
+    /// Returns how many patches were made.
     #[cfg(not(target_arch = "wasm32"))]
     pub fn refine_blocking(&mut self, tem: &crate::models::tem::TemSet, max: usize) -> Result<usize, String> {
         let jobs = self.refine_jobs(max);
-        crate::world::refine::run_blocking(&mut self.refine, tem, jobs)
+        let Some(first) = jobs.first() else { return Ok(0) };
+        let (level, epoch) = (first.key.level as usize, first.epoch);
+        let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
+        let t = web_time::Instant::now();
+        match tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE) {
+            Ok(raw) => {
+                let before = self.refine.stats().quads_made;
+                self.refine_done(epoch, &keys, &raw, t.elapsed().as_secs_f64() * 1e3);
+                Ok((self.refine.stats().quads_made - before) as usize)
+            }
+            Err(e) => {
+                self.refine_failed(epoch, &keys);
+                Err(e)
+            }
+        }
     }
 
     /// Autopilot: fly level along the heading at the link's speed, following the terrain

@@ -148,6 +148,26 @@ impl Runner {
         }
     }
 
+    /// Loads the TEM from `files` and runs level 0 on the probe window `reps` times on this
+    /// thread: each run's milliseconds and the last run's heights (the kernels' own speed
+    /// where the runner is, e.g. the page's main thread).
+    pub fn time_tem(&mut self, files: Vec<Vec<u8>>, reps: usize) -> Result<(Vec<f64>, Vec<f32>), String> {
+        let epoch = self.epoch;
+        let env = |request| Envelope { id: 1, epoch, rest_per_work: 0.0, request };
+        if let Reply::Failed(e) = self.handle(env(Request::LoadTem { files })).reply {
+            return Err(e);
+        }
+        let (mut ms, mut out) = (Vec::new(), Vec::new());
+        for _ in 0..reps {
+            let input = crate::models::tem::probe_input(0);
+            match self.handle(env(Request::Enhance { level: 0, n: 1, side: crate::models::tem::PROBE_SIDE as u32, input })).reply {
+                Reply::Heights { heights, ms: t } => (ms.push(t), out = heights),
+                other => return Err(format!("{other:?}")),
+            };
+        }
+        Ok((ms, out))
+    }
+
     /// The newest world epoch this runner has seen.
     pub fn epoch(&self) -> u64 {
         self.epoch

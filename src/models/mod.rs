@@ -196,6 +196,22 @@ fn max_error(data: TensorData) -> Result<f32, String> {
     Ok(got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max))
 }
 
+/// burn on an existing wgpu device (the renderer's), if its self-check passes: the device and
+/// the overlay's line ("burn wgpu ready (self-check N ms, max |Δ| … m)"), or why burn cannot
+/// use it.
+pub async fn start_burn(setup: WgpuSetup) -> Result<(Device, String), String> {
+    let t0 = web_time::Instant::now();
+    let device = device_from_setup(setup)?;
+    match self_check(&device).await {
+        Ok(err) if err < 1e-3 => {
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            Ok((device, format!("burn wgpu ready (self-check {ms:.0} ms, max |Δ| {err:.1e} m)")))
+        }
+        Ok(err) => Err(format!("burn wgpu gives wrong results (max |Δ| {err} m)")),
+        Err(e) => Err(format!("burn wgpu failed: {e}")),
+    }
+}
+
 /// Runs the self-check on `device` (async readback, as browsers require) and returns the
 /// largest error against the CPU reference (metres).
 pub async fn self_check(device: &Device) -> Result<f32, String> {

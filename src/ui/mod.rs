@@ -2,6 +2,7 @@
 //! messages. It edits a copy of the settings and reports what the user asked for; the shell
 //! applies it.
 
+pub mod page;
 pub mod sketch;
 
 use crate::app::AppStats;

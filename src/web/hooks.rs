@@ -10,11 +10,10 @@ use std::sync::atomic::Ordering::SeqCst;
 use wasm_bindgen::prelude::*;
 
 use super::Runners;
-use crate::app::page::{Delivery, Target, next_id};
+use crate::app::page::Target;
 use crate::grid::TileCoord;
-use crate::jobs::protocol::{Envelope, Reply, Request};
 use crate::jobs::runner::Runner;
-use crate::models::tem::{LEVELS, PROBE_SIDE, ProbeTimes, probe_input, probe_json};
+use crate::models::tem::{LEVELS, probe_input};
 
 /// Most frame intervals kept for [`terrain_frame_intervals`] (over half an hour at 60 fps).
 const MAX_FRAME_INTERVALS: usize = 120_000;
@@ -96,56 +95,26 @@ pub fn terrain_probe_input(level: usize) -> String {
     serde_json::to_string(&probe_input(level.min(LEVELS - 1))).unwrap_or_default()
 }
 
-/// The heights of a reply, or its error.
-fn heights(d: Delivery) -> Result<(Vec<f32>, f64), JsValue> {
-    match d {
-        Delivery::Answer(a) => match a.reply {
-            Reply::Heights { heights, ms } => Ok((heights, ms)),
-            other => Err(format!("{other:?}").into()),
-        },
-        other => Err(format!("{other:?}").into()),
-    }
-}
-
 /// Runs the fixed TEM probe on the page's TEM (wherever it runs) and returns JSON
-/// `{backend, levels, round_trip_ms, compute_ms}` (see [`probe_json`]).
+/// `{backend, levels, round_trip_ms, compute_ms}` ([`Runners::tem_probe`]).
+///
+/// [`Runners::tem_probe`]: crate::app::runners::Runners::tem_probe
 #[wasm_bindgen]
 pub async fn terrain_tem_probe() -> Result<String, JsValue> {
-    let Some((runners, target, backend, epoch)) = TEM_PROBE.with(|t| t.borrow().as_ref().map(|p| (p.runners.clone(), p.target, p.backend.clone(), p.epoch))) else {
-        return Err("the TEM is not loaded".into());
-    };
-    let (mut levels, mut compute_ms) = (Vec::new(), 0.0);
-    let t0 = web_time::Instant::now();
-    for k in 0..LEVELS {
-        let request = Request::Enhance { level: k as u8, n: 1, side: PROBE_SIDE as u32, input: probe_input(k) };
-        let (raw, ms) = heights(runners.call(target, Envelope { id: next_id(), epoch, rest_per_work: 0.0, request }).await)?;
-        compute_ms += ms;
-        levels.push(raw);
-    }
-    let round_trip_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
-    let compute_ms = (target == Target::Worker).then_some(compute_ms);
-    Ok(probe_json(&backend, &levels, ProbeTimes { round_trip_ms, compute_ms }))
+    let probe = TEM_PROBE.with(|t| t.borrow().as_ref().map(|p| (p.runners.clone(), p.target, p.backend.clone(), p.epoch)));
+    let (runners, target, backend, epoch) = probe.ok_or("the TEM is not loaded")?;
+    Ok(runners.tem_probe(target, &backend, epoch).await?)
 }
 
-/// The TEM's CPU kernels on the page's main thread: loads the TEM into a runner here and runs
-/// level 0 on the probe window `reps` times; JSON `{ms: [per run], out: [last heights]}`.
+/// The TEM's CPU kernels on the page's main thread ([`Runner::time_tem`], level 0, `reps`
+/// runs): JSON `{ms: [per run], out: [last heights]}`.
 #[wasm_bindgen]
 pub async fn terrain_main_thread_tem(reps: u32) -> Result<String, JsValue> {
     let mut files = Vec::new();
     for k in 0..LEVELS {
         files.push(super::files::fetch(&format!("weights/{}", crate::models::tem::weight_file(k))).await?);
     }
-    let mut runner = Runner::new(1);
-    let env = |request| Envelope { id: next_id(), epoch: 0, rest_per_work: 0.0, request };
-    if let Reply::Failed(e) = runner.handle(env(Request::LoadTem { files })).reply {
-        return Err(e.into());
-    }
-    let (mut ms, mut out) = (Vec::new(), Vec::new());
-    for _ in 0..reps {
-        let (h, t) = heights(Delivery::Answer(runner.handle(env(Request::Enhance { level: 0, n: 1, side: PROBE_SIDE as u32, input: probe_input(0) }))))?;
-        ms.push(t);
-        out = h;
-    }
+    let (ms, out) = Runner::new(1).time_tem(files, reps as usize)?;
     Ok(serde_json::json!({ "ms": ms, "out": out }).to_string())
 }
 

@@ -16,13 +16,12 @@ use std::sync::atomic::Ordering::SeqCst;
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 
-use crate::app::page::{Delivery, PageCore, PageStart, Target};
+use crate::app::page::{PageCore, PageStart};
+use crate::app::runners::Port;
 use crate::jobs::gpu::GpuRunner;
-use crate::jobs::protocol::{Answer, Envelope, Reply};
-use crate::jobs::runner::Runner;
 use crate::models;
 use crate::share::{PageOptions, ShareState};
-use crate::ui::{Environment, Overlay};
+use crate::ui::Environment;
 
 const NO_WEBGPU: &str = "This page needs WebGPU, which this browser does not offer. Try a current Chrome, Edge or Safari (or enable WebGPU in the browser's settings).";
 
@@ -42,34 +41,8 @@ static DEVICE_GEN: AtomicU32 = AtomicU32::new(0);
 /// new device, keeping the view. A late notice about an older device changes nothing.
 static LOST_DEVICE: AtomicU32 = AtomicU32::new(0);
 
-/// Who runs the core's requests: the CPU worker, the GPU, and the main thread's own runner.
-pub(crate) struct Runners {
-    worker: Option<Rc<worker::CpuWorker>>,
-    gpu: Option<Rc<GpuRunner>>,
-    main: RefCell<Runner>,
-}
-
-impl Runners {
-    /// Runs `env` on `target` and returns what the core is to be told.
-    async fn call(&self, target: Target, env: Envelope) -> Delivery {
-        let id = env.id;
-        let failed = |why: &str| Delivery::Answer(Answer { id, reply: Reply::Failed(why.into()) });
-        match target {
-            Target::Worker => match &self.worker {
-                Some(w) => match w.call(&env).await {
-                    Ok(a) => Delivery::Answer(a),
-                    Err(why) => Delivery::WorkerGone { id, why },
-                },
-                None => Delivery::WorkerGone { id, why: "there is no CPU worker".into() },
-            },
-            Target::Gpu => match &self.gpu {
-                Some(g) => Delivery::Answer(g.handle(env).await),
-                None => failed("burn cannot use the GPU"),
-            },
-            Target::MainThread => Delivery::Answer(self.main.borrow_mut().handle(env)),
-        }
-    }
-}
+/// The page's runners: the CPU worker, the GPU and the main thread.
+type Runners = crate::app::runners::Runners<worker::CpuWorker>;
 
 /// Destroys the page's GPU device, as a driver reset would (the end-to-end test shows the
 /// page recovers); `false` if there is none.
@@ -202,16 +175,8 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     let adapter_name = format!("WebGPU · {}", browser_info.map(|i| i.0).filter(|t| !t.is_empty()).unwrap_or(label));
 
     // burn on the same device, if its self-check passes.
-    let t0 = now_ms();
     let setup = models::WgpuSetup { instance: instance.clone(), adapter: adapter.clone(), device: device.clone(), queue: queue.clone(), backend: wgpu::Backend::BrowserWebGpu };
-    let burn = match models::device_from_setup(setup) {
-        Ok(d) => match models::self_check(&d).await {
-            Ok(err) if err < 1e-3 => Ok((d, format!("burn wgpu ready (self-check {:.0} ms, max |Δ| {err:.1e} m)", now_ms() - t0))),
-            Ok(err) => Err(format!("burn wgpu gives wrong results (max |Δ| {err} m)")),
-            Err(e) => Err(format!("burn wgpu failed: {e}")),
-        },
-        Err(e) => Err(e),
-    };
+    let burn = models::start_burn(setup).await;
     let (page_opts, options_notice) = PageOptions::from_query(&window.location().search().unwrap_or_default());
     let worker = cpu_worker();
     if let Err(e) = &worker {
@@ -224,7 +189,7 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
         worker: worker.as_ref().map(|_| ()).map_err(Clone::clone),
         status: burn.as_ref().map(|b| b.1.clone()).unwrap_or_default(),
     };
-    let runners = Rc::new(Runners { worker: worker.ok(), gpu: burn.ok().map(|b| Rc::new(GpuRunner::new(b.0))), main: RefCell::new(Runner::new(1)) });
+    let runners = Rc::new(Runners::new(worker.ok(), burn.ok().map(|b| GpuRunner::new(b.0))));
     let hash = location_hash();
     let (share, message) = PageCore::opening_view(restart, &hash, options_notice);
     let options = eframe::WebOptions {
@@ -239,24 +204,8 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
         let rs = cc.wgpu_render_state.as_ref().ok_or("eframe started without wgpu")?;
         let mut core = PageCore::new(share.clone(), start).opened_at(hash);
         core.message = core.message.take().or(message);
-        Ok(Box::new(shell::WebApp {
-            core,
-            runners,
-            inbox: Rc::default(),
-            overlay: Overlay::new(share),
-            renderer: crate::render::gpu::TerrainRenderer::new(&rs.device),
-            texture: None,
-            env: Environment { adapter: adapter_name, software_adapter: software, ..Default::default() },
-            last_frame_ms: None,
-            pacer: Default::default(),
-            gpu_done: Default::default(),
-            frame_work: Default::default(),
-            copied_at_ms: None,
-            link_too_long: 0,
-            sketch_panel: Default::default(),
-            examples: crate::sketch::examples::all(),
-            import: Rc::default(),
-        }))
+        let env = Environment { adapter: adapter_name, software_adapter: software, ..Default::default() };
+        Ok(Box::new(shell::WebApp::new(core, runners, share, env, rs)))
     });
     web_runner.start(canvas, options, app).await.map_err(|e| format!("The page could not start its renderer: {e:?}"))?;
     RUNNER.with(|r| *r.borrow_mut() = Some(web_runner));

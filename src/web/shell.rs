@@ -12,36 +12,48 @@ use super::hooks::{self, STATS_JSON, TEM_PROBE, TILE_PROBE, TemProbe};
 use super::{DEVICE_GEN, LOST_DEVICE, RESTARTS, Runners, files, location_hash, now_ms};
 use crate::app::MESH_KEEP_FRAMES;
 use crate::app::page::{Delivery, Effect, PageCore};
+use crate::app::runners::Port;
 use crate::render::gpu::TerrainRenderer;
+use crate::share::ShareState;
 use crate::sketch::Sketch;
-use crate::ui::sketch::SketchPanel;
-use crate::ui::{Environment, Overlay};
+use crate::ui::Environment;
+use crate::ui::page::{BrowserAsks, PageUi};
 
-/// The page's eframe app.
+/// The page's eframe app: the core, its runners, the overlay and the 3-D view's renderer.
 pub(super) struct WebApp {
-    pub core: PageCore,
-    pub runners: Rc<Runners>,
+    core: PageCore,
+    runners: Rc<Runners>,
+    ui: PageUi,
+    renderer: TerrainRenderer,
+    env: Environment,
+    s: ShellState,
+}
+
+/// What the shell keeps between frames.
+#[derive(Default)]
+struct ShellState {
     /// What came back from fetches and runners since the last frame.
-    pub inbox: Rc<RefCell<Vec<Delivery>>>,
-    pub overlay: Overlay,
-    pub renderer: TerrainRenderer,
-    pub texture: Option<egui::TextureId>,
-    pub env: Environment,
-    pub last_frame_ms: Option<f64>,
+    inbox: Rc<RefCell<Vec<Delivery>>>,
+    texture: Option<egui::TextureId>,
+    last_frame_ms: Option<f64>,
     /// Draws a frame of the 3-D view only once the GPU has finished the previous one.
-    pub pacer: crate::render::FramePacer,
+    pacer: crate::render::FramePacer,
     /// The newest frame whose GPU work is done (set by the queue's callback).
-    pub gpu_done: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    gpu_done: std::sync::Arc<std::sync::atomic::AtomicU64>,
     /// The main thread's work per frame over the last 120 frames: total, tiles, nodes and
     /// drawing ms, the upload and submit parts of the drawing (ms), and the meshes uploaded.
-    pub frame_work: std::collections::VecDeque<[f64; 7]>,
-    pub copied_at_ms: Option<f64>,
+    frame_work: std::collections::VecDeque<[f64; 7]>,
     /// Times "Copy link" found the sketch too detailed for a link and sent it as a file.
-    pub link_too_long: u32,
-    pub sketch_panel: SketchPanel,
-    pub examples: Vec<(&'static str, Sketch)>,
+    link_too_long: u32,
     /// A sketch PNG the user opened (or why it could not be read), once it is read.
-    pub import: Rc<RefCell<Option<Result<Sketch, String>>>>,
+    import: Rc<RefCell<Option<Result<Sketch, String>>>>,
+}
+
+impl WebApp {
+    /// The app for `core`, with its runners, drawing on `rs`'s device.
+    pub fn new(core: PageCore, runners: Rc<Runners>, share: ShareState, env: Environment, rs: &eframe::egui_wgpu::RenderState) -> Self {
+        Self { core, runners, ui: PageUi::new(share), renderer: TerrainRenderer::new(&rs.device), env, s: ShellState::default() }
+    }
 }
 
 /// Asks for one more frame. egui answers `request_repaint()` with two; a non-zero delay asks
@@ -58,7 +70,7 @@ impl WebApp {
         {
             self.core.deliver(Delivery::WorkerGone { id: 0, why });
         }
-        for d in std::mem::take(&mut *self.inbox.borrow_mut()) {
+        for d in std::mem::take(&mut *self.s.inbox.borrow_mut()) {
             self.core.deliver(d);
         }
     }
@@ -70,7 +82,7 @@ impl WebApp {
             web_sys::console::warn_1(&note.into());
         }
         for e in self.core.take_effects() {
-            let (inbox, runners) = (self.inbox.clone(), self.runners.clone());
+            let (inbox, runners) = (self.s.inbox.clone(), self.runners.clone());
             wasm_bindgen_futures::spawn_local(async move {
                 let d = match e {
                     Effect::Fetch { id, url } => Delivery::Fetched { id, bytes: files::fetch(&url).await },
@@ -88,32 +100,22 @@ impl WebApp {
         TEM_PROBE.with(|p| *p.borrow_mut() = probe);
     }
 
-    /// The sketch panel's requests: files, variants, blends, relief.
-    fn sketch_actions(&mut self, act: crate::ui::sketch::SketchActions) {
-        let app = &mut self.core.app;
-        if act.export
-            && let Err(e) = files::download_sketch(app.canvas.sketch())
+    /// The sketch panel's files: a download, a file to pick, a picked file that arrived.
+    fn sketch_files(&mut self, asks: BrowserAsks) {
+        if asks.export_sketch
+            && let Err(e) = files::download_sketch(self.core.app.canvas.sketch())
         {
             self.core.message = Some(format!("The sketch could not be exported: {e}"));
         }
-        if act.import
-            && let Err(e) = files::pick_sketch_file(self.import.clone())
+        if asks.import_sketch
+            && let Err(e) = files::pick_sketch_file(self.s.import.clone())
         {
             self.core.message = Some(format!("No file dialog: {e}"));
         }
-        match self.import.borrow_mut().take() {
+        match self.s.import.borrow_mut().take() {
             Some(Ok(s)) => self.core.app.canvas.load(s),
             Some(Err(e)) => self.core.message = Some(e),
             None => {}
-        }
-        if act.variants {
-            self.core.ask_variants();
-        }
-        if let (Some(alpha), Some((a, b))) = (act.blend, self.sketch_panel.blend_pair()) {
-            self.core.ask_blend(a.clone(), b.clone(), alpha);
-        }
-        if let Some(r) = act.relief_m {
-            self.overlay.reset(self.core.set_relief(r));
         }
     }
 
@@ -133,29 +135,29 @@ impl WebApp {
         let (text, file) = self.core.copy_link(href.split('#').next().unwrap_or_default());
         ctx.copy_text(text);
         if let Some(sketch) = file {
-            self.link_too_long += 1;
+            self.s.link_too_long += 1;
             if let Err(e) = files::download_sketch(&sketch) {
                 self.core.message = Some(format!("The sketch could not be downloaded ({e}): use Export PNG in the sketch panel."));
             }
         }
-        self.copied_at_ms = Some(now);
+        self.ui.copied_at_ms = Some(now);
     }
 
     /// Draws the 3-D view (when the GPU has finished the previous frame) into the panel.
     fn view(&mut self, ui: &mut egui::Ui, rs: &eframe::egui_wgpu::RenderState, dt_ms: f64, now: f64, cpu_start: f64) {
         let ctx = ui.ctx().clone();
-        let draw = self.pacer.may_draw(now);
+        let draw = self.s.pacer.may_draw(now);
         let rect = ui.max_rect();
         let resp = ui.allocate_rect(rect, egui::Sense::click_and_drag());
         let size = crate::render::view_size([rect.width(), rect.height()], ctx.pixels_per_point(), self.env.software_adapter);
         let input = crate::ui::control_input(&ctx, &resp);
         let (nodes, params) = self.core.app.frame(&input, dt_ms / 1000.0, size);
-        if self.renderer.ensure_target(&rs.device, size) || self.texture.is_none() {
+        if self.renderer.ensure_target(&rs.device, size) || self.s.texture.is_none() {
             let view = self.renderer.color_view().expect("target just ensured");
             let mut r = rs.renderer.write();
-            match self.texture {
+            match self.s.texture {
                 Some(id) => r.update_egui_texture_from_wgpu_texture(&rs.device, view, wgpu::FilterMode::Linear, id),
-                None => self.texture = Some(r.register_native_texture(&rs.device, view, wgpu::FilterMode::Linear)),
+                None => self.s.texture = Some(r.register_native_texture(&rs.device, view, wgpu::FilterMode::Linear)),
             }
         }
         if draw {
@@ -164,18 +166,18 @@ impl WebApp {
             let render_ms = now_ms() - render_start;
             (self.env.uploads, self.env.triangles, self.env.cpu_ms) = (stats.uploads, stats.triangles, now_ms() - cpu_start);
             let s = self.core.app.stats();
-            self.frame_work.push_back([self.env.cpu_ms, s.world_ms, s.nodes_ms, render_ms, stats.upload_ms, stats.submit_ms, stats.uploads as f64]);
-            if self.frame_work.len() > 120 {
-                self.frame_work.pop_front();
+            self.s.frame_work.push_back([self.env.cpu_ms, s.world_ms, s.nodes_ms, render_ms, stats.upload_ms, stats.submit_ms, stats.uploads as f64]);
+            if self.s.frame_work.len() > 120 {
+                self.s.frame_work.pop_front();
             }
-            let (frame, interval) = self.pacer.drawn(now);
+            let (frame, interval) = self.s.pacer.drawn(now);
             if let Some(ms) = interval {
                 self.core.app.record_frame_time(ms);
                 hooks::record_frame_interval(ms);
             }
             // eframe paints the overlay (one more submit) after this returns, in the same
             // task; a microtask asks for "work done" after that paint.
-            let (queue, done, ctx) = (rs.queue.clone(), self.gpu_done.clone(), ctx.clone());
+            let (queue, done, ctx) = (rs.queue.clone(), self.s.gpu_done.clone(), ctx.clone());
             wasm_bindgen_futures::spawn_local(async move {
                 queue.on_submitted_work_done(move || {
                     done.fetch_max(frame, SeqCst);
@@ -183,7 +185,7 @@ impl WebApp {
                 });
             });
         }
-        if let Some(id) = self.texture {
+        if let Some(id) = self.s.texture {
             ui.painter().image(id, rect, egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)), egui::Color32::WHITE);
         }
     }
@@ -205,11 +207,11 @@ impl eframe::App for WebApp {
             return;
         }
         let now = now_ms();
-        let dt_ms = self.last_frame_ms.map(|t| now - t).unwrap_or(16.0);
-        self.last_frame_ms = Some(now);
-        self.pacer.gpu_done(self.gpu_done.load(SeqCst));
+        let dt_ms = self.s.last_frame_ms.map(|t| now - t).unwrap_or(16.0);
+        self.s.last_frame_ms = Some(now);
+        self.s.pacer.gpu_done(self.s.gpu_done.load(SeqCst));
         if let Some(s) = self.core.follow_link(&location_hash()) {
-            self.overlay.reset(s);
+            self.ui.overlay.reset(s);
         }
         let Some(rs) = frame.wgpu_render_state() else { return };
         let cpu_start = now_ms();
@@ -224,42 +226,18 @@ impl eframe::App for WebApp {
         });
         egui::CentralPanel::no_frame().show(ui, |ui| self.view(ui, rs, dt_ms, now, cpu_start));
         self.env.take_core(&self.core);
-        let copied = self.copied_at_ms.is_some_and(|t| now - t < 2000.0);
-        let stats = self.core.app.stats().clone();
-        let app = &mut self.core.app;
-        let (mode, mut speed, mut show_lod, mut refine_on) = (app.controller.mode, app.controller.speed_mps, app.show_lod, self.core.refine_on);
-        let act = self.overlay.show(&ctx, &stats, &self.env, mode, &mut speed, &mut show_lod, &mut refine_on, self.core.message.as_deref(), copied);
-        let app = &mut self.core.app;
-        (app.controller.speed_mps, app.show_lod, self.core.refine_on) = (speed, show_lod, refine_on);
-        if let Some(m) = act.mode {
-            let cam = self.core.app.camera;
-            self.core.app.controller.set_mode(m, &cam);
-        }
-        if let Some(s) = act.settings {
-            self.core.app.apply_settings(s);
-        }
-        if act.dismiss_message {
-            self.core.message = None;
-        }
-        if self.core.app.source() == crate::world::SourceKind::Sketch {
-            let busy = self.core.sketch_busy() || stats.sketch_jobs.in_flight > 0;
-            let relief = self.core.app.settings().relief_m;
-            if let Some(v) = self.core.variants.take() {
-                self.sketch_panel.set_variants(&ctx, v);
-            }
-            let sk = self.sketch_panel.show(&ctx, &mut self.core.app.canvas, relief, busy, &self.examples);
-            self.sketch_actions(sk);
-            // A stroke goes out in the frame that drew it.
-            self.core.start_sketch_jobs();
-            self.carry_out();
-        }
-        if act.copy_link {
+        let asks = self.ui.show(&ctx, &mut self.core, &self.env, now);
+        self.sketch_files(asks);
+        // A stroke goes out in the frame that drew it.
+        self.core.start_sketch_jobs();
+        self.carry_out();
+        if asks.copy_link {
             self.copy_link(&ctx, now);
         }
         self.write_link(now, false);
-        let json = crate::ui::stats_json(&self.core, &self.env, &self.sketch_panel, &self.overlay, &self.frame_work, RESTARTS.get(), self.link_too_long);
+        let json = self.ui.stats_json(&self.core, &self.env, &self.s.frame_work, RESTARTS.get(), self.s.link_too_long);
         STATS_JSON.with(|s| *s.borrow_mut() = json);
-        if self.pacer.waiting() {
+        if self.s.pacer.waiting() {
             // The GPU's "work done" asks for the next frame; this is the fallback.
             ctx.request_repaint_after(std::time::Duration::from_millis(crate::render::pacing::GPU_STALL_MS as u64));
         } else {

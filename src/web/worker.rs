@@ -13,6 +13,7 @@ use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 use wasm_bindgen_futures::JsFuture;
 
+use crate::app::runners::Port;
 use crate::jobs::protocol::{Answer, Envelope};
 use crate::jobs::runner::{Accepted, Runner, Task};
 
@@ -103,15 +104,17 @@ impl CpuWorker {
         worker.post_message(&first).map_err(js_error)?;
         Ok(Self { worker, pending, _on_message: on_message, _on_error: on_error })
     }
+}
 
+impl Port for CpuWorker {
     /// Why the worker is gone, if it is.
-    pub fn gone(&self) -> Option<String> {
+    fn gone(&self) -> Option<String> {
         self.pending.borrow().dead.clone()
     }
 
     /// Posts `env` (its bytes transferred) and waits for the answer; `Err` when the worker is
     /// gone (why).
-    pub async fn call(&self, env: &Envelope) -> Result<Answer, String> {
+    async fn call(&self, env: &Envelope) -> Result<Answer, String> {
         if let Some(why) = self.gone() {
             return Err(why);
         }
