@@ -154,6 +154,9 @@ pub struct TerrainApp {
     /// Sketch → terrain jobs, keyed by canvas revision (one in flight: the latest stroke wins
     /// once it returns).
     sketch_jobs: JobQueue<u64>,
+    /// A canvas revision whose terrain came back unusable: not asked for again until the
+    /// canvas changes (else it would be asked for every frame).
+    sketch_rejected: Option<u64>,
     /// The terrain of the sketch shown (0–255 scale) and its canvas revision.
     sketch_terrain: Option<(u64, Arc<Vec<f32>>)>,
     /// The canvas's code and the revision it was made at (share links).
@@ -198,6 +201,7 @@ impl TerrainApp {
             canvas,
             sketch_models: LearnedStatus::Loading,
             sketch_jobs: JobQueue::new(SKETCH_JOBS_IN_FLIGHT),
+            sketch_rejected: None,
             sketch_terrain: None,
             sketch_code: (0, code),
         };
@@ -383,7 +387,7 @@ impl TerrainApp {
     /// interpolation is made here at once instead.
     pub fn sketch_jobs(&mut self) -> Vec<(Job<u64>, Sketch)> {
         let rev = self.canvas.revision() + 1;
-        if self.source() != SourceKind::Sketch || self.sketch_terrain.as_ref().is_some_and(|t| t.0 == rev) {
+        if self.source() != SourceKind::Sketch || self.sketch_terrain.as_ref().is_some_and(|t| t.0 == rev) || self.sketch_rejected == Some(rev) {
             return Vec::new();
         }
         match &self.sketch_models {
@@ -399,17 +403,21 @@ impl TerrainApp {
     }
 
     /// A sketch's terrain came back: `heights` ([`SKETCH_PX`]², 0–255 scale) made in `ms`.
-    /// Shown unless a newer sketch's terrain already is; returns whether it was.
-    pub fn sketch_done(&mut self, job: &Job<u64>, heights: Vec<f32>, ms: f64) -> bool {
-        if heights.len() != SKETCH_PX * SKETCH_PX || heights.iter().any(|h| !h.is_finite()) {
+    /// Shown unless a newer sketch's terrain already is; returns whether it was. Heights of
+    /// the wrong count or not finite are refused with why, and that canvas revision is not
+    /// asked for again until the canvas changes.
+    pub fn sketch_done(&mut self, job: &Job<u64>, heights: Vec<f32>, ms: f64) -> Result<bool, String> {
+        let bad = heights.iter().filter(|h| !h.is_finite()).count();
+        if heights.len() != SKETCH_PX * SKETCH_PX || bad > 0 {
             self.sketch_jobs.fail(job);
-            return false;
+            self.sketch_rejected = Some(job.key);
+            return Err(format!("the generator returned {} heights, {bad} of them not finite numbers, for {}", heights.len(), SKETCH_PX * SKETCH_PX));
         }
         if self.sketch_jobs.finish(job) == Outcome::Stale || self.sketch_terrain.as_ref().is_some_and(|t| t.0 >= job.key) {
-            return false;
+            return Ok(false);
         }
         self.show_sketch_terrain(job.key, heights, ms);
-        true
+        Ok(true)
     }
 
     /// A sketch could not be made into terrain: it may be asked for again.
@@ -571,13 +579,22 @@ impl TerrainApp {
 
     /// Stores the results of a batch made for world `epoch`: `raw` is the models' output for
     /// `keys` in order ((2·INPUT_SIDE)² metres each), `ms` the batch's time. A batch of an
-    /// older world (the seed, noise or radius changed while it ran) is dropped whole.
-    pub fn refine_done(&mut self, epoch: u64, keys: &[PatchKey], raw: &[f32], ms: f64) {
+    /// older world (the seed, noise or radius changed while it ran) is dropped whole. A batch
+    /// of the wrong size or with a height that is not finite is dropped (its patches may be
+    /// asked for again) and the error says so.
+    pub fn refine_done(&mut self, epoch: u64, keys: &[PatchKey], raw: &[f32], ms: f64) -> Result<(), String> {
         let per = (2 * INPUT_SIDE).pow(2);
         let current = self.epoch();
         if epoch == current && raw.len() != per * keys.len() {
             self.refine.abandon(keys);
-            return;
+            return Err(format!("the TEM returned {} heights for {} patches of {per}", raw.len(), keys.len()));
+        }
+        let bad = raw.iter().filter(|h| !h.is_finite()).count();
+        if epoch == current && bad > 0 {
+            // Not one patch of the batch is kept: a model that makes NaN or infinity somewhere
+            // is not trusted anywhere in the batch.
+            self.refine.abandon(keys);
+            return Err(format!("the TEM returned {bad} heights that are not finite numbers; the batch was dropped"));
         }
         if epoch == current {
             self.refine.count_batch();
@@ -591,6 +608,7 @@ impl TerrainApp {
                 self.refine.abandon(&[*k]);
             }
         }
+        Ok(())
     }
 
     /// Forgets jobs of world `epoch` whose inference failed, so they can be asked for again.
@@ -618,7 +636,7 @@ impl TerrainApp {
         match tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE) {
             Ok(raw) => {
                 let before = self.refine.stats().quads_made;
-                self.refine_done(epoch, &keys, &raw, t.elapsed().as_secs_f64() * 1e3);
+                self.refine_done(epoch, &keys, &raw, t.elapsed().as_secs_f64() * 1e3)?;
                 Ok((self.refine.stats().quads_made - before) as usize)
             }
             Err(e) => {

@@ -395,14 +395,20 @@ impl PageCore {
                     self.fail(ModelSet::World, &LoadError::Failed(format!("making tile {}, {} failed ({e})", job.key.i, job.key.j)));
                 }
             }
-            (For::Tem { epoch, keys }, Reply::Heights { heights, ms }) => self.app.refine_done(epoch, &keys, &heights, ms),
+            (For::Tem { epoch, keys }, Reply::Heights { heights, ms }) => {
+                if let Err(e) = self.app.refine_done(epoch, &keys, &heights, ms) {
+                    self.message = Some(format!("TEM inference failed: {e}"));
+                }
+            }
             (For::Tem { epoch, keys }, Reply::Stale) => self.app.refine_failed(epoch, &keys),
             (For::Tem { epoch, keys }, r) => {
                 self.app.refine_failed(epoch, &keys);
                 self.message = Some(format!("TEM inference failed: {}", failed(&r).unwrap_or_default()));
             }
-            (For::Sketch(job, _), Reply::Heights { heights, ms }) if heights.len() == SKETCH_PX * SKETCH_PX => {
-                self.app.sketch_done(&job, heights, ms);
+            (For::Sketch(job, _), Reply::Heights { heights, ms }) => {
+                if let Err(e) = self.app.sketch_done(&job, heights, ms) {
+                    self.message = Some(format!("The sketch could not be made into terrain: {e}. Draw on to try again."));
+                }
             }
             (For::Sketch(job, Target::Gpu), r) => {
                 // The GPU failed: this stroke and the next ones go to the worker.
@@ -412,7 +418,7 @@ impl PageCore {
             }
             (For::Sketch(job, _), r) => {
                 self.app.sketch_failed(&job);
-                self.message = Some(format!("The sketch could not be made into terrain: {}", failed(&r).unwrap_or_else(|| "a reply of the wrong size".into())));
+                self.message = Some(format!("The sketch could not be made into terrain: {}", failed(&r).unwrap_or_else(|| format!("an unexpected reply {r:?}"))));
             }
             (For::Variants, Reply::Sketches { sketches, heights, .. }) => match pair_up(&sketches, heights) {
                 Ok(v) => self.variants = Some(v),

@@ -178,3 +178,40 @@ fn the_sketch_world_loads_its_models_and_makes_terrain_variants_and_blends() {
     assert_eq!(core.blends, 1);
     assert!(core.app.canvas.revision() > rev);
 }
+
+/// A generator that answers NaN heights: the page says so in its message, and the same
+/// sketch is not asked for again frame after frame (one request over ten frames); the next
+/// stroke is.
+#[test]
+fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_frame() {
+    let mut core = PageCore::new(ShareState { source: SourceKind::Sketch, ..ShareState::default() }, start(Ok(())));
+    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    shell.frames(&mut core, 1);
+    assert!(core.loads.sketch.is_ready());
+    // A stroke; its terrain comes back broken.
+    core.app.canvas.set_tool(crate::sketch::canvas::Tool::Ridge);
+    core.app.canvas.press(10.0, 10.0);
+    core.app.canvas.drag(100.0, 10.0);
+    core.app.canvas.release();
+    let mut sketches = 0;
+    for f in 0..10 {
+        core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
+        core.start_work(100.0 + f as f64 * 16.0);
+        for e in core.take_effects() {
+            if let Effect::Post { envelope, .. } = e {
+                assert_eq!(envelope.request.kind(), "sketch");
+                sketches += 1;
+                let heights = vec![f32::NAN; SKETCH_PX * SKETCH_PX];
+                core.deliver(Delivery::Answer(Answer { id: envelope.id, reply: Reply::Heights { heights, ms: 1.0 } }));
+            }
+        }
+    }
+    assert_eq!(sketches, 1, "asked once, not every frame");
+    let m = core.message.clone().unwrap_or_default();
+    assert!(m.starts_with("The sketch could not be made into terrain") && m.contains("65536 of them not finite"), "{m}");
+    core.app.canvas.press(10.0, 50.0);
+    core.app.canvas.drag(100.0, 50.0);
+    core.app.canvas.release();
+    core.start_work(400.0);
+    assert_eq!(core.take_effects().len(), 1, "the next stroke is asked for");
+}

@@ -114,14 +114,33 @@ fn a_batch_of_an_older_world_is_dropped() {
     app.apply(new);
     app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
     assert_eq!(app.epoch(), old_epoch + 1);
-    app.refine_done(old_epoch, &keys, &raw, 10.0);
+    app.refine_done(old_epoch, &keys, &raw, 10.0).unwrap();
     let s = app.refine_stats();
     assert_eq!((s.quads_made, s.cached, s.stale_dropped), (0, 0, keys.len() as u64), "stale batch must not land: {s:?}");
     // The same kind of batch for the current world lands.
     let keys: Vec<PatchKey> = frames_until_jobs(&mut app).iter().map(|j| j.key).collect();
-    app.refine_done(app.epoch(), &keys, &vec![5.0f32; (2 * INPUT_SIDE).pow(2) * keys.len()], 10.0);
+    app.refine_done(app.epoch(), &keys, &vec![5.0f32; (2 * INPUT_SIDE).pow(2) * keys.len()], 10.0).unwrap();
     assert_eq!(app.refine_stats().quads_made, keys.len() as u64);
     assert!(!keys.is_empty());
+}
+
+/// A TEM batch with one NaN or one infinite height is refused whole, with an error that
+/// counts them: no patch of it is stored, and its patches are asked for again.
+#[test]
+fn a_tem_batch_with_a_height_that_is_not_finite_is_refused_and_asked_for_again() {
+    for bad in [f32::NAN, f32::INFINITY] {
+        let mut app = low_refining_app();
+        let jobs = frames_until_jobs(&mut app);
+        let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
+        let mut raw = vec![5.0f32; (2 * INPUT_SIDE).pow(2) * keys.len()];
+        let mid = raw.len() / 2;
+        raw[mid] = bad;
+        let e = app.refine_done(app.epoch(), &keys, &raw, 10.0).unwrap_err();
+        assert!(e.contains("1 heights that are not finite"), "{e}");
+        assert_eq!((app.refine_stats().quads_made, app.refine_stats().cached), (0, 0));
+        let again: Vec<PatchKey> = frames_until_jobs(&mut app).iter().map(|j| j.key).collect();
+        assert!(keys.iter().all(|k| again.contains(k)), "the refused patches are asked for again");
+    }
 }
 
 /// While no refinement jobs are taken (inference busy or rate-limited), a long flight keeps
@@ -290,7 +309,7 @@ fn a_sketch_becomes_the_world_one_job_at_a_time_and_older_terrain_is_dropped() {
     app.canvas.drag(100.0, 10.0);
     app.canvas.release();
     let ramp: Vec<f32> = (0..SKETCH_PX * SKETCH_PX).map(|p| (p % SKETCH_PX) as f32).collect();
-    assert!(app.sketch_done(&first, ramp.clone(), 5.0), "the first terrain is shown");
+    assert!(app.sketch_done(&first, ramp.clone(), 5.0).unwrap(), "the first terrain is shown");
     let relief = app.settings().relief_m as f32;
     // World sample x = 0 is sketch column 128.
     assert_eq!(app.tile_heights(TileCoord::new(0, 0)), None, "tiles come with the next frame");
@@ -300,10 +319,10 @@ fn a_sketch_becomes_the_world_one_job_at_a_time_and_older_terrain_is_dropped() {
     // The newest sketch is asked for next; its terrain replaces the first.
     let (second, _) = app.sketch_jobs()[0].clone();
     assert!(second.key > first.key);
-    assert!(app.sketch_done(&second, vec![255.0; SKETCH_PX * SKETCH_PX], 5.0));
-    assert!(!app.sketch_done(&first, ramp, 5.0), "an older sketch's terrain is dropped");
+    assert!(app.sketch_done(&second, vec![255.0; SKETCH_PX * SKETCH_PX], 5.0).unwrap());
+    assert!(!app.sketch_done(&first, ramp, 5.0).unwrap(), "an older sketch's terrain is dropped");
     assert!(app.sketch_jobs().is_empty(), "nothing new to make");
-    assert!(!app.sketch_done(&second, vec![f32::NAN; SKETCH_PX * SKETCH_PX], 1.0));
+    assert!(app.sketch_done(&second, vec![f32::NAN; SKETCH_PX * SKETCH_PX], 1.0).is_err());
 }
 
 #[test]
