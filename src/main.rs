@@ -78,6 +78,22 @@ enum Command {
         #[arg(long)]
         weights: Option<PathBuf>,
     },
+    /// Hillshade DEMs side by side into one grey PNG, each area-averaged to one spacing and
+    /// cut to the same square around its centre (e.g. a region of the world beside real ranges).
+    Hillshade {
+        /// Input DEMs (.tif, .tiff, .png), left to right.
+        #[arg(long, num_args = 1.., required = true)]
+        input: Vec<PathBuf>,
+        /// Spacing (metres) every input is area-averaged to.
+        #[arg(long, default_value_t = 32.0)]
+        spacing_m: f64,
+        /// Side (samples) of each input's square, cut around its centre (at most its size).
+        #[arg(long, default_value_t = 768, value_parser = clap::value_parser!(u32).range(16..=8192))]
+        side: u32,
+        /// Output PNG.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Refine a DEM (float32 TIFF in metres or 16-bit PNG) with the learned ×2 ladder.
     Enhance {
         /// Input DEM (.tif, .tiff, .png).
@@ -541,6 +557,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::World { seed, tiles, out, source, weights } => world(seed, &tiles, &out, source, weights),
+        Command::Hillshade { input, spacing_m, side, out } => hillshade(&input, spacing_m, side as usize, &out),
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),
         Command::TemExport { weights, out } => tem_export(weights, &out),

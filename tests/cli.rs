@@ -367,3 +367,25 @@ fn eval_sketch_scores_every_pair_and_its_mean_is_the_mean_of_the_pairs() {
     assert!((json["mean"]["rmse"].as_f64().unwrap() - (rmse[0] + rmse[1]) / 2.0).abs() < 1e-9);
     assert!(per[0]["extractor"]["band_agreement"].as_f64().unwrap() > 0.99, "the extractor reads its own sketch's DEM back");
 }
+
+/// `terrain hillshade` puts its inputs side by side, 8 white pixels apart, each cut to the
+/// asked square (or its own size when smaller): a 2×1-tile world (cut to 96²) beside a
+/// 1×1-tile one (96²) is a 200×96 grey PNG whose gap is white and whose panels are shaded.
+#[test]
+fn hillshade_puts_the_inputs_side_by_side_at_the_asked_square() {
+    let (a, b, out) = (tmp("shade_a.tif"), tmp("shade_b.tif"), tmp("shade.png"));
+    assert!(run(&["world", "--seed", "3", "--tiles", "0", "0", "2", "1", "--out", a.to_str().unwrap()]).status.success());
+    assert!(run(&["world", "--seed", "4", "--tiles", "0", "0", "1", "1", "--out", b.to_str().unwrap()]).status.success());
+    let o = run(&["hillshade", "--input", a.to_str().unwrap(), b.to_str().unwrap(), "--side", "96", "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut reader = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&out).unwrap())).read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!((info.width, info.height, info.color_type), (200, 96, png::ColorType::Grayscale));
+    let px = |x: usize, y: usize| buf[y * 200 + x];
+    assert!((0..96).all(|y| (96..104).all(|x| px(x, y) == 255)), "the gap is white");
+    let left: Vec<u8> = (0..96 * 96).map(|k| px(k % 96, k / 96)).collect();
+    assert!(left.iter().max().unwrap() - left.iter().min().unwrap() > 50, "the world is shaded, not flat");
+    let missing = run(&["hillshade", "--input", "/no/such.tif", "--out", out.to_str().unwrap()]);
+    assert_eq!(missing.status.code(), Some(1));
+}

@@ -215,6 +215,7 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
         regions.push((name, r, ms));
     }
     let mut sides = Vec::new();
+    let mut drainage = serde_json::Map::new();
     for side in world_eval::WINDOW_SIDES {
         let real = world_eval::stats_of(&world_eval::real_windows(&dems, side), side);
         if real.is_empty() {
@@ -222,17 +223,33 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
         }
         let mut worlds = serde_json::Map::new();
         let mut means = Vec::new();
+        // Drainage (flat area, closed depressions at ~100 m and ~400 m, longest flow path) on
+        // the larger windows only: a 4 km window is too small for ~400 m and for flow paths.
+        let largest = side == world_eval::WINDOW_SIDES[world_eval::WINDOW_SIDES.len() - 1];
+        let real_drainage = if largest { world_eval::drainage_of(&world_eval::real_windows(&dems, side), side) } else { Vec::new() };
+        let mut with_drainage = Vec::new();
         for (name, rs, _) in &regions {
             let wins: Vec<Vec<f32>> = rs.iter().flat_map(|r| world_eval::windows_of(r, side)).collect();
             let st = world_eval::stats_of(&wins, side);
             let d = geomorph::distance(&st, &real);
             means.push(d[STAT_NAMES.len()]);
+            if largest {
+                let dr = world_eval::drainage_of(&wins, side);
+                let dd = geomorph::drainage::distance(&dr, &real_drainage);
+                let n = (STAT_NAMES.len() + geomorph::drainage::DRAINAGE_NAMES.len()) as f64;
+                with_drainage.push((d[..STAT_NAMES.len()].iter().sum::<f64>() + dd[..geomorph::drainage::DRAINAGE_NAMES.len()].iter().sum::<f64>()) / n);
+                drainage.insert(name.to_string(), drainage_summary(&dr, Some(&dd)));
+            }
             let per: serde_json::Map<String, serde_json::Value> = STAT_NAMES.iter().zip(&d).map(|(n, v)| (n.to_string(), serde_json::json!(v))).collect();
             worlds.insert(name.to_string(), serde_json::json!({ "windows": st.len(), "distance": d[STAT_NAMES.len()], "per_statistic": per, "medians": medians(&st) }));
         }
-        sides.push(
-            serde_json::json!({ "window": side, "real_windows": real.len(), "real_medians": medians(&real), "worlds": worlds, "ratio_tcm_over_procedural": means[0] / means[1] }),
-        );
+        let mut entry =
+            serde_json::json!({ "window": side, "real_windows": real.len(), "real_medians": medians(&real), "worlds": worlds, "ratio_tcm_over_procedural": means[0] / means[1] });
+        if largest {
+            entry["ratio_tcm_over_procedural_with_drainage"] = serde_json::json!(with_drainage[0] / with_drainage[1]);
+            drainage.insert("real_validation".into(), drainage_summary(&real_drainage, None));
+        }
+        sides.push(entry);
     }
     // Seam figures pooled over the edges of all seeds' regions, and the same figures on
     // real terrain cut into tiles (the validation windows of 256 samples: one edge each way),
@@ -275,6 +292,68 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
     let grids = terrain::train::tcm::grids(&dems);
     let domes = terrain::train::tcm::phase_dome_bias(&models.tcm, &grids, 400, terrain::models::cpu::default_threads());
     let domes: Vec<serde_json::Value> = domes.iter().enumerate().map(|(p, (m, e))| serde_json::json!({ "phase": p, "made_minus_real_m": m, "standard_error_m": e })).collect();
-    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "seams_and_speed": seams, "ruggedness_128m_tiles": ruggedness, "tile_dome_bias_by_phase_128m_validation": domes })).expect("json"));
+    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "drainage_256_windows": drainage, "seams_and_speed": seams, "ruggedness_128m_tiles": ruggedness, "tile_dome_bias_by_phase_128m_validation": domes })).expect("json"));
     Ok(())
+}
+
+/// Per drainage statistic, the mean and median over `set` (and its distance to the real
+/// windows, when given).
+fn drainage_summary(set: &[terrain::geomorph::drainage::Drainage], distance: Option<&[f64]>) -> serde_json::Value {
+    use terrain::geomorph::drainage::DRAINAGE_NAMES;
+    let per: serde_json::Map<String, serde_json::Value> = DRAINAGE_NAMES
+        .iter()
+        .enumerate()
+        .map(|(k, n)| {
+            let mut v: Vec<f64> = set.iter().map(|d| d.values()[k]).collect();
+            v.sort_by(f64::total_cmp);
+            let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
+            let mut e = serde_json::json!({ "mean": mean, "median": v.get(v.len() / 2) });
+            if let Some(d) = distance {
+                e["distance"] = serde_json::json!(d[k]);
+            }
+            (n.to_string(), e)
+        })
+        .collect();
+    serde_json::json!({ "windows": set.len(), "statistics": per })
+}
+
+/// `terrain hillshade`: each input area-averaged to `spacing_m`, its centred `side`² square
+/// hillshaded, the squares side by side (8 white pixels apart) in one grey PNG.
+pub(crate) fn hillshade(inputs: &[PathBuf], spacing_m: f64, side: usize, out: &std::path::Path) -> Result<(), String> {
+    use terrain::dem::{Heightfield, PngScale};
+    const GAP: usize = 8;
+    let mut panels = Vec::new();
+    for path in inputs {
+        let hf = Heightfield::read_path(path, manifest_spacing(path), PngScale::default()).map_err(|e| format!("{}: {e}", path.display()))?;
+        let hf = if hf.spacing_m < spacing_m - 1e-9 { hf.resample_area(spacing_m).map_err(|e| format!("{}: {e}", path.display()))? } else { hf };
+        let s = side.min(hf.width).min(hf.height);
+        panels.push(hf.window((hf.width - s) / 2, (hf.height - s) / 2, s, s));
+    }
+    let height = panels.iter().map(|p| p.height).max().unwrap_or(0);
+    let width = panels.iter().map(|p| p.width).sum::<usize>() + GAP * panels.len().saturating_sub(1);
+    let mut grey = vec![255u8; width * height];
+    let mut x0 = 0;
+    for p in &panels {
+        for (k, v) in p.hillshade().into_iter().enumerate() {
+            grey[(k / p.width) * width + x0 + k % p.width] = v;
+        }
+        x0 += p.width + GAP;
+    }
+    let file = std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.write_header().and_then(|mut w| w.write_image_data(&grey)).map_err(|e| format!("{}: {e}", out.display()))?;
+    eprintln!("wrote {}: {} panels of {}² samples at {spacing_m} m", out.display(), panels.len(), panels.first().map_or(0, |p| p.width));
+    Ok(())
+}
+
+/// The spacing (metres) `manifest.json` beside `path` gives its file (`metres_per_pixel` of
+/// the entry whose `file` is its name), for DEMs whose TIFF carries no pixel size.
+fn manifest_spacing(path: &std::path::Path) -> Option<f64> {
+    let text = std::fs::read_to_string(path.parent()?.join("manifest.json")).ok()?;
+    let manifest: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let name = path.file_name()?.to_str()?;
+    let entries = manifest.get("dems").or(Some(&manifest))?.as_array()?;
+    entries.iter().find(|d| d["file"].as_str() == Some(name))?["metres_per_pixel"].as_f64()
 }

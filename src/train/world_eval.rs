@@ -50,6 +50,11 @@ pub fn region(source: &dyn TileSource, seed: u64, origin: TileCoord, w: usize, h
     Heightfield::new(w * n, h * n, BASE_SPACING_M, data)
 }
 
+/// The drainage statistics ([`crate::geomorph::drainage`]) of 32 m windows of side `side`.
+pub fn drainage_of(windows: &[Vec<f32>], side: usize) -> Vec<crate::geomorph::drainage::Drainage> {
+    windows.iter().map(|w| crate::geomorph::drainage::measure(w, side, BASE_SPACING_M)).collect()
+}
+
 /// Windows of side `side` on a grid of stride `side / 2` over `hf` (offset by a quarter
 /// window so that tile edges fall inside windows, not only on their borders).
 pub fn windows_of(hf: &Heightfield, side: usize) -> Vec<Vec<f32>> {

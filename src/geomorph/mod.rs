@@ -18,6 +18,8 @@
 //! normal distribution, robust to the few flat or extreme real windows), else its standard
 //! deviation when the quartiles coincide.
 
+pub mod drainage;
+
 /// Names of the statistics, in the order of [`Stats::values`].
 pub const STAT_NAMES: [&str; 7] =
     ["slope_mean_deg", "slope_p90_over_p50", "laplacian_skewness", "laplacian_kurtosis", "spectral_slope_4_16px", "depression_area_fraction", "local_relief_m"];
