@@ -83,16 +83,34 @@ pub struct ShareError(pub String);
 /// heading in [0, 2π).
 pub const MAX_LINK_YAW: f64 = 1000.0;
 
+/// Most characters of a link's text a message quotes.
+pub const MAX_QUOTED_CHARS: usize = 32;
+
+/// `text` as a message quotes it: at most [`MAX_QUOTED_CHARS`] characters, control and
+/// invisible characters shown as '�', "…" where it was cut (a link's text never runs on in a
+/// notice, whatever it says).
+pub fn quoted(text: &str) -> String {
+    let mut out: String = text
+        .chars()
+        .take(MAX_QUOTED_CHARS)
+        .map(|c| if c.is_control() || matches!(c, '\u{200b}'..='\u{200f}' | '\u{2028}'..='\u{202e}' | '\u{2060}'..='\u{206f}' | '\u{feff}') { '\u{fffd}' } else { c })
+        .collect();
+    if text.chars().count() > MAX_QUOTED_CHARS {
+        out.push('…');
+    }
+    out
+}
+
 fn numbers<const N: usize>(key: &str, value: &str) -> Result<[f64; N], ShareError> {
     let parts: Vec<&str> = value.split(',').collect();
     if parts.len() != N {
-        return Err(ShareError(format!("'{key}' needs {N} numbers, got {}", parts.len())));
+        return Err(ShareError(format!("'{}' needs {N} numbers, got {}", quoted(key), parts.len())));
     }
     let mut out = [0f64; N];
     for (slot, p) in out.iter_mut().zip(parts) {
-        let v: f64 = p.trim().parse().map_err(|_| ShareError(format!("'{key}' has a bad number '{p}'")))?;
+        let v: f64 = p.trim().parse().map_err(|_| ShareError(format!("'{}' has a bad number '{}'", quoted(key), quoted(p))))?;
         if !v.is_finite() {
-            return Err(ShareError(format!("'{key}' has a non-finite number")));
+            return Err(ShareError(format!("'{}' has a non-finite number", quoted(key))));
         }
         *slot = v;
     }
@@ -169,7 +187,7 @@ impl ShareState {
             return Ok(s);
         }
         if let Some(pair) = f.split('&').find(|p| !p.is_empty() && !p.contains('=')) {
-            return Err(ShareError(format!("'{pair}' is not key=value")));
+            return Err(ShareError(format!("'{}' is not key=value", quoted(pair))));
         }
         for (key, value) in form_urlencoded::parse(f.as_bytes()) {
             let (key, value) = (key.as_ref(), value.as_ref());
@@ -178,21 +196,23 @@ impl ShareState {
                     s.link_version = match value {
                         "1" => 1,
                         "2" => 2,
-                        _ => return Err(ShareError(format!("unknown link version '{value}'"))),
+                        _ => return Err(ShareError(format!("unknown link version '{}'", quoted(value)))),
                     };
                     if s.link_version == 1 {
                         // Version 1 knew only the procedural world.
                         s.source = SourceKind::Procedural;
                     }
                 }
-                "src" => s.source = SourceKind::from_key(value).ok_or_else(|| ShareError(format!("unknown world source '{value}' (expected tcm, procedural or sketch)")))?,
+                "src" => {
+                    s.source = SourceKind::from_key(value).ok_or_else(|| ShareError(format!("unknown world source '{}' (expected tcm, procedural or sketch)", quoted(value))))?
+                }
                 "w" => {
                     if value.is_empty() || value.len() > MAX_HASH_DIGITS || !value.bytes().all(|b| b.is_ascii_hexdigit()) {
-                        return Err(ShareError(format!("weights hash '{value}' is not 1..{MAX_HASH_DIGITS} hex digits")));
+                        return Err(ShareError(format!("weights hash '{}' is not 1..{MAX_HASH_DIGITS} hex digits", quoted(value))));
                     }
                     s.weights = Some(value.to_ascii_lowercase());
                 }
-                "seed" => s.seed = value.parse().map_err(|_| ShareError(format!("seed '{value}' is not a whole number")))?,
+                "seed" => s.seed = value.parse().map_err(|_| ShareError(format!("seed '{}' is not a whole number", quoted(value))))?,
                 "cam" => {
                     let [x, y, z, yaw, pitch] = numbers::<5>(key, value)?;
                     if [x, y, z].iter().any(|c| c.abs() > 1e9) {
@@ -224,11 +244,11 @@ impl ShareState {
                     let kind = match kind {
                         "fbm" => NoiseKind::Fbm,
                         "ridged" => NoiseKind::Ridged,
-                        other => return Err(ShareError(format!("unknown noise kind '{other}'"))),
+                        other => return Err(ShareError(format!("unknown noise kind '{}'", quoted(other)))),
                     };
                     let [oct, pers, lac, wave, amp, base] = numbers::<6>(key, rest)?;
                     if oct.fract() != 0.0 || !(0.0..=64.0).contains(&oct) {
-                        return Err(ShareError(format!("octaves '{oct}' is not a small whole number")));
+                        return Err(ShareError(format!("octaves '{}' is not a small whole number", quoted(&oct.to_string()))));
                     }
                     let noise = NoiseParams {
                         kind,
@@ -290,7 +310,7 @@ impl PageOptions {
                     "cpu" => TemChoice::Cpu,
                     "off" => TemChoice::Off,
                     other => {
-                        notice = Some(format!("unknown ?tem={other} (expected gpu, cpu, off or auto); the page chooses"));
+                        notice = Some(format!("unknown ?tem={} (expected gpu, cpu, off or auto); the page chooses", quoted(other)));
                         TemChoice::Auto
                     }
                 };
@@ -303,6 +323,25 @@ impl PageOptions {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A link's text in a message is cut to 32 characters with "…", control characters shown
+    /// as '�': a fragment that is a whole sentence (and a URL to elsewhere) does not run on in
+    /// the page's notice, in any field that echoes what the link said.
+    #[test]
+    fn messages_quote_at_most_32_characters_of_the_link() {
+        let long = "Your session expired – log in at https://example.invalid/login?next=%2F\u{0007}";
+        for fragment in [format!("v={long}"), format!("seed={long}"), format!("src={long}"), long.replace('=', ""), format!("cam=1,2,3,4,{long}")] {
+            let e = ShareState::from_fragment(&fragment).unwrap_err().to_string();
+            let quoted_part = e.split('\'').nth(1).unwrap_or_default().to_string();
+            assert!(quoted_part.chars().count() <= MAX_QUOTED_CHARS + 1, "{e}");
+            assert!(e.chars().count() < 120, "{e}");
+            assert!(!e.contains("example.invalid/login"), "{e}");
+        }
+        assert_eq!(quoted("a\u{0007}b"), "a\u{fffd}b");
+        assert_eq!(quoted(&"x".repeat(40)), format!("{}…", "x".repeat(32)));
+        let (_, notice) = PageOptions::from_query(&format!("?tem={}", "y".repeat(100)));
+        assert!(notice.unwrap().chars().count() < 120);
+    }
 
     #[test]
     fn a_noisy_sketch_link_is_too_long_and_falls_back_to_a_short_link_without_the_sketch() {

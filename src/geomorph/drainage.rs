@@ -125,18 +125,10 @@ pub fn longest_flow_path_m(h: &[f32], n: usize, spacing_m: f64) -> f64 {
 }
 
 /// Per statistic (order of [`DRAINAGE_NAMES`]), the Wasserstein-1 distance between `set` and
-/// `reference`, divided by the reference's spread ([`super::distance`]'s measure); and their
-/// mean as the last element.
+/// `reference` divided by the reference's spread ([`super::distance_by`]); and their mean as
+/// the last element.
 pub fn distance(set: &[Drainage], reference: &[Drainage]) -> Vec<f64> {
-    let mut per: Vec<f64> = (0..DRAINAGE_NAMES.len())
-        .map(|k| {
-            let a: Vec<f64> = set.iter().map(|s| s.values()[k]).collect();
-            let r: Vec<f64> = reference.iter().map(|s| s.values()[k]).collect();
-            super::wasserstein1(&a, &r) / super::spread(&r)
-        })
-        .collect();
-    per.push(per.iter().sum::<f64>() / per.len() as f64);
-    per
+    super::distance_by(set, reference, Drainage::values)
 }
 
 #[cfg(test)]

@@ -262,10 +262,15 @@ pub fn wasserstein1(a: &[f64], b: &[f64]) -> f64 {
 /// `reference`, divided by the reference's [`spread`]; and their mean as the last element.
 /// Both sets must be non-empty.
 pub fn distance(set: &[Stats], reference: &[Stats]) -> Vec<f64> {
-    let mut per: Vec<f64> = (0..STAT_NAMES.len())
+    distance_by(set, reference, Stats::values)
+}
+
+/// [`distance`] for any per-window statistics: `values` gives a window's `N` statistics.
+pub fn distance_by<T, const N: usize>(set: &[T], reference: &[T], values: impl Fn(&T) -> [f64; N]) -> Vec<f64> {
+    let mut per: Vec<f64> = (0..N)
         .map(|k| {
-            let a: Vec<f64> = set.iter().map(|s| s.values()[k]).collect();
-            let r: Vec<f64> = reference.iter().map(|s| s.values()[k]).collect();
+            let a: Vec<f64> = set.iter().map(|s| values(s)[k]).collect();
+            let r: Vec<f64> = reference.iter().map(|s| values(s)[k]).collect();
             wasserstein1(&a, &r) / spread(&r)
         })
         .collect();
