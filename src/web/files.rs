@@ -39,30 +39,59 @@ pub fn download(name: &str, bytes: &[u8], mime: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// Asks the user for a sketch PNG; the sketch (or why it is not one) lands in `slot`.
-pub fn pick_sketch_file(slot: Rc<RefCell<Option<Result<Sketch, String>>>>) -> Result<(), String> {
+/// Largest sketch PNG read (bytes): a 256×256 PNG is far smaller; anything larger is refused
+/// by its size before a byte of it is read.
+const MAX_SKETCH_FILE_BYTES: f64 = 2.0 * 1024.0 * 1024.0;
+
+/// Where a picked sketch lands.
+type SketchSlot = Rc<RefCell<Option<Result<Sketch, String>>>>;
+
+thread_local! {
+    /// The slot of the latest [`pick_sketch_file`] (a page restarted after a lost device has
+    /// a new one; the one file input stays).
+    static SLOT: RefCell<Option<SketchSlot>> = const { RefCell::new(None) };
+}
+
+/// Asks the user for a sketch PNG; the sketch (or why it is not one) lands in `slot`. The page
+/// has one hidden file input, made at the first call and reused (a cancelled dialog leaves
+/// nothing behind).
+pub fn pick_sketch_file(slot: SketchSlot) -> Result<(), String> {
+    SLOT.with(|s| *s.borrow_mut() = Some(slot));
     let document = web_sys::window().and_then(|w| w.document()).ok_or("no document")?;
-    let input: web_sys::HtmlInputElement = document.create_element("input").map_err(js)?.dyn_into().map_err(|_| "no input element")?;
-    input.set_type("file");
-    input.set_accept("image/png");
-    input.set_id("terrain_sketch_file");
-    let _ = input.set_attribute("style", "display:none");
-    document.body().ok_or("no body")?.append_child(&input).map_err(js)?;
-    let el = input.clone();
-    let on_change = Closure::<dyn FnMut()>::new(move || {
-        let Some(file) = el.files().and_then(|f| f.get(0)) else { return };
-        let (slot, el) = (slot.clone(), el.clone());
-        wasm_bindgen_futures::spawn_local(async move {
-            let result = match wasm_bindgen_futures::JsFuture::from(file.array_buffer()).await {
-                Ok(buf) => Sketch::read_png(std::io::Cursor::new(js_sys::Uint8Array::new(&buf).to_vec())).map_err(|e| format!("{}: {e}", file.name())),
-                Err(e) => Err(format!("{} could not be read: {e:?}", file.name())),
-            };
-            *slot.borrow_mut() = Some(result);
-            el.remove();
-        });
-    });
-    input.set_onchange(Some(on_change.as_ref().unchecked_ref()));
-    on_change.forget();
+    let input: web_sys::HtmlInputElement = match document.get_element_by_id("terrain_sketch_file") {
+        Some(el) => el.dyn_into().map_err(|_| "#terrain_sketch_file is not an input")?,
+        None => {
+            let input: web_sys::HtmlInputElement = document.create_element("input").map_err(js)?.dyn_into().map_err(|_| "no input element")?;
+            input.set_type("file");
+            input.set_accept("image/png");
+            input.set_id("terrain_sketch_file");
+            let _ = input.set_attribute("style", "display:none");
+            document.body().ok_or("no body")?.append_child(&input).map_err(js)?;
+            let el = input.clone();
+            let on_change = Closure::<dyn FnMut()>::new(move || {
+                let Some(file) = el.files().and_then(|f| f.get(0)) else { return };
+                let Some(slot) = SLOT.with(|s| s.borrow().clone()) else { return };
+                if file.size() > MAX_SKETCH_FILE_BYTES {
+                    let mb = file.size() / 1024.0 / 1024.0;
+                    *slot.borrow_mut() = Some(Err(format!("{} is {mb:.1} MB; a sketch PNG (256×256 pixels) is at most 2 MB", file.name())));
+                    return;
+                }
+                wasm_bindgen_futures::spawn_local(async move {
+                    let result = match wasm_bindgen_futures::JsFuture::from(file.array_buffer()).await {
+                        Ok(buf) => Sketch::read_png(std::io::Cursor::new(js_sys::Uint8Array::new(&buf).to_vec())).map_err(|e| format!("{}: {e}", file.name())),
+                        Err(e) => Err(format!("{} could not be read: {e:?}", file.name())),
+                    };
+                    *slot.borrow_mut() = Some(result);
+                });
+            });
+            input.set_onchange(Some(on_change.as_ref().unchecked_ref()));
+            // The one input lives as long as the page, and so does its handler.
+            on_change.forget();
+            input
+        }
+    };
+    // The same file chosen again is a change too.
+    input.set_value("");
     input.click();
     Ok(())
 }

@@ -639,8 +639,8 @@ test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, cle
   // Clear, then import the exported file: the sketch comes back.
   await click(page, s, 'clear');
   s = await waitFor(page, (q) => decodeSketch(sketchCode(q.link)).every((n) => n === 1), 'clear');
-  // The Import button adds the page's file input (headless Chromium opens no dialog for it);
-  // the test picks the file on that input, as the dialog would.
+  // The Import button adds the page's one file input (headless Chromium opens no dialog for
+  // it); the test picks the file on that input, as the dialog would.
   await click(page, s, 'import');
   await page.waitForSelector('#terrain_sketch_file', { state: 'attached', timeout: 30_000 });
   await page.setInputFiles('#terrain_sketch_file', file);
@@ -696,6 +696,14 @@ test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, cle
   fs.writeFileSync(noisyFile, PNG.sync.write(noisy));
   const second = other.page;
   s = await stats(second);
+  // A file far larger than any sketch PNG is refused by its size, before it is read.
+  const bigFile = path.join(out, 'big.png');
+  fs.writeFileSync(bigFile, Buffer.alloc(3 * 1024 * 1024, 7));
+  await click(second, s, 'import');
+  await second.waitForSelector('#terrain_sketch_file', { state: 'attached', timeout: 30_000 });
+  await second.setInputFiles('#terrain_sketch_file', bigFile);
+  s = await waitFor(second, (q) => /big\.png is 3\.0 MB; a sketch PNG \(256×256 pixels\) is at most 2 MB/.test(q.message ?? ''), 'the too-large file refused');
+  // The same input takes the next file.
   await click(second, s, 'import');
   await second.setInputFiles('#terrain_sketch_file', noisyFile);
   s = await waitFor(second, (q) => decodeSketch(sketchCode(q.link)).every((n, p) => n === noisyBands[p]), 'the noisy sketch');
