@@ -101,6 +101,11 @@ pub struct PageStart {
     pub status: String,
 }
 
+/// How long a request to the CPU worker may go unanswered (ms) before the worker is taken for
+/// stalled. Its slowest requests (a learned tile beside a software rasteriser, a load, four
+/// variants) take a few seconds.
+pub const WORKER_TIMEOUT_MS: f64 = 60_000.0;
+
 /// Ids are unique in the whole page, across restarts of the core after a lost device, so a
 /// late reply for an old core never matches a new request.
 static NEXT_ID: AtomicU32 = AtomicU32::new(1);
@@ -130,6 +135,10 @@ pub struct PageCore {
     pub console: Vec<String>,
     effects: Vec<Effect>,
     waiting: HashMap<u32, For>,
+    /// When each request to the CPU worker was posted (page clock, ms).
+    sent: HashMap<u32, f64>,
+    /// The page clock at the last [`PageCore::start_work`] (ms).
+    now_ms: f64,
     files: HashMap<ModelSet, Vec<Option<Vec<u8>>>>,
     tem: Backend,
     tem_target: Target,
@@ -171,6 +180,8 @@ impl PageCore {
             console: Vec::new(),
             effects: Vec::new(),
             waiting: HashMap::new(),
+            sent: HashMap::new(),
+            now_ms: 0.0,
             files: HashMap::new(),
             tem,
             tem_target,
@@ -247,6 +258,9 @@ impl PageCore {
         let id = next_id();
         let rest_per_work = if target == Target::Worker { self.rest_per_work } else { 0.0 };
         self.waiting.insert(id, what);
+        if target == Target::Worker {
+            self.sent.insert(id, self.now_ms);
+        }
         self.effects.push(Effect::Post { target, envelope: Envelope { id, epoch, rest_per_work, request } });
     }
 
@@ -316,6 +330,9 @@ impl PageCore {
 
     /// Takes back what came of an effect.
     pub fn deliver(&mut self, d: Delivery) {
+        if let Delivery::Answer(Answer { id, .. }) | Delivery::WorkerGone { id, .. } = &d {
+            self.sent.remove(id);
+        }
         match d {
             Delivery::Fetched { id, bytes } => match (self.waiting.remove(&id), bytes) {
                 (Some(For::File { set, index }), Ok(b)) => self.file_arrived(set, index, b),
@@ -403,7 +420,10 @@ impl PageCore {
             (For::Tem { epoch, keys }, Reply::Stale) => self.app.refine_failed(epoch, &keys),
             (For::Tem { epoch, keys }, r) => {
                 self.app.refine_failed(epoch, &keys);
-                self.message = Some(format!("TEM inference failed: {}", failed(&r).unwrap_or_default()));
+                // A TEM whose runner is gone has said so already (its load failed).
+                if !matches!(self.loads.tem, Load::Failed(_)) {
+                    self.message = Some(format!("TEM inference failed: {}", failed(&r).unwrap_or_default()));
+                }
             }
             (For::Sketch(job, _), Reply::Heights { heights, ms }) => {
                 if let Err(e) = self.app.sketch_done(&job, heights, ms) {
@@ -463,6 +483,8 @@ impl PageCore {
     /// TEM batch, the sketch models once the sketch world is shown, the newest sketch, a
     /// pending blend. `now_ms` is the page's clock.
     pub fn start_work(&mut self, now_ms: f64) {
+        self.now_ms = now_ms;
+        self.check_worker(now_ms);
         if self.app.stats().tiles_pending == 0 {
             self.complete_epoch = Some(self.app.epoch());
         }
@@ -470,6 +492,22 @@ impl PageCore {
         self.start_tiles();
         self.start_refinement(now_ms);
         self.start_sketch();
+    }
+
+    /// A CPU worker that has not answered a request within [`WORKER_TIMEOUT_MS`] is taken for
+    /// stalled: everything it holds fails and its work falls back, as if it had died.
+    fn check_worker(&mut self, now_ms: f64) {
+        let Some(oldest) = self.sent.values().copied().reduce(f64::min) else { return };
+        if now_ms - oldest < WORKER_TIMEOUT_MS || self.worker.is_err() {
+            return;
+        }
+        let why = format!("it did not answer a request in {:.0} s", WORKER_TIMEOUT_MS / 1000.0);
+        self.worker_gone(&why);
+        for id in std::mem::take(&mut self.sent).into_keys() {
+            if let Some(what) = self.waiting.remove(&id) {
+                self.answered(what, Reply::Failed(format!("the CPU worker stopped ({why})")));
+            }
+        }
     }
 
     fn start_tiles(&mut self) {

@@ -215,3 +215,28 @@ fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_fra
     core.start_work(400.0);
     assert_eq!(core.take_effects().len(), 1, "the next stroke is asked for");
 }
+
+/// A worker that never answers: once a request has waited [`WORKER_TIMEOUT_MS`], the page
+/// takes the worker for stalled — the learned world falls back to the procedural one with a
+/// message that says so, nothing stays in flight, and nothing more is sent to it. A minute
+/// less one millisecond changes nothing.
+#[test]
+fn a_worker_that_does_not_answer_for_a_minute_is_taken_for_stalled_and_its_work_falls_back() {
+    let mut core = PageCore::new(ShareState::default(), start(Ok(())));
+    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    shell.frames(&mut core, 1);
+    core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
+    core.start_work(1000.0);
+    let held = core.take_effects().len();
+    assert!(held > 0 && core.in_flight() == held, "{held} requests, {} in flight", core.in_flight());
+    core.start_work(1000.0 + WORKER_TIMEOUT_MS - 1.0);
+    assert!(core.worker().is_ok() && core.in_flight() == held);
+    core.start_work(1000.0 + WORKER_TIMEOUT_MS);
+    assert_eq!(core.in_flight(), 0);
+    assert_eq!(core.app.source(), SourceKind::Procedural);
+    let m = core.message.clone().unwrap_or_default();
+    assert!(m.contains("the CPU worker stopped (it did not answer a request in 60 s)"), "{m}");
+    core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
+    core.start_work(70_000.0);
+    assert!(core.take_effects().iter().all(|e| !matches!(e, Effect::Post { target: Target::Worker, .. })));
+}

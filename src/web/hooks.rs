@@ -137,3 +137,10 @@ static COUNT_CONSTRUCTOR_RUNS: extern "C" fn() = {
 pub fn terrain_constructor_runs() -> u32 {
     CONSTRUCTOR_RUNS.load(SeqCst)
 }
+
+/// Panics on the main thread, as a bug would (the end-to-end test shows the page then says it
+/// stopped and offers a reload with the view kept).
+#[wasm_bindgen]
+pub fn terrain_test_panic() {
+    panic!("a panic asked for by terrain_test_panic");
+}

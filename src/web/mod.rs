@@ -109,7 +109,13 @@ pub fn start() {
     // SAFETY: called once, first thing after instantiation, before any code that reads what
     // the constructors register.
     unsafe { __wasm_call_ctors() };
-    console_error_panic_hook::set_once();
+    std::panic::set_hook(Box::new(|info| {
+        console_error_panic_hook::hook(info);
+        // The worker has no page: its trap reaches the page as a dead worker instead.
+        if web_sys::window().is_some() {
+            show_stopped(&info.to_string());
+        }
+    }));
     // The same module also runs in the CPU worker, which has no page to start.
     if web_sys::window().is_none() {
         return;
@@ -131,6 +137,25 @@ fn show_page_message(text: &str) {
     }
     if let Some(el) = doc.get_element_by_id("loading") {
         let _ = el.set_attribute("style", "display:none");
+    }
+}
+
+/// After a panic on the main thread: the page says it stopped and why (the first 300
+/// characters), that the view is kept in the address bar, and offers a Reload button.
+fn show_stopped(why: &str) {
+    // A later panic (the module's state is broken after the first) changes nothing.
+    static SHOWN: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    if SHOWN.swap(true, SeqCst) {
+        return;
+    }
+    let why: String = why.chars().take(300).collect();
+    show_page_message(&format!("The page stopped because of an error: {why}. Your view is kept in the address bar; reload to go on."));
+    let Some(doc) = web_sys::window().and_then(|w| w.document()) else { return };
+    if let (Some(el), Ok(button)) = (doc.get_element_by_id("message"), doc.create_element("button")) {
+        button.set_text_content(Some("Reload"));
+        button.set_id("reload");
+        let _ = button.set_attribute("onclick", "location.reload()");
+        let _ = el.append_child(&button);
     }
 }
 

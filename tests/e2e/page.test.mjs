@@ -508,6 +508,24 @@ test('a lost WebGPU device is replaced without a reload: same view, same tiles, 
   await page.close();
 });
 
+test('a panic on the main thread is shown in the page with a reload button, and the link stays', async () => {
+  const { page, errors } = await open(VIEW);
+  await waitFor(page, (s) => s.stats.frames > 10, 'the first frames');
+  // The page writes its view into the address bar once a second.
+  await page.waitForTimeout(1500);
+  const before = await page.evaluate(() => location.hash);
+  await page.evaluate(() => { try { window.wasmBindings.terrain_test_panic(); } catch (e) { /* the trap that ends it */ } });
+  await page.waitForSelector('#message', { state: 'visible', timeout: 10_000 });
+  const text = await page.textContent('#message');
+  assert.match(text, /The page stopped because of an error: .*a panic asked for by terrain_test_panic.*reload to go on/s);
+  assert.ok(await page.isVisible('#reload'), 'no reload button');
+  assert.equal(await page.evaluate(() => location.hash), before, 'the link in the address bar changed');
+  assert.match(before, /^#v=2&seed=7/);
+  // The console has the panic (console_error_panic_hook), and nothing else went wrong.
+  assert.ok(errors.some((e) => /terrain_test_panic/.test(e)), JSON.stringify(errors));
+  await page.close();
+});
+
 test('without WebGPU the page says so instead of failing silently', async () => {
   const plain = await chromium.launch({
     executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium',
