@@ -258,10 +258,22 @@ impl TerrainApp {
 
     /// Replaces the world with a fresh one for the current settings (new epoch).
     fn new_world(&mut self) {
+        self.new_world_from(0);
+    }
+
+    /// A fresh world whose epoch is at least `epoch`.
+    fn new_world_from(&mut self, epoch: u64) {
         self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere);
         self.nodes = NodeCache::new();
-        let epoch = self.tile_jobs.new_epoch();
+        let epoch = self.tile_jobs.new_epoch_from(epoch);
         self.refine = PatchStore::new(0, epoch);
+    }
+
+    /// Starts the world over at epoch `epoch` or later: a page that starts again (after a lost
+    /// device) keeps the CPU worker, which drops requests of epochs older than the newest it
+    /// has seen, so the new app's epochs must follow the old one's.
+    pub fn continue_epochs_from(&mut self, epoch: u64) {
+        self.new_world_from(epoch);
     }
 
     fn set_view(&mut self, s: &ShareState) {

@@ -7,7 +7,7 @@
 //! the requests it held.
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 use glam::DVec3;
 
@@ -110,6 +110,10 @@ pub const WORKER_TIMEOUT_MS: f64 = 60_000.0;
 /// late reply for an old core never matches a new request.
 static NEXT_ID: AtomicU32 = AtomicU32::new(1);
 
+/// Epochs handed to each core of the page: each new core's worlds start after every earlier
+/// core's (a core restarted after a lost device keeps the worker, which drops older epochs).
+static EPOCH_BLOCKS: AtomicU64 = AtomicU64::new(0);
+
 /// A new request id (unique in the page).
 pub fn next_id() -> u32 {
     NEXT_ID.fetch_add(1, Ordering::Relaxed).max(1)
@@ -169,8 +173,10 @@ impl PageCore {
             Backend::Cpu(CpuReason::NoGpuCompute(e)) => format!("{e}; the TEM runs on the CPU"),
             _ => start.status,
         };
+        let mut app = TerrainApp::new(share);
+        app.continue_epochs_from(EPOCH_BLOCKS.fetch_add(1, Ordering::Relaxed) << 32);
         let mut core = Self {
-            app: TerrainApp::new(share),
+            app,
             loads: Loads::default(),
             message: None,
             status,

@@ -240,3 +240,23 @@ fn a_worker_that_does_not_answer_for_a_minute_is_taken_for_stalled_and_its_work_
     core.start_work(70_000.0);
     assert!(core.take_effects().iter().all(|e| !matches!(e, Effect::Post { target: Target::Worker, .. })));
 }
+
+/// A core started again on the same worker (after a lost device) after the first core went
+/// through many worlds: its tiles are made, not dropped as stale (its epochs follow the first
+/// core's).
+#[test]
+fn a_core_started_again_on_the_same_worker_has_its_tiles_made() {
+    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    let share = ShareState { source: SourceKind::Procedural, ..ShareState::default() };
+    let mut first = PageCore::new(share.clone(), start(Ok(())));
+    for seed in 2..12 {
+        first.app.apply(ShareState { seed, ..share.clone() });
+        shell.frames(&mut first, 1);
+    }
+    assert!(first.app.epoch() >= 10);
+    let mut second = PageCore::new(share, start(Ok(())));
+    assert!(second.app.epoch() > first.app.epoch());
+    shell.frames(&mut second, 3);
+    let jobs = second.app.stats().tile_jobs;
+    assert!(jobs.done > 0 && jobs.stale == 0, "{jobs:?}");
+}

@@ -70,6 +70,14 @@ impl<K: Copy + Eq + Hash> JobQueue<K> {
     }
 
     /// A new world: every job in flight becomes stale; returns the new epoch.
+    /// A new world whose epoch is at least `epoch` (a later world of the same runners must
+    /// never reuse an earlier one's epochs); returns the new epoch.
+    pub fn new_epoch_from(&mut self, epoch: u64) -> u64 {
+        self.epoch = self.epoch.max(epoch.saturating_sub(1));
+        self.new_epoch()
+    }
+
+    /// A new world: every job in flight becomes stale; returns the new epoch.
     pub fn new_epoch(&mut self) -> u64 {
         self.epoch += 1;
         self.in_flight.clear();
