@@ -238,17 +238,28 @@ impl TerrainApp {
         if status == self.learned {
             return None;
         }
-        let note = match (&status, &self.settings.weights) {
-            (LearnedStatus::Ready { hash }, Some(linked)) if self.settings.source == SourceKind::Learned && linked != hash => {
-                Some(format!("This link was made with learned-world weights {linked}; this page has {hash}, so the world may differ."))
-            }
-            _ => None,
-        };
         self.learned = status;
         if self.settings.source == SourceKind::Learned {
             self.new_world();
         }
-        note
+        self.linked_weights_note()
+    }
+
+    /// A note for the user when the settings came from a link made with other weights than
+    /// the ready models of the world they ask for (the learned world's or the sketch
+    /// generator's): the world may differ from what the link's sender saw.
+    pub fn linked_weights_note(&self) -> Option<String> {
+        let (what, status) = match self.settings.source {
+            SourceKind::Learned => ("learned-world", &self.learned),
+            SourceKind::Sketch => ("sketch-generator", &self.sketch_models),
+            SourceKind::Procedural => return None,
+        };
+        match (status, &self.settings.weights) {
+            (LearnedStatus::Ready { hash }, Some(linked)) if linked != hash => {
+                Some(format!("This link was made with {what} weights {linked}; this page has {hash}, so the world may differ."))
+            }
+            _ => None,
+        }
     }
 
     /// The learned world's status.
@@ -310,6 +321,16 @@ impl TerrainApp {
             (s.position_m, s.yaw, s.pitch) = sketch_overview(s.relief_m);
         }
         self.apply(s);
+    }
+
+    /// The view and settings as the user asked for them, for the address bar: the world
+    /// source and weights they chose stay there while a stand-in (the procedural world for
+    /// learned models that failed) is shown, so a reload asks for them again.
+    pub fn asked_state(&self) -> ShareState {
+        let now = self.share_state();
+        let weights = if now.source == self.settings.source { now.weights.clone() } else { self.settings.weights.clone() };
+        let sketch = if self.settings.source == SourceKind::Sketch { Some(self.sketch_code.1.clone()) } else { None };
+        ShareState { source: self.settings.source, weights, sketch, ..now }
     }
 
     /// The current world, view and settings, as a share link carries them.
@@ -384,8 +405,10 @@ impl TerrainApp {
 
     /// The sketch generator is ready (its weights' hash), loading, or failed (then the sketch
     /// world shows the non-learned band interpolation, made here).
-    pub fn set_sketch_models(&mut self, status: LearnedStatus) {
+    /// Returns a note when the view came from a link made with other sketch weights.
+    pub fn set_sketch_models(&mut self, status: LearnedStatus) -> Option<String> {
         self.sketch_models = status;
+        self.linked_weights_note()
     }
 
     /// The sketch generator's status.

@@ -278,7 +278,9 @@ impl PageCore {
             ModelSet::World => {
                 self.app.set_learned(LearnedStatus::Failed(why.clone()));
             }
-            ModelSet::Sketch => self.app.set_sketch_models(LearnedStatus::Failed(why.clone())),
+            ModelSet::Sketch => {
+                self.app.set_sketch_models(LearnedStatus::Failed(why.clone()));
+            }
             ModelSet::Tem => self.app.set_refinement(None),
         }
         if let Some(m) = notice(set, &why) {
@@ -299,7 +301,11 @@ impl PageCore {
                     self.message = Some(note);
                 }
             }
-            ModelSet::Sketch => self.app.set_sketch_models(LearnedStatus::Ready { hash }),
+            ModelSet::Sketch => {
+                if let Some(note) = self.app.set_sketch_models(LearnedStatus::Ready { hash }) {
+                    self.message = Some(note);
+                }
+            }
             ModelSet::Tem => {}
         }
     }
@@ -567,7 +573,7 @@ impl PageCore {
                 Ok(()) => self.fetch(ModelSet::Sketch),
                 Err(_) => {
                     self.loads.sketch = Load::Failed("no CPU worker".into());
-                    self.app.set_sketch_models(LearnedStatus::Failed("no CPU worker".into()));
+                    let _ = self.app.set_sketch_models(LearnedStatus::Failed("no CPU worker".into()));
                     self.message = Some("The sketch generator needs a Web Worker: showing the band interpolation instead.".into());
                 }
             }
@@ -631,6 +637,9 @@ impl PageCore {
         match ShareState::from_fragment(fragment) {
             Ok(s) => {
                 self.app.apply(s.clone());
+                if let Some(note) = self.app.linked_weights_note() {
+                    self.message = Some(note);
+                }
                 Some(s)
             }
             Err(e) => {
@@ -642,12 +651,14 @@ impl PageCore {
 
     /// The fragment to write into the address bar now (`#…`), so that copying the address
     /// shares the view: at most once a second, and only when it changed. `force` skips the wait.
+    /// It keeps the world the user asked for ([`TerrainApp::asked_state`]); "Copy link"
+    /// gives the world shown.
     pub fn link_to_write(&mut self, now_ms: f64, force: bool) -> Option<String> {
         if !force && now_ms - self.link.1 < 1000.0 {
             return None;
         }
         self.link.1 = now_ms;
-        let fragment = format!("#{}", self.app.share_state().to_fragment());
+        let fragment = format!("#{}", self.app.asked_state().to_fragment());
         (fragment != self.link.0).then(|| {
             self.link.0 = fragment.clone();
             fragment

@@ -260,3 +260,20 @@ fn a_core_started_again_on_the_same_worker_has_its_tiles_made() {
     let jobs = second.app.stats().tile_jobs;
     assert!(jobs.done > 0 && jobs.stale == 0, "{jobs:?}");
 }
+
+/// A link followed in the same tab (the fragment edited) with other weights than the page's
+/// ready models gets the note that the world may differ; the address bar keeps the learned
+/// world while it is shown.
+#[test]
+fn a_link_followed_in_the_same_tab_with_other_weights_gets_the_note() {
+    let mut core = PageCore::new(ShareState::default(), start(Ok(())));
+    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    shell.frames(&mut core, 1);
+    assert!(core.loads.world.is_ready() && core.message.is_none());
+    let link = ShareState { seed: 9, weights: Some("00d1".into()), ..ShareState::default() }.to_fragment();
+    assert!(core.follow_link(&format!("#{link}")).is_some());
+    let m = core.message.clone().unwrap_or_default();
+    assert!(m.contains("learned-world weights 00d1"), "{m}");
+    let written = core.link_to_write(5000.0, true).unwrap_or_default();
+    assert!(written.contains("seed=9") && written.contains("src=tcm"), "{written}");
+}

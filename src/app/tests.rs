@@ -336,3 +336,32 @@ fn without_the_generator_the_band_interpolation_is_shown_at_once() {
     assert_eq!(link.source, SourceKind::Sketch);
     assert_eq!(crate::sketch::code::decode(link.sketch.as_deref().unwrap()).unwrap(), *app.canvas.sketch());
 }
+
+/// While the procedural world stands in for learned models that failed, the address bar's
+/// state keeps the learned world and the linked weights the user asked for (a reload asks for
+/// them again), and "Copy link" gives the world shown.
+#[test]
+fn the_address_keeps_the_asked_world_while_a_stand_in_is_shown() {
+    let mut app = TerrainApp::new(ShareState { weights: Some("0ld".into()), ..ShareState::default() });
+    app.set_learned(LearnedStatus::Failed("tcm_128m.bpk: HTTP 503".into()));
+    let asked = app.asked_state();
+    assert_eq!((asked.source, asked.weights.as_deref()), (SourceKind::Learned, Some("0ld")));
+    assert!(asked.to_fragment().contains("src=tcm&w=0ld"), "{}", asked.to_fragment());
+    let shown = app.share_state();
+    assert_eq!((shown.source, shown.weights), (SourceKind::Procedural, None));
+    // Once the models load, both name them.
+    app.set_learned(LearnedStatus::Ready { hash: "0ld".into() });
+    assert_eq!(app.asked_state().weights.as_deref(), Some("0ld"));
+    assert_eq!(app.share_state().source, SourceKind::Learned);
+}
+
+/// A sketch link made with other generator weights gets a note once the sketch models are
+/// ready (as the learned world's links do); with the same weights, none.
+#[test]
+fn a_sketch_link_with_other_weights_gets_a_note_when_the_generator_is_ready() {
+    let mut app = TerrainApp::new(ShareState { source: SourceKind::Sketch, weights: Some("0ld".into()), ..ShareState::default() });
+    let note = app.set_sketch_models(LearnedStatus::Ready { hash: "new".into() }).expect("a note");
+    assert!(note.contains("sketch-generator weights 0ld") && note.contains("new"), "{note}");
+    let mut same = TerrainApp::new(ShareState { source: SourceKind::Sketch, weights: Some("new".into()), ..ShareState::default() });
+    assert_eq!(same.set_sketch_models(LearnedStatus::Ready { hash: "new".into() }), None);
+}
