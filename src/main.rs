@@ -204,8 +204,9 @@ enum Command {
         /// Folder of DEMs (float32 TIFF) with manifest.json.
         #[arg(long)]
         dem_dir: PathBuf,
-        /// Optimiser steps to run now (a resumed run adds them to the steps it had).
-        #[arg(long, default_value_t = 2000)]
+        /// Optimiser steps to run now (a resumed run adds them to the steps it had; at most
+        /// 10⁹).
+        #[arg(long, default_value_t = 2000, value_parser = step_count)]
         steps: usize,
         /// Continue the run saved in the checkpoint folder.
         #[arg(long)]
@@ -312,8 +313,9 @@ enum Command {
         /// Folder of DEMs (float32 TIFF) with manifest.json.
         #[arg(long)]
         dem_dir: PathBuf,
-        /// Optimiser steps to run now (a resumed run adds them to the steps it had).
-        #[arg(long, default_value_t = 2000)]
+        /// Optimiser steps to run now (a resumed run adds them to the steps it had; at most
+        /// 10⁹).
+        #[arg(long, default_value_t = 2000, value_parser = step_count)]
         steps: usize,
         /// Continue the run saved in the checkpoint folder.
         #[arg(long)]
@@ -374,8 +376,9 @@ enum Command {
         /// (L1 after the band scale the CLI applies; whole tiles) (a new run only).
         #[arg(long, value_enum, default_value_t = terrain::train::sketch::PixelLoss::L1)]
         loss: terrain::train::sketch::PixelLoss,
-        /// Adam learning rate of the generator (the discriminator's is half; a new run only).
-        #[arg(long, default_value_t = 2e-4)]
+        /// Adam learning rate of the generator, in (0, 1] (the discriminator's is half; a new
+        /// run only).
+        #[arg(long, default_value_t = 2e-4, value_parser = learning_rate)]
         lr: f64,
         /// Also keep each checkpoint's generator as snapshots/gen_STEP.bpk in the checkpoint
         /// folder (for `terrain average-weights`).
@@ -522,22 +525,22 @@ struct TrainArgs {
     #[arg(long)]
     dem_dir: PathBuf,
     /// Chained optimiser steps.
-    #[arg(long)]
+    #[arg(long, value_parser = step_count)]
     steps: Option<usize>,
     /// Single-level fine-tuning steps on real data after the chained ones.
-    #[arg(long)]
+    #[arg(long, value_parser = step_count)]
     finetune: Option<usize>,
     /// Save a checkpoint every N steps (0: never).
     #[arg(long, default_value_t = 100)]
     checkpoint_every: usize,
-    /// Chains per step.
-    #[arg(long)]
+    /// Chains per step (1..=4096).
+    #[arg(long, value_parser = batch_size)]
     batch: Option<usize>,
     /// Consecutive levels per chain (1..=5).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=5))]
     chain: Option<u32>,
-    /// Adam learning rate.
-    #[arg(long)]
+    /// Adam learning rate, in (0, 1].
+    #[arg(long, value_parser = learning_rate)]
     lr: Option<f64>,
     /// Seed of the sampler.
     #[arg(long)]
@@ -663,4 +666,20 @@ fn main() -> ExitCode {
             ExitCode::from(1)
         }
     }
+}
+
+/// A count of optimiser steps: a whole number up to 10⁹ (more would overflow step counters
+/// long before it could run).
+fn step_count(s: &str) -> Result<usize, String> {
+    s.parse::<usize>().ok().filter(|n| *n <= 1_000_000_000).ok_or_else(|| format!("a step count is a whole number from 0 to 1000000000, not '{s}'"))
+}
+
+/// A batch size: a whole number from 1 to 4096.
+fn batch_size(s: &str) -> Result<usize, String> {
+    s.parse::<usize>().ok().filter(|n| (1..=4096).contains(n)).ok_or_else(|| format!("a batch is a whole number from 1 to 4096, not '{s}'"))
+}
+
+/// A learning rate: a finite number above 0 and at most 1.
+fn learning_rate(s: &str) -> Result<f64, String> {
+    s.parse::<f64>().ok().filter(|r| r.is_finite() && *r > 0.0 && *r <= 1.0).ok_or_else(|| format!("a learning rate is a number above 0 and at most 1, not '{s}'"))
 }

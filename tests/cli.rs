@@ -59,6 +59,12 @@ fn bad_arguments_are_clear_errors() {
         (vec!["enhance", "--input", "/nonexistent/in.tif", "--input-res", "32", "--output-res", "16", "--out", "/tmp/y.tif"], 1, "/nonexistent/in.tif"),
         (vec!["enhance", "--input", "/tmp/x.tif", "--input-res", "32", "--output-res", "16", "--out", "/tmp/y.tif", "--batch", "0"], 2, "--batch"),
         (vec!["tem-probe", "--weights", "/nonexistent/weights"], 1, "/nonexistent/weights"),
+        (vec!["train-tem", "--dem-dir", "/tmp", "--lr", "nan"], 2, "a learning rate is a number above 0 and at most 1, not 'nan'"),
+        (vec!["train-tem", "--dem-dir", "/tmp", "--lr=-0.001"], 2, "not '-0.001'"),
+        (vec!["train-tem", "--dem-dir", "/tmp", "--batch", "0"], 2, "a batch is a whole number from 1 to 4096, not '0'"),
+        (vec!["train-tem", "--dem-dir", "/tmp", "--steps", "18446744073709551615"], 2, "a step count is a whole number from 0 to 1000000000"),
+        (vec!["train-sketch", "--dem-dir", "/tmp", "--lr", "inf"], 2, "not 'inf'"),
+        (vec!["train-tcm", "--dem-dir", "/tmp", "--steps", "99999999999"], 2, "a step count"),
     ] {
         let o = run(&args);
         let err = String::from_utf8_lossy(&o.stderr);
