@@ -10,10 +10,13 @@ use glam::DVec3;
 pub mod loads;
 pub mod page;
 pub mod runners;
+mod stats;
+
+pub use stats::AppStats;
 
 use crate::grid::mix64;
 use crate::grid::schedule::tile_seed;
-use crate::jobs::{Job, JobQueue, JobStats, Outcome};
+use crate::jobs::{Job, JobQueue, Outcome};
 use crate::models::tem::LEVELS;
 use crate::render::camera::{Camera, CameraController, ControlInput};
 use crate::render::gpu::{FrameParams, sun_direction};
@@ -48,65 +51,6 @@ pub const REFINE_BATCH: usize = 4;
 
 /// Frames a node mesh stays on the GPU after it was last drawn.
 pub const MESH_KEEP_FRAMES: u64 = 240;
-
-/// Numbers shown in the overlay and exported to the end-to-end test (all counts are totals
-/// since the world was created unless stated).
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
-pub struct AppStats {
-    /// Frames drawn.
-    pub frames: u64,
-    /// Tiles generated (dependencies included).
-    pub tiles_generated: u64,
-    /// Tiles in the cache now.
-    pub tiles_cached: usize,
-    /// Most tiles the cache may hold.
-    pub tiles_capacity: usize,
-    /// Wanted tiles still missing.
-    pub tiles_pending: usize,
-    /// Tiles evicted.
-    pub tiles_evicted: u64,
-    /// Mean generation time per tile (milliseconds).
-    pub ms_per_tile: f64,
-    /// Quadtree nodes drawn in the last frame.
-    pub nodes_drawn: usize,
-    /// Quadtree nodes cached.
-    pub nodes_cached: usize,
-    /// Deepest quadtree depth drawn in the last frame.
-    pub max_depth_drawn: u8,
-    /// Refined patches (TEM quads) made since the world was created.
-    pub quads_made: u64,
-    /// Mean TEM inference time per quad (milliseconds, read-back included).
-    pub ms_per_quad: f64,
-    /// Refined patches cached.
-    pub patches_cached: usize,
-    /// Where the TEM runs ("" while it is off).
-    pub refine_backend: String,
-    /// Median frame time over the recent window (milliseconds).
-    pub frame_ms_median: f64,
-    /// Worst frame time over the recent window (milliseconds).
-    pub frame_ms_worst: f64,
-    /// Eye position (world metres).
-    pub eye_m: [f64; 3],
-    /// Milliseconds the last frame spent making tiles (world update).
-    pub world_ms: f64,
-    /// Milliseconds the last frame spent selecting and building quadtree nodes.
-    pub nodes_ms: f64,
-    /// The world's generator ("learned" or "procedural").
-    pub source: String,
-    /// The learned world's tile jobs (started, done, failed, stale, in flight).
-    pub tile_jobs: JobStats,
-    /// Order-independent hash (hex) of the contents and coordinates of the tiles drawn: equal
-    /// on two pages exactly when they show bit-identical tiles.
-    pub view_checksum: String,
-    /// The sketch canvas's revision (changes with every stroke).
-    pub sketch_revision: u64,
-    /// The canvas revision whose terrain the sketch world shows (0: none yet).
-    pub sketch_shown: u64,
-    /// Milliseconds the last sketch took to become terrain (the generator's own time).
-    pub sketch_ms: f64,
-    /// The sketch world's generator jobs.
-    pub sketch_jobs: JobStats,
-}
 
 /// Where the learned world's models are.
 #[derive(Clone, Debug, PartialEq, Eq)]
