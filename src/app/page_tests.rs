@@ -26,7 +26,12 @@ struct Shell<'a> {
     posted: Vec<(Target, &'static str)>,
 }
 
-impl Shell<'_> {
+impl<'a> Shell<'a> {
+    /// A shell with a fresh runner, downloads changed by `swap`.
+    fn new(swap: &'a Swap) -> Self {
+        Shell { runner: Runner::new(1), swap, posted: Vec::new() }
+    }
+
     /// Carries out the core's effects, and those their deliveries cause, until none is left.
     fn carry_out(&mut self, core: &mut PageCore) {
         loop {
@@ -77,7 +82,7 @@ fn no_swap(_: &str) -> Option<Result<Vec<u8>, String>> {
 #[test]
 fn with_a_worker_the_core_loads_both_sets_and_makes_tiles_and_detail_through_effects_alone() {
     let mut core = PageCore::new(ShareState { position_m: [2048.0, 900.0, 2048.0], pitch: -0.6, ..ShareState::default() }, start(Ok(())));
-    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    let mut shell = Shell::new(&no_swap);
     shell.frames(&mut core, 1);
     let models = LearnedModels::from_bytes(&std::fs::read(weights().join(TCM_FILE)).unwrap(), &std::fs::read(weights().join(GROW_FILE)).unwrap()).unwrap();
     assert_eq!(core.loads.world, Load::Ready { hash: models.hash.clone(), backend: "CPU worker".into() });
@@ -106,7 +111,7 @@ fn broken_and_missing_weight_files_fail_their_set_with_the_fallback_said() {
         _ => None,
     };
     let mut core = PageCore::new(ShareState::default(), start(Ok(())));
-    let mut shell = Shell { runner: Runner::new(1), swap: &swap, posted: Vec::new() };
+    let mut shell = Shell::new(&swap);
     shell.frames(&mut core, 2);
     let Load::Failed(tem) = &core.loads.tem else { panic!("{:?}", core.loads.tem) };
     assert!(tem.contains("tem_2_4m.bpk") && tem.starts_with("TEM weights are broken") && tem.ends_with("showing the 32 m world"), "{tem}");
@@ -124,7 +129,7 @@ fn broken_and_missing_weight_files_fail_their_set_with_the_fallback_said() {
 #[test]
 fn a_dead_worker_fails_what_it_held_and_its_work_falls_back() {
     let mut core = PageCore::new(ShareState::default(), start(Ok(())));
-    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    let mut shell = Shell::new(&no_swap);
     shell.frames(&mut core, 1);
     core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
     core.start_work(100.0);
@@ -149,7 +154,7 @@ fn a_dead_worker_fails_what_it_held_and_its_work_falls_back() {
 fn without_a_worker_the_world_is_procedural_and_the_tem_runs_on_the_main_thread() {
     let mut core = PageCore::new(ShareState { position_m: [2048.0, 900.0, 2048.0], pitch: -0.6, ..ShareState::default() }, start(Err("blocked".into())));
     assert_eq!(core.message.as_deref(), Some("The learned world is not available: it needs a Web Worker (blocked). Showing the procedural world."));
-    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    let mut shell = Shell::new(&no_swap);
     shell.frames(&mut core, 40);
     assert_eq!(core.tem_backend(), "CPU (no WebGPU compute) on the main thread");
     assert!(shell.posted.iter().all(|(t, _)| *t == Target::MainThread));
@@ -163,7 +168,7 @@ fn without_a_worker_the_world_is_procedural_and_the_tem_runs_on_the_main_thread(
 #[test]
 fn the_sketch_world_loads_its_models_and_makes_terrain_variants_and_blends() {
     let mut core = PageCore::new(ShareState { source: SourceKind::Sketch, ..ShareState::default() }, start(Ok(())));
-    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    let mut shell = Shell::new(&no_swap);
     shell.frames(&mut core, 3);
     assert!(core.loads.sketch.is_ready(), "{:?}", core.loads.sketch);
     assert_eq!(core.app.stats().sketch_shown, core.app.canvas.revision() + 1);
@@ -185,7 +190,7 @@ fn the_sketch_world_loads_its_models_and_makes_terrain_variants_and_blends() {
 #[test]
 fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_frame() {
     let mut core = PageCore::new(ShareState { source: SourceKind::Sketch, ..ShareState::default() }, start(Ok(())));
-    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    let mut shell = Shell::new(&no_swap);
     shell.frames(&mut core, 1);
     assert!(core.loads.sketch.is_ready());
     // A stroke; its terrain comes back broken.
@@ -223,7 +228,7 @@ fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_fra
 #[test]
 fn a_worker_that_does_not_answer_for_a_minute_is_taken_for_stalled_and_its_work_falls_back() {
     let mut core = PageCore::new(ShareState::default(), start(Ok(())));
-    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    let mut shell = Shell::new(&no_swap);
     shell.frames(&mut core, 1);
     core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
     core.start_work(1000.0);
@@ -246,7 +251,7 @@ fn a_worker_that_does_not_answer_for_a_minute_is_taken_for_stalled_and_its_work_
 /// core's).
 #[test]
 fn a_core_started_again_on_the_same_worker_has_its_tiles_made() {
-    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    let mut shell = Shell::new(&no_swap);
     let share = ShareState { source: SourceKind::Procedural, ..ShareState::default() };
     let mut first = PageCore::new(share.clone(), start(Ok(())));
     for seed in 2..12 {
@@ -267,7 +272,7 @@ fn a_core_started_again_on_the_same_worker_has_its_tiles_made() {
 #[test]
 fn a_link_followed_in_the_same_tab_with_other_weights_gets_the_note() {
     let mut core = PageCore::new(ShareState::default(), start(Ok(())));
-    let mut shell = Shell { runner: Runner::new(1), swap: &no_swap, posted: Vec::new() };
+    let mut shell = Shell::new(&no_swap);
     shell.frames(&mut core, 1);
     assert!(core.loads.world.is_ready() && core.message.is_none());
     let link = ShareState { seed: 9, weights: Some("00d1".into()), ..ShareState::default() }.to_fragment();

@@ -3,14 +3,12 @@
 //! Real mountain ranges drain through valleys that survive any averaging and carry water
 //! across many kilometres; a field of round bumps with level lakes does neither.
 
-use crate::world::drainage::fill_depressions;
+use super::DEPRESSION_DEPTH_M;
+use crate::dem::Heightfield;
+use crate::world::drainage::{depression_fraction, fill_depressions};
 
 /// Slope (degrees) below which a sample counts as dead flat.
 pub const FLAT_SLOPE_DEG: f64 = 0.2;
-
-/// Depth (metres) a level fill must raise a sample by for it to count as in a closed
-/// depression (below it, rounding and survey noise).
-pub const DEPRESSION_DEPTH_M: f32 = 0.5;
 
 /// Area-averaging factors of a 32 m window for the two coarser scales: 3 (96 m, "~100 m")
 /// and 12 (384 m, "~400 m").
@@ -41,10 +39,15 @@ impl Drainage {
 }
 
 /// The drainage statistics of the `n`×`n` window `h` (metres) with samples `spacing_m` apart.
+/// The coarse scales are area averages ([`Heightfield::resample_area`]: blocks of 3² and 12²
+/// samples, a remainder along the right and bottom edges dropped); a sample there is in a
+/// closed depression when a level fill raises it by more than [`DEPRESSION_DEPTH_M`]
+/// ([`depression_fraction`], the window's border the outlet).
 pub fn measure(h: &[f32], n: usize, spacing_m: f64) -> Drainage {
+    let field = Heightfield::new(n, n, spacing_m, h.to_vec());
     let coarse = COARSE_FACTORS.map(|f| {
-        let (c, m) = block_average(h, n, f);
-        depression_fraction(&c, m)
+        let c = field.resample_area(spacing_m * f as f64).expect("a coarser spacing");
+        depression_fraction(&c.data, c.width, DEPRESSION_DEPTH_M)
     });
     Drainage {
         flat_fraction: flat_fraction(h, n, spacing_m),
@@ -68,27 +71,6 @@ pub fn flat_fraction(h: &[f32], n: usize, spacing_m: f64) -> f64 {
         }
     }
     flat as f64 / all.max(1) as f64
-}
-
-/// The `n`×`n` field averaged over blocks of `f`×`f` samples (a remainder along the right and
-/// bottom edges is dropped): the averaged field and its side.
-pub fn block_average(h: &[f32], n: usize, f: usize) -> (Vec<f32>, usize) {
-    let m = n / f;
-    let mut out = vec![0f32; m * m];
-    for (k, o) in out.iter_mut().enumerate() {
-        let (bx, by) = (k % m * f, k / m * f);
-        let sum: f64 = (by..by + f).flat_map(|y| (bx..bx + f).map(move |x| (x, y))).map(|(x, y)| h[y * n + x] as f64).sum();
-        *o = (sum / (f * f) as f64) as f32;
-    }
-    (out, m)
-}
-
-/// Fraction of the `n`×`n` field a level fill raises by more than [`DEPRESSION_DEPTH_M`]
-/// (the window's border is the outlet).
-pub fn depression_fraction(h: &[f32], n: usize) -> f64 {
-    let mut filled = h.to_vec();
-    fill_depressions(&mut filled, n, 0.0);
-    filled.iter().zip(h).filter(|(f, o)| **f - **o > DEPRESSION_DEPTH_M).count() as f64 / (n * n) as f64
 }
 
 /// The longest flow path over the `n`×`n` field (metres): its depressions are filled with a
@@ -168,15 +150,6 @@ mod tests {
             assert!((f - std::f64::consts::FRAC_PI_4).abs() < tol, "{d:?}");
         }
         assert!(d.longest_flow_path_km <= 2.0 * c * std::f64::consts::SQRT_2 * 0.032 + 1e-9, "{d:?}");
-    }
-
-    /// Averaging by blocks keeps a constant, halves the side by 2, and drops the remainder.
-    #[test]
-    fn block_averages_keep_the_mean_and_drop_the_remainder() {
-        let (a, m) = block_average(&[7.0; 25], 5, 2);
-        assert_eq!((a, m), (vec![7.0; 4], 2));
-        let ramp = field(4, |x, y| x + 4.0 * y);
-        assert_eq!(block_average(&ramp, 4, 2).0, vec![2.5, 4.5, 10.5, 12.5]);
     }
 
     /// The distance of a set to itself is 0 for every statistic; a set of flatter windows is

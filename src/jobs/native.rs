@@ -22,13 +22,8 @@ impl NativeRunner {
         let thread = std::thread::spawn(move || {
             let mut runner = Runner::new(threads);
             for bytes in inbox {
-                let answer = match Envelope::decode(&bytes) {
-                    Ok(env) => runner.handle(env),
-                    Err(_) => match runner.accept_bytes(&bytes) {
-                        super::runner::Accepted::Now(a) => a,
-                        super::runner::Accepted::Paced(_) => unreachable!("malformed bytes make no task"),
-                    },
-                };
+                let accepted = runner.accept_bytes(&bytes);
+                let answer = runner.finish(accepted);
                 if outbox.send(answer.encode()).is_err() {
                     break;
                 }

@@ -138,7 +138,14 @@ impl Runner {
 
     /// Answers a request completely, all pieces at once (the native runner and tests).
     pub fn handle(&mut self, env: Envelope) -> Answer {
-        match self.accept(env) {
+        let accepted = self.accept(env);
+        self.finish(accepted)
+    }
+
+    /// Answers a request taken by [`Runner::accept`] or [`Runner::accept_bytes`] completely,
+    /// all its pieces at once.
+    pub fn finish(&mut self, accepted: Accepted) -> Answer {
+        match accepted {
             Accepted::Now(a) => a,
             Accepted::Paced(mut task) => loop {
                 if let (Some(a), _) = self.step(&mut task) {
