@@ -258,6 +258,53 @@ fn enhance_windows(level: u8, n: u32, side: u32, input: Vec<f32>) -> Result<Vec<
     Ok(input.chunks(side * side).map(<[f32]>::to_vec).collect())
 }
 
+/// A runner and the tasks it makes in pieces, oldest first: what a worker keeps between
+/// messages. [`Queue::accept_bytes`] takes a request; while tasks wait, the worker's loop
+/// makes them with [`Queue::next_piece`], resting between pieces as each request asks.
+pub struct Queue {
+    /// The runner.
+    pub runner: Runner,
+    tasks: std::collections::VecDeque<Task>,
+    /// Whether a loop is making the tasks (it runs until none is left).
+    looping: bool,
+}
+
+impl Queue {
+    /// An empty queue whose runner's kernels use `threads` threads.
+    pub fn new(threads: usize) -> Self {
+        Self { runner: Runner::new(threads), tasks: Default::default(), looping: false }
+    }
+
+    /// Takes a request's bytes: its answer if it is answered now, and whether the caller must
+    /// start the loop of [`Queue::next_piece`] (a task joined and no loop runs).
+    pub fn accept_bytes(&mut self, bytes: &[u8]) -> (Option<Answer>, bool) {
+        match self.runner.accept_bytes(bytes) {
+            Accepted::Now(a) => (Some(a), false),
+            Accepted::Paced(t) => {
+                self.tasks.push_back(t);
+                (None, !std::mem::replace(&mut self.looping, true))
+            }
+        }
+    }
+
+    /// Makes one piece of the oldest task: the answer when that ends it, and the rest (ms) to
+    /// take before the next piece (none after a task's last piece). `None` when no task is
+    /// left: the loop ends (the next task starts a new one).
+    pub fn next_piece(&mut self) -> Option<(Option<Answer>, f64)> {
+        let Some(task) = self.tasks.front_mut() else {
+            self.looping = false;
+            return None;
+        };
+        let (answer, ms) = self.runner.step(task);
+        let rest = ms * task.rest_per_work;
+        if answer.is_some() {
+            self.tasks.pop_front();
+            return Some((answer, 0.0));
+        }
+        Some((None, rest))
+    }
+}
+
 /// `f`'s result and how long it took (milliseconds).
 fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
     let t0 = web_time::Instant::now();
@@ -447,5 +494,25 @@ mod tests {
         for (_, s) in crate::sketch::examples::all() {
             assert_eq!(Sketch::from_packed(&s.packed()).unwrap(), s);
         }
+    }
+
+    /// A worker's queue answers loads and malformed bytes at once, takes tiles and TEM batches
+    /// as tasks (the first one asks for the loop to start, the next joins it), makes them
+    /// oldest first and ends the loop when none is left; the next task starts a new loop.
+    #[test]
+    fn the_queue_makes_tasks_oldest_first_and_ends_its_loop_when_none_is_left() {
+        let mut q = Queue::new(1);
+        let (a, start) = q.accept_bytes(&[1, 2, 3]);
+        assert!(matches!(a, Some(Answer { reply: Reply::Failed(_), .. })) && !start);
+        let tile = |id| env(id, 1, Request::Tile { seed: 1, tile: TileCoord::new(0, 0), noise: None }).encode();
+        assert!(matches!(q.accept_bytes(&tile(5)), (None, true)));
+        assert!(matches!(q.accept_bytes(&tile(6)), (None, false)));
+        let mut ids = Vec::new();
+        while let Some((answer, rest)) = q.next_piece() {
+            assert_eq!(rest, 0.0, "no rest asked for");
+            ids.extend(answer.map(|a| a.id));
+        }
+        assert_eq!(ids, vec![5, 6], "oldest first");
+        assert!(matches!(q.accept_bytes(&tile(7)), (None, true)), "a new loop");
     }
 }

@@ -3,6 +3,7 @@
 //! applies it.
 
 pub mod page;
+pub mod shell;
 pub mod sketch;
 
 use crate::app::AppStats;

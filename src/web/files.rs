@@ -1,22 +1,15 @@
-//! Files in and out of the page: a download of bytes, and a file the user picks.
+//! Files in and out of the page: a download of bytes, a file the user picks, a fetch.
 
 use std::cell::RefCell;
-use std::rc::Rc;
 
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 
 use crate::sketch::Sketch;
+use crate::ui::shell::SketchSlot;
 
 fn js(e: JsValue) -> String {
     format!("{e:?}")
-}
-
-/// Offers `sketch` as `sketch.png` in the format's palette.
-pub fn download_sketch(sketch: &Sketch) -> Result<(), String> {
-    let mut png = Vec::new();
-    sketch.write_png(&mut png).map_err(|e| e.to_string())?;
-    download("sketch.png", &png, "image/png")
 }
 
 /// Offers `bytes` as a file download named `name`.
@@ -42,9 +35,6 @@ pub fn download(name: &str, bytes: &[u8], mime: &str) -> Result<(), String> {
 /// Largest sketch PNG read (bytes): a 256×256 PNG is far smaller; anything larger is refused
 /// by its size before a byte of it is read.
 const MAX_SKETCH_FILE_BYTES: f64 = 2.0 * 1024.0 * 1024.0;
-
-/// Where a picked sketch lands.
-type SketchSlot = Rc<RefCell<Option<Result<Sketch, String>>>>;
 
 thread_local! {
     /// The slot of the latest [`pick_sketch_file`] (a page restarted after a lost device has

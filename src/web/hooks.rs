@@ -10,54 +10,37 @@ use std::sync::atomic::Ordering::SeqCst;
 use wasm_bindgen::prelude::*;
 
 use super::Runners;
-use crate::app::page::Target;
 use crate::grid::TileCoord;
 use crate::jobs::runner::Runner;
 use crate::models::tem::{LEVELS, probe_input};
+use crate::ui::shell::Probes;
 
-/// Most frame intervals kept for [`terrain_frame_intervals`] (over half an hour at 60 fps).
-const MAX_FRAME_INTERVALS: usize = 120_000;
-
-/// Where the TEM runs now, for the probe: the runners, the target, its name, the world epoch.
-pub(super) struct TemProbe {
-    pub runners: Rc<Runners>,
-    pub target: Target,
-    pub backend: String,
-    pub epoch: u64,
-}
+/// What the page's shell publishes for the hooks, and its runners (for the TEM probe).
+pub(super) type Published = (Rc<RefCell<Probes>>, Rc<Runners>);
 
 thread_local! {
-    pub(super) static STATS_JSON: RefCell<String> = RefCell::new("{}".into());
-    pub(super) static TEM_PROBE: RefCell<Option<TemProbe>> = const { RefCell::new(None) };
-    /// The tile asked for ([`terrain_request_tile`]) and its heights once the world has it.
-    pub(super) static TILE_PROBE: RefCell<(Option<TileCoord>, Option<Vec<f32>>)> = const { RefCell::new((None, None)) };
-    static FRAME_INTERVALS: RefCell<Vec<f64>> = const { RefCell::new(Vec::new()) };
+    pub(super) static PROBES: RefCell<Option<Published>> = const { RefCell::new(None) };
     /// Frames are not drawn while set ([`terrain_set_paused`]), and the context to wake.
     pub(super) static PAUSED: Cell<bool> = const { Cell::new(false) };
     pub(super) static CONTEXT: RefCell<Option<egui::Context>> = const { RefCell::new(None) };
 }
 
-/// Keeps one frame interval (ms) for [`terrain_frame_intervals`].
-pub(super) fn record_frame_interval(ms: f64) {
-    FRAME_INTERVALS.with(|f| {
-        let mut f = f.borrow_mut();
-        if f.len() < MAX_FRAME_INTERVALS {
-            f.push(ms);
-        }
-    });
+/// `f` of the shell's probes (`None` before the page runs).
+fn probes<T>(f: impl FnOnce(&mut Probes) -> T) -> Option<T> {
+    PROBES.with(|p| p.borrow().as_ref().map(|(p, _)| f(&mut p.borrow_mut())))
 }
 
 /// The intervals (milliseconds) between the frames of the 3-D view drawn since the previous
 /// call, oldest first: the frame times a person sees.
 #[wasm_bindgen]
 pub fn terrain_frame_intervals() -> Vec<f64> {
-    FRAME_INTERVALS.with(|f| std::mem::take(&mut *f.borrow_mut()))
+    probes(|p| std::mem::take(&mut p.frame_intervals)).unwrap_or_default()
 }
 
 /// The latest frame statistics as JSON.
 #[wasm_bindgen]
 pub fn terrain_stats() -> String {
-    STATS_JSON.with(|s| s.borrow().clone())
+    probes(|p| p.stats_json.clone()).filter(|s| !s.is_empty()).unwrap_or_else(|| "{}".into())
 }
 
 /// Stops (`true`) or resumes drawing frames: the test times CPU inference without the
@@ -73,14 +56,14 @@ pub fn terrain_set_paused(paused: bool) {
 /// Asks for the heights of tile (i, j) of the world shown (see [`terrain_tile_heights`]).
 #[wasm_bindgen]
 pub fn terrain_request_tile(i: i32, j: i32) {
-    TILE_PROBE.with(|p| *p.borrow_mut() = (Some(TileCoord::new(i, j)), None));
+    probes(|p| p.tile = (Some(TileCoord::new(i, j)), None));
 }
 
 /// The heights (JSON array, metres) of the tile asked for, or `null` while the world does not
 /// have it yet.
 #[wasm_bindgen]
 pub fn terrain_tile_heights() -> String {
-    TILE_PROBE.with(|p| serde_json::to_string(&p.borrow().1).unwrap_or_default())
+    probes(|p| serde_json::to_string(&p.tile.1).unwrap_or_default()).unwrap_or_else(|| "null".into())
 }
 
 /// Bytes of the page's wasm linear memory now (it only grows).
@@ -101,8 +84,8 @@ pub fn terrain_probe_input(level: usize) -> String {
 /// [`Runners::tem_probe`]: crate::app::runners::Runners::tem_probe
 #[wasm_bindgen]
 pub async fn terrain_tem_probe() -> Result<String, JsValue> {
-    let probe = TEM_PROBE.with(|t| t.borrow().as_ref().map(|p| (p.runners.clone(), p.target, p.backend.clone(), p.epoch)));
-    let (runners, target, backend, epoch) = probe.ok_or("the TEM is not loaded")?;
+    let runners = PROBES.with(|p| p.borrow().as_ref().map(|(_, r)| r.clone())).ok_or("the page is not running")?;
+    let (target, backend, epoch) = probes(|p| p.tem.clone()).flatten().ok_or("the TEM is not loaded")?;
     Ok(runners.tem_probe(target, &backend, epoch).await?)
 }
 

@@ -22,6 +22,7 @@ use crate::jobs::gpu::GpuRunner;
 use crate::models;
 use crate::share::{PageOptions, ShareState};
 use crate::ui::Environment;
+use crate::ui::shell::PageShell;
 
 const NO_WEBGPU: &str = "This page needs WebGPU, which this browser does not offer. Try a current Chrome, Edge or Safari (or enable WebGPU in the browser's settings).";
 
@@ -159,10 +160,6 @@ fn show_stopped(why: &str) {
     }
 }
 
-fn now_ms() -> f64 {
-    web_sys::window().and_then(|w| w.performance()).map(|p| p.now()).unwrap_or(0.0)
-}
-
 fn location_hash() -> String {
     web_sys::window().and_then(|w| w.location().hash().ok()).unwrap_or_default()
 }
@@ -226,11 +223,14 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     };
     let web_runner = eframe::WebRunner::new();
     let app = Box::new(move |cc: &eframe::CreationContext<'_>| -> Result<Box<dyn eframe::App>, Box<dyn std::error::Error + Send + Sync>> {
-        let rs = cc.wgpu_render_state.as_ref().ok_or("eframe started without wgpu")?;
+        cc.wgpu_render_state.as_ref().ok_or("eframe started without wgpu")?;
         let mut core = PageCore::new(share.clone(), start).opened_at(hash);
         core.message = core.message.take().or(message);
         let env = Environment { adapter: adapter_name, software_adapter: software, ..Default::default() };
-        Ok(Box::new(shell::WebApp::new(core, runners, share, env, rs)))
+        let mut page = PageShell::new(core, Rc::new(shell::WebPlatform), runners.clone(), share, env);
+        page.device_restarts = RESTARTS.get();
+        hooks::PROBES.with(|p| *p.borrow_mut() = Some((page.probes.clone(), runners.clone())));
+        Ok(Box::new(shell::WebApp(page)))
     });
     web_runner.start(canvas, options, app).await.map_err(|e| format!("The page could not start its renderer: {e:?}"))?;
     RUNNER.with(|r| *r.borrow_mut() = Some(web_runner));

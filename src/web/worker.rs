@@ -4,8 +4,8 @@
 //! asks for between them. A trap in the worker is caught by its script and reported, so the
 //! page sees a dead worker instead of a reply that never comes.
 
-use std::cell::{Cell, RefCell};
-use std::collections::{HashMap, VecDeque};
+use std::cell::RefCell;
+use std::collections::HashMap;
 use std::rc::Rc;
 
 use js_sys::{Array, Object, Reflect, Uint8Array};
@@ -15,7 +15,7 @@ use wasm_bindgen_futures::JsFuture;
 
 use crate::app::runners::Port;
 use crate::jobs::protocol::{Answer, Envelope};
-use crate::jobs::runner::{Accepted, Runner, Task};
+use crate::jobs::runner::Queue;
 
 /// The worker's script: the first message carries the glue's URL and the compiled module;
 /// later messages are `{id, bytes}` requests. A trap is reported as `{id, trap}`.
@@ -143,44 +143,35 @@ impl Drop for CpuWorker {
 }
 
 thread_local! {
-    /// The worker's models (one kernel thread: the worker is one thread).
-    static RUNNER: RefCell<Runner> = RefCell::new(Runner::new(1));
-    /// Tiles and TEM batches to make in pieces, oldest first, and whether they are being made.
-    static TASKS: RefCell<VecDeque<Task>> = const { RefCell::new(VecDeque::new()) };
-    static RUNNING: Cell<bool> = const { Cell::new(false) };
+    /// The worker's runner and the tasks it makes in pieces (one kernel thread: the worker is
+    /// one thread).
+    static QUEUE: RefCell<Queue> = RefCell::new(Queue::new(1));
 }
 
 /// The worker's entry point for one request (called by the worker script, never by the page):
-/// answers it now, or queues its pieces ([`make_tasks`]).
+/// answers it now, or queues its pieces and makes them ([`make_tasks`]).
 #[wasm_bindgen]
 pub fn terrain_worker_message(bytes: Uint8Array) {
-    match RUNNER.with(|r| r.borrow_mut().accept_bytes(&bytes.to_vec())) {
-        Accepted::Now(a) => post(&a),
-        Accepted::Paced(t) => {
-            TASKS.with(|q| q.borrow_mut().push_back(t));
-            if !RUNNING.replace(true) {
-                wasm_bindgen_futures::spawn_local(make_tasks());
-            }
-        }
+    let (answer, start) = QUEUE.with(|q| q.borrow_mut().accept_bytes(&bytes.to_vec()));
+    if let Some(a) = answer {
+        post(&a);
+    }
+    if start {
+        wasm_bindgen_futures::spawn_local(make_tasks());
     }
 }
 
-/// Makes the queued tasks one after the other, a piece at a time, resting `rest_per_work`
-/// times each piece's length after it (other requests are answered meanwhile).
+/// Makes the queued tasks a piece at a time, resting as each asks (other requests are
+/// answered meanwhile).
 async fn make_tasks() {
-    while let Some(mut task) = TASKS.with(|q| q.borrow_mut().pop_front()) {
-        loop {
-            let (answer, ms) = RUNNER.with(|r| r.borrow_mut().step(&mut task));
-            if let Some(a) = answer {
-                post(&a);
-                break;
-            }
-            if task.rest_per_work > 0.0 {
-                rest(ms * task.rest_per_work).await;
-            }
+    while let Some((answer, rest_ms)) = QUEUE.with(|q| q.borrow_mut().next_piece()) {
+        if let Some(a) = answer {
+            post(&a);
+        }
+        if rest_ms > 0.0 {
+            rest(rest_ms).await;
         }
     }
-    RUNNING.set(false);
 }
 
 /// Posts an answer to the page (its buffer transferred).

@@ -1,0 +1,317 @@
+//! The page's frame, platform-free: each frame it hands the core what came back, carries out
+//! what the core asks (fetches and requests, as tasks of the [`Platform`]), draws the 3-D view
+//! and the overlay, and keeps the link in the address bar. The browser supplies a
+//! [`Platform`] (fetch, spawn, the address bar, files) and the GPU; the native tests supply
+//! files, a thread runner and no GPU, and drive the same frames.
+
+use std::cell::RefCell;
+use std::collections::VecDeque;
+use std::pin::Pin;
+use std::rc::Rc;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering::SeqCst};
+
+use crate::app::MESH_KEEP_FRAMES;
+use crate::app::page::{Delivery, Effect, PageCore, Target};
+use crate::app::runners::{Port, Runners};
+use crate::grid::TileCoord;
+use crate::render::gpu::TerrainRenderer;
+use crate::share::ShareState;
+use crate::sketch::Sketch;
+use crate::ui::Environment;
+use crate::ui::page::{BrowserAsks, PageUi};
+
+/// A task the platform runs on this thread (the page: a microtask).
+pub type Task = Pin<Box<dyn Future<Output = ()>>>;
+/// A download's body, or why there is none.
+pub type Fetching = Pin<Box<dyn Future<Output = Result<Vec<u8>, String>>>>;
+/// Where a sketch file the user picked lands once it is read (or why it is not a sketch).
+pub type SketchSlot = Rc<RefCell<Option<Result<Sketch, String>>>>;
+
+/// What the shell needs of the platform it runs on. Everything here only moves bytes.
+pub trait Platform: 'static {
+    /// The CPU worker's transport.
+    type Worker: Port + 'static;
+    /// Runs `task` on this thread, later.
+    fn spawn(&self, task: Task);
+    /// Downloads `url`.
+    fn fetch(&self, url: &str) -> Fetching;
+    /// The address bar's fragment (with its `#`), empty without one.
+    fn fragment(&self) -> String;
+    /// Writes `fragment` into the address bar without a reload.
+    fn set_fragment(&self, fragment: &str);
+    /// The page's address without its fragment.
+    fn address(&self) -> String;
+    /// A note for the developer's console.
+    fn warn(&self, note: &str);
+    /// Offers `bytes` as a download named `name`.
+    fn download(&self, name: &str, bytes: &[u8], mime: &str) -> Result<(), String>;
+    /// Asks the user for a sketch PNG; it lands in `slot`.
+    fn pick_sketch(&self, slot: SketchSlot) -> Result<(), String>;
+}
+
+/// The GPU a frame draws the 3-D view with.
+pub struct ViewGpu<'a> {
+    /// The device.
+    pub device: &'a wgpu::Device,
+    /// Its queue.
+    pub queue: &'a wgpu::Queue,
+    /// Shows `view` as an egui texture: registers it (`None`) or points the given one at it.
+    pub show: &'a mut dyn FnMut(&wgpu::TextureView, Option<egui::TextureId>) -> egui::TextureId,
+}
+
+/// What the page's test hooks read (the browser console's and the end-to-end test's).
+#[derive(Default)]
+pub struct Probes {
+    /// The latest frame statistics as JSON.
+    pub stats_json: String,
+    /// The intervals between drawn frames since the hook last took them (ms), oldest first.
+    pub frame_intervals: Vec<f64>,
+    /// The tile asked for and its heights (metres) once the world has it.
+    pub tile: (Option<TileCoord>, Option<Vec<f32>>),
+    /// Where the TEM runs now (target, its name, the world epoch), once it is loaded.
+    pub tem: Option<(Target, String, u64)>,
+}
+
+/// Most frame intervals kept for the hooks (over half an hour at 60 fps).
+const MAX_FRAME_INTERVALS: usize = 120_000;
+
+/// The page: its core, runners, interface and renderer, on a platform.
+pub struct PageShell<P: Platform> {
+    /// The core.
+    pub core: PageCore,
+    platform: Rc<P>,
+    runners: Rc<Runners<P::Worker>>,
+    ui: PageUi,
+    renderer: Option<TerrainRenderer>,
+    env: Environment,
+    /// What the hooks read.
+    pub probes: Rc<RefCell<Probes>>,
+    /// How many times the page replaced a lost GPU device.
+    pub device_restarts: u32,
+    clock: web_time::Instant,
+    /// What came back from fetches and runners since the last frame.
+    inbox: Rc<RefCell<Vec<Delivery>>>,
+    texture: Option<egui::TextureId>,
+    last_frame_ms: Option<f64>,
+    /// Draws a frame of the 3-D view only once the GPU has finished the previous one.
+    pacer: crate::render::FramePacer,
+    /// The newest frame whose GPU work is done (set by the queue's callback).
+    gpu_done: Arc<AtomicU64>,
+    /// The main thread's work per frame over the last 120 frames: total, tiles, nodes and
+    /// drawing ms, the upload and submit parts of the drawing (ms), and the meshes uploaded.
+    frame_work: VecDeque<[f64; 7]>,
+    /// Times "Copy link" found the sketch too detailed for a link and sent it as a file.
+    link_too_long: u32,
+    /// A sketch PNG the user opened (or why it could not be read), once it is read.
+    import: SketchSlot,
+}
+
+/// Asks for one more frame. egui answers `request_repaint()` with two; a non-zero delay asks
+/// for exactly one, at the next animation frame.
+fn repaint_once(ctx: &egui::Context) {
+    ctx.request_repaint_after(std::time::Duration::from_micros(1));
+}
+
+impl<P: Platform> PageShell<P> {
+    /// The page for `core` on `platform`, with its runners, opened at `share`.
+    pub fn new(core: PageCore, platform: Rc<P>, runners: Rc<Runners<P::Worker>>, share: ShareState, env: Environment) -> Self {
+        Self {
+            core,
+            platform,
+            runners,
+            ui: PageUi::new(share),
+            renderer: None,
+            env,
+            probes: Rc::default(),
+            device_restarts: 0,
+            clock: web_time::Instant::now(),
+            inbox: Rc::default(),
+            texture: None,
+            last_frame_ms: None,
+            pacer: Default::default(),
+            gpu_done: Arc::default(),
+            frame_work: VecDeque::new(),
+            link_too_long: 0,
+            import: Rc::default(),
+        }
+    }
+
+    /// The page clock (ms since the shell started).
+    fn now_ms(&self) -> f64 {
+        self.clock.elapsed().as_secs_f64() * 1e3
+    }
+
+    /// Hands the core what came back (and a worker that died meanwhile).
+    fn deliver(&mut self) {
+        if let Some(why) = self.runners.worker.as_ref().and_then(|w| w.gone())
+            && self.core.worker().is_ok()
+        {
+            self.core.deliver(Delivery::WorkerGone { id: 0, why });
+        }
+        for d in std::mem::take(&mut *self.inbox.borrow_mut()) {
+            self.core.deliver(d);
+        }
+    }
+
+    /// Carries out what the core asks: each fetch and request becomes a task whose result
+    /// lands in the inbox.
+    fn carry_out(&mut self) {
+        for note in self.core.console.drain(..) {
+            self.platform.warn(&note);
+        }
+        for e in self.core.take_effects() {
+            let (inbox, runners, platform) = (self.inbox.clone(), self.runners.clone(), self.platform.clone());
+            self.platform.spawn(Box::pin(async move {
+                let d = match e {
+                    Effect::Fetch { id, url } => Delivery::Fetched { id, bytes: platform.fetch(&url).await },
+                    Effect::Post { target, envelope } => runners.call(target, envelope).await,
+                };
+                inbox.borrow_mut().push(d);
+            }));
+        }
+        let tem = self.core.loads.tem.is_ready().then(|| (self.core.tem_target(), self.core.tem_backend(), self.core.app.epoch()));
+        self.probes.borrow_mut().tem = tem;
+    }
+
+    /// The sketch panel's files: a download, a file to pick, a picked file that arrived.
+    fn sketch_files(&mut self, asks: BrowserAsks) {
+        if asks.export_sketch
+            && let Err(e) = self.download_sketch(self.core.app.canvas.sketch())
+        {
+            self.core.message = Some(format!("The sketch could not be exported: {e}"));
+        }
+        if asks.import_sketch
+            && let Err(e) = self.platform.pick_sketch(self.import.clone())
+        {
+            self.core.message = Some(format!("No file dialog: {e}"));
+        }
+        match self.import.borrow_mut().take() {
+            Some(Ok(s)) => self.core.app.canvas.load(s),
+            Some(Err(e)) => self.core.message = Some(e),
+            None => {}
+        }
+    }
+
+    /// Offers `sketch` as `sketch.png` in the format's palette.
+    fn download_sketch(&self, sketch: &Sketch) -> Result<(), String> {
+        let mut png = Vec::new();
+        sketch.write_png(&mut png).map_err(|e| e.to_string())?;
+        self.platform.download("sketch.png", &png, "image/png")
+    }
+
+    /// Keeps the address bar's fragment current (`force`: now), so copying it shares the view.
+    fn write_link(&mut self, now: f64, force: bool) {
+        if let Some(frag) = self.core.link_to_write(now, force) {
+            self.platform.set_fragment(&frag);
+        }
+    }
+
+    /// "Copy link": the address with the view; a sketch too detailed for a link goes as a file.
+    fn copy_link(&mut self, ctx: &egui::Context, now: f64) {
+        self.write_link(now, true);
+        let (text, file) = self.core.copy_link(&self.platform.address());
+        ctx.copy_text(text);
+        if let Some(sketch) = file {
+            self.link_too_long += 1;
+            if let Err(e) = self.download_sketch(&sketch) {
+                self.core.message = Some(format!("The sketch could not be downloaded ({e}): use Export PNG in the sketch panel."));
+            }
+        }
+        self.ui.copied_at_ms = Some(now);
+    }
+
+    /// Moves the camera and draws the 3-D view into the panel (when there is a GPU and it has
+    /// finished the previous frame).
+    fn view(&mut self, ui: &mut egui::Ui, gpu: Option<ViewGpu<'_>>, dt_ms: f64, now: f64, cpu_start: f64) {
+        let ctx = ui.ctx().clone();
+        let rect = ui.max_rect();
+        let resp = ui.allocate_rect(rect, egui::Sense::click_and_drag());
+        let size = crate::render::view_size([rect.width(), rect.height()], ctx.pixels_per_point(), self.env.software_adapter);
+        let input = crate::ui::control_input(&ctx, &resp);
+        let (nodes, params) = self.core.app.frame(&input, dt_ms / 1000.0, size);
+        let Some(gpu) = gpu else { return };
+        let clock = self.clock;
+        let ms = move || clock.elapsed().as_secs_f64() * 1e3;
+        let renderer = self.renderer.get_or_insert_with(|| TerrainRenderer::new(gpu.device));
+        if renderer.ensure_target(gpu.device, size) || self.texture.is_none() {
+            let view = renderer.color_view().expect("target just ensured");
+            self.texture = Some((gpu.show)(view, self.texture));
+        }
+        if self.pacer.may_draw(now) {
+            let render_start = ms();
+            let stats = renderer.render(gpu.device, gpu.queue, &nodes, &params, MESH_KEEP_FRAMES);
+            let render_ms = ms() - render_start;
+            (self.env.uploads, self.env.triangles, self.env.cpu_ms) = (stats.uploads, stats.triangles, ms() - cpu_start);
+            let s = self.core.app.stats();
+            self.frame_work.push_back([self.env.cpu_ms, s.world_ms, s.nodes_ms, render_ms, stats.upload_ms, stats.submit_ms, stats.uploads as f64]);
+            if self.frame_work.len() > 120 {
+                self.frame_work.pop_front();
+            }
+            let (frame, interval) = self.pacer.drawn(now);
+            if let Some(ms) = interval {
+                self.core.app.record_frame_time(ms);
+                let mut p = self.probes.borrow_mut();
+                if p.frame_intervals.len() < MAX_FRAME_INTERVALS {
+                    p.frame_intervals.push(ms);
+                }
+            }
+            // The platform paints the overlay (one more submit) after this returns, in the
+            // same task; a task asks for "work done" after that paint.
+            let (queue, done, ctx) = (gpu.queue.clone(), self.gpu_done.clone(), ctx.clone());
+            self.platform.spawn(Box::pin(async move {
+                queue.on_submitted_work_done(move || {
+                    done.fetch_max(frame, SeqCst);
+                    repaint_once(&ctx);
+                });
+            }));
+        }
+        if let Some(id) = self.texture {
+            ui.painter().image(id, rect, egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)), egui::Color32::WHITE);
+        }
+    }
+
+    /// One frame of the page in `ui` (the root), drawing the 3-D view with `gpu` where there
+    /// is one.
+    pub fn frame(&mut self, ui: &mut egui::Ui, gpu: Option<ViewGpu<'_>>) {
+        let ctx = ui.ctx().clone();
+        let now = self.now_ms();
+        let dt_ms = self.last_frame_ms.map(|t| now - t).unwrap_or(16.0);
+        self.last_frame_ms = Some(now);
+        self.pacer.gpu_done(self.gpu_done.load(SeqCst));
+        if let Some(s) = self.core.follow_link(&self.platform.fragment()) {
+            self.ui.overlay.reset(s);
+        }
+        let cpu_start = self.now_ms();
+        self.deliver();
+        self.core.start_work(now);
+        self.carry_out();
+        {
+            let mut p = self.probes.borrow_mut();
+            if let (Some(c), None) = (p.tile.0, &p.tile.1) {
+                p.tile.1 = self.core.app.tile_heights(c).map(<[f32]>::to_vec);
+            }
+        }
+        egui::CentralPanel::no_frame().show(ui, |ui| self.view(ui, gpu, dt_ms, now, cpu_start));
+        self.env.take_core(&self.core);
+        let asks = self.ui.show(&ctx, &mut self.core, &self.env, now);
+        self.sketch_files(asks);
+        // A stroke goes out in the frame that drew it.
+        self.core.start_sketch_jobs();
+        self.carry_out();
+        if asks.copy_link {
+            self.copy_link(&ctx, now);
+        }
+        self.write_link(now, false);
+        self.probes.borrow_mut().stats_json = self.ui.stats_json(&self.core, &self.env, &self.frame_work, self.device_restarts, self.link_too_long);
+        if self.pacer.waiting() {
+            // The GPU's "work done" asks for the next frame; this is the fallback.
+            ctx.request_repaint_after(std::time::Duration::from_millis(crate::render::pacing::GPU_STALL_MS as u64));
+        } else {
+            repaint_once(&ctx);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

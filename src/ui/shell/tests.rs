@@ -1,0 +1,175 @@
+//! The page's frames driven natively: files from `weights/`, the CPU worker on a thread, no
+//! GPU, the address bar a string.
+
+use std::cell::{Cell, RefCell};
+use std::rc::Rc;
+
+use super::*;
+use crate::app::page::PageStart;
+use crate::jobs::native::NativeRunner;
+use crate::jobs::protocol::{Answer, Envelope};
+use crate::models::runtime::TemChoice;
+
+/// The thread runner, which the test can take for dead.
+struct TestWorker {
+    runner: NativeRunner,
+    dead: RefCell<Option<String>>,
+    /// Requests posted to it after it died.
+    calls_when_dead: Cell<u32>,
+}
+
+impl Port for TestWorker {
+    async fn call(&self, env: &Envelope) -> Result<Answer, String> {
+        if let Some(why) = self.gone() {
+            self.calls_when_dead.set(self.calls_when_dead.get() + 1);
+            return Err(why);
+        }
+        self.runner.call(env).map_err(|e| e.to_string())
+    }
+
+    fn gone(&self) -> Option<String> {
+        self.dead.borrow().clone()
+    }
+}
+
+/// A platform whose tasks run when the test says, whose files are `weights/`, and whose
+/// address bar is a string.
+#[derive(Default)]
+struct TestPlatform {
+    tasks: RefCell<Vec<Task>>,
+    fragment: RefCell<String>,
+    fragments_written: Cell<u32>,
+    downloads: RefCell<Vec<(String, usize)>>,
+    warnings: RefCell<Vec<String>>,
+}
+
+impl TestPlatform {
+    /// Runs the spawned tasks (and those they spawn) to their end: the thread runner answers
+    /// without waiting on anything else.
+    fn run_tasks(&self) {
+        let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+        loop {
+            let tasks = std::mem::take(&mut *self.tasks.borrow_mut());
+            if tasks.is_empty() {
+                return;
+            }
+            for mut t in tasks {
+                while t.as_mut().poll(&mut cx).is_pending() {}
+            }
+        }
+    }
+}
+
+impl Platform for TestPlatform {
+    type Worker = TestWorker;
+
+    fn spawn(&self, task: Task) {
+        self.tasks.borrow_mut().push(task);
+    }
+
+    fn fetch(&self, url: &str) -> Fetching {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(url);
+        let url = url.to_string();
+        Box::pin(async move { std::fs::read(path).map_err(|e| format!("{url}: {e}")) })
+    }
+
+    fn fragment(&self) -> String {
+        self.fragment.borrow().clone()
+    }
+
+    fn set_fragment(&self, fragment: &str) {
+        *self.fragment.borrow_mut() = fragment.to_string();
+        self.fragments_written.set(self.fragments_written.get() + 1);
+    }
+
+    fn address(&self) -> String {
+        "http://localhost:8080/".into()
+    }
+
+    fn warn(&self, note: &str) {
+        self.warnings.borrow_mut().push(note.into());
+    }
+
+    fn download(&self, name: &str, bytes: &[u8], _mime: &str) -> Result<(), String> {
+        self.downloads.borrow_mut().push((name.into(), bytes.len()));
+        Ok(())
+    }
+
+    fn pick_sketch(&self, slot: SketchSlot) -> Result<(), String> {
+        *slot.borrow_mut() = Some(Err("no file in this test".into()));
+        Ok(())
+    }
+}
+
+/// A page opened at `fragment` on the test platform, with a worker thread and no GPU.
+fn page(fragment: &str) -> (PageShell<TestPlatform>, Rc<TestPlatform>, Rc<Runners<TestWorker>>) {
+    let platform = Rc::new(TestPlatform::default());
+    *platform.fragment.borrow_mut() = fragment.into();
+    let worker = Rc::new(TestWorker { runner: NativeRunner::spawn(1), dead: RefCell::new(None), calls_when_dead: Cell::new(0) });
+    let runners = Rc::new(Runners::new(Some(worker), None));
+    let (share, message) = PageCore::opening_view(None, fragment, None);
+    let start = PageStart { tem: TemChoice::Auto, gpu: Err("no GPU in this test".into()), software_adapter: false, worker: Ok(()), status: String::new() };
+    let mut core = PageCore::new(share.clone(), start).opened_at(fragment.to_string());
+    core.message = core.message.take().or(message);
+    let shell = PageShell::new(core, platform.clone(), runners.clone(), share, Environment::default());
+    (shell, platform, runners)
+}
+
+/// Draws `n` frames of 1280×800 points, running the tasks each frame spawned.
+fn frames(shell: &mut PageShell<TestPlatform>, platform: &TestPlatform, ctx: &egui::Context, n: usize) {
+    for _ in 0..n {
+        let input = egui::RawInput { screen_rect: Some(egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1280.0, 800.0))), ..Default::default() };
+        // No renderer here takes the font atlas: its upload is dropped on purpose.
+        ctx.run_ui(input, |ui| shell.frame(ui, None)).textures_delta.clear();
+        platform.run_tasks();
+    }
+}
+
+/// Opened at the default view, the shell's frames load the learned world's models through the
+/// platform's fetches, have its tiles made on the worker thread, answer the tile probe with the
+/// tile's 32² heights as the core holds them, write the view into the address bar and publish
+/// statistics JSON that names the learned source.
+#[test]
+fn frames_load_the_learned_world_make_its_tiles_and_write_the_link() {
+    let (mut shell, platform, _runners) = page("");
+    let ctx = egui::Context::default();
+    shell.probes.borrow_mut().tile = (Some(TileCoord::new(0, 0)), None);
+    for _ in 0..200 {
+        frames(&mut shell, &platform, &ctx, 1);
+        if shell.probes.borrow().tile.1.is_some() {
+            break;
+        }
+    }
+    let probe = shell.probes.borrow().tile.1.clone().expect("the probed tile arrived within 200 frames");
+    let n = crate::grid::coord::TILE_SAMPLES;
+    assert_eq!(probe.len(), n * n);
+    assert_eq!(Some(probe.as_slice()), shell.core.app.tile_heights(TileCoord::new(0, 0)));
+    let stats: serde_json::Value = serde_json::from_str(&shell.probes.borrow().stats_json).unwrap();
+    assert!(stats["source"].as_str().unwrap().starts_with("learned (TCM "), "{}", stats["source"]);
+    assert!(stats["stats"]["tiles_generated"].as_u64().unwrap() >= 1);
+    assert!(platform.fragment().contains("seed="), "{}", platform.fragment());
+    assert!(platform.fragments_written.get() >= 1);
+    assert!(shell.core.message.is_none(), "{:?}", shell.core.message);
+}
+
+/// A fragment the user types into the address bar is followed on the next frame (the world's
+/// seed changes to the typed one), and a worker found dead between frames is noticed without
+/// any request: the core falls back to the procedural world and says so.
+#[test]
+fn a_typed_fragment_is_followed_and_a_dead_worker_is_noticed_between_frames() {
+    let (mut shell, platform, runners) = page("");
+    let ctx = egui::Context::default();
+    frames(&mut shell, &platform, &ctx, 3);
+    let mut typed = shell.core.app.share_state();
+    typed.seed = 4242;
+    *platform.fragment.borrow_mut() = typed.to_fragment();
+    frames(&mut shell, &platform, &ctx, 1);
+    assert_eq!(shell.core.app.settings().seed, 4242);
+    *runners.worker.as_ref().unwrap().dead.borrow_mut() = Some("the test stopped it".into());
+    frames(&mut shell, &platform, &ctx, 2);
+    assert_eq!(runners.worker.as_ref().unwrap().calls_when_dead.get(), 0, "noticed before any request was posted to it");
+    assert!(shell.core.worker().is_err());
+    assert_eq!(shell.core.app.source(), crate::world::SourceKind::Procedural);
+    let message = shell.core.message.clone().unwrap_or_default();
+    assert!(message.contains("the test stopped it"), "{message}");
+}
