@@ -137,7 +137,7 @@ pub fn enhance(
             if jobs.len() != chunk.len() {
                 return Err(EnhanceError::Refine { level, reason: format!("{} patches could not be started", chunk.len() - jobs.len()) });
             }
-            done += run_blocking(&mut store, tem, jobs).map_err(|reason| EnhanceError::Refine { level, reason })?;
+            done += run_blocking(&mut store, tem, jobs, |_| true).map_err(|reason| EnhanceError::Refine { level, reason })?;
             progress(level, done, total);
         }
         if level > first {

@@ -24,9 +24,9 @@ use crate::share::ShareState;
 use crate::sketch::canvas::Canvas;
 use crate::sketch::{SKETCH_PX, Sketch};
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
-use crate::world::refine::{INPUT_SIDE, PatchKey, PatchStore, RefineJob};
+use crate::world::refine::{PatchKey, PatchStore, RefineJob};
 use crate::world::sketched::SketchSource;
-use crate::world::{ProceduralSource, SourceKind, TILE_SAMPLES, TILE_SIZE_M, Tile, TileCoord, TileSource, WorldStream};
+use crate::world::{ProceduralSource, SourceKind, TILE_SIZE_M, TileCoord, TileSource, WorldStream};
 
 /// Milliseconds per frame that tile generation may use at least before it waits for the next
 /// frame. When frames are slow for other reasons (a busy GPU), the budget grows to a quarter of
@@ -39,9 +39,7 @@ pub const TILE_BUDGET_MS: f64 = 4.0;
 /// the page's 50 ms main-thread goal (at 40 ms the worst frame's tiles took 52 ms).
 pub const TILE_BUDGET_MAX_MS: f64 = 25.0;
 
-/// Learned-world tiles in flight at most (the worker makes them one after the other; a second
-/// one waiting means it never idles between replies).
-pub const TILE_JOBS_IN_FLIGHT: usize = 2;
+pub use crate::world::stream::TILE_JOBS_IN_FLIGHT;
 
 /// Quadtree nodes built per frame at most (each is a 35² gather plus a mesh upload).
 pub const NODE_BUILD_BUDGET: usize = 24;
@@ -73,10 +71,6 @@ pub struct TerrainApp {
     settings: ShareState,
     world: WorldStream,
     learned: LearnedStatus,
-    /// The learned world's tile jobs. Its epoch counts the worlds this app has shown: every
-    /// new world gets a new epoch, and results of jobs (tiles and TEM batches) made for an
-    /// older one are dropped.
-    tile_jobs: JobQueue<TileCoord>,
     /// Whether procedural tiles are made by whoever takes [`TerrainApp::tile_jobs`] (the page's
     /// CPU worker) instead of here, within each frame's time budget.
     procedural_elsewhere: bool,
@@ -131,7 +125,6 @@ impl TerrainApp {
             settings: s.clone(),
             world,
             learned,
-            tile_jobs: JobQueue::new(TILE_JOBS_IN_FLIGHT),
             procedural_elsewhere: false,
             nodes: NodeCache::new(),
             refine: PatchStore::new(0, 0),
@@ -218,9 +211,11 @@ impl TerrainApp {
 
     /// A fresh world whose epoch is at least `epoch`.
     fn new_world_from(&mut self, epoch: u64) {
-        self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere);
+        // Every new world gets a new epoch (after `epoch`): results of jobs (tiles, TEM
+        // batches) made for an older one are dropped.
+        let epoch = self.world.epoch().max(epoch.saturating_sub(1)) + 1;
+        self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere).at_epoch(epoch);
         self.nodes = NodeCache::new();
-        let epoch = self.tile_jobs.new_epoch_from(epoch);
         self.refine = PatchStore::new(0, epoch);
     }
 
@@ -325,26 +320,18 @@ impl TerrainApp {
             return Vec::new();
         }
         let eye = self.camera.position_m;
-        self.tile_jobs.start(self.world.missing(eye.x, eye.z))
+        self.world.start_jobs(eye.x, eye.z)
     }
 
     /// A tile came back: `heights` (metres, [`TILE_SAMPLES`]² row-major) made in `ms`
     /// milliseconds. Kept if it belongs to the world shown now; returns whether it was.
     pub fn tile_done(&mut self, job: &Job<TileCoord>, heights: Vec<f32>, ms: f64) -> bool {
-        if heights.len() != TILE_SAMPLES * TILE_SAMPLES || heights.iter().any(|h| !h.is_finite()) {
-            self.tile_jobs.fail(job);
-            return false;
-        }
-        if self.tile_jobs.finish(job) == Outcome::Stale {
-            return false;
-        }
-        self.world.insert(Tile::new(job.key, heights), ms);
-        true
+        self.world.finish(job, heights, ms)
     }
 
     /// A tile could not be made: it may be asked for again.
     pub fn tile_failed(&mut self, job: &Job<TileCoord>) {
-        self.tile_jobs.fail(job);
+        self.world.fail(job);
     }
 
     /// The sketch generator is ready (its weights' hash), loading, or failed (then the sketch
@@ -430,7 +417,7 @@ impl TerrainApp {
 
     /// The epoch of the world shown now (see [`RefineJob::epoch`]).
     pub fn epoch(&self) -> u64 {
-        self.tile_jobs.epoch()
+        self.world.epoch()
     }
 
     /// Current statistics.
@@ -512,7 +499,7 @@ impl TerrainApp {
         self.stats.patches_cached = rs.cached;
         self.stats.refine_backend = self.refine_backend.clone().unwrap_or_default();
         self.stats.source = self.source().label().into();
-        self.stats.tile_jobs = self.tile_jobs.stats();
+        self.stats.tile_jobs = self.world.job_stats();
         self.stats.eye_m = eye.to_array();
         let sum = tiles.iter().filter_map(|&c| self.world.get(c)).fold(0u64, |acc, t| acc.wrapping_add(mix64(t.checksum ^ tile_seed(0, t.coord))));
         self.stats.view_checksum = format!("{sum:016x}");
@@ -562,32 +549,8 @@ impl TerrainApp {
     /// of the wrong size or with a height that is not finite is dropped (its patches may be
     /// asked for again) and the error says so.
     pub fn refine_done(&mut self, epoch: u64, keys: &[PatchKey], raw: &[f32], ms: f64) -> Result<(), String> {
-        let per = (2 * INPUT_SIDE).pow(2);
-        let current = self.epoch();
-        if epoch == current && raw.len() != per * keys.len() {
-            self.refine.abandon(keys);
-            return Err(format!("the TEM returned {} heights for {} patches of {per}", raw.len(), keys.len()));
-        }
-        let bad = raw.iter().filter(|h| !h.is_finite()).count();
-        if epoch == current && bad > 0 {
-            // Not one patch of the batch is kept: a model that makes NaN or infinity somewhere
-            // is not trusted anywhere in the batch.
-            self.refine.abandon(keys);
-            return Err(format!("the TEM returned {bad} heights that are not finite numbers; the batch was dropped"));
-        }
-        if epoch == current {
-            self.refine.count_batch();
-        }
-        for (i, k) in keys.iter().enumerate() {
-            // Patches of tiles that left during inference are not kept.
-            let raw = raw.get(i * per..(i + 1) * per).unwrap_or(&[]);
-            if epoch != current || self.world.contains(k.tile()) {
-                self.refine.complete(epoch, *k, raw, ms / keys.len() as f64);
-            } else {
-                self.refine.abandon(&[*k]);
-            }
-        }
-        Ok(())
+        let world = &self.world;
+        self.refine.complete_batch(epoch, keys, raw, ms, |t| world.contains(t)).map(|_| ())
     }
 
     /// Forgets jobs of world `epoch` whose inference failed, so they can be asked for again.
@@ -603,26 +566,16 @@ impl TerrainApp {
     }
 
     /// Runs up to `max` TEM jobs now on `tem` (blocking; native) and stores them through
-    /// [`refine_done`](Self::refine_done), the completion path the page's batches take.
+    /// [`PatchStore::complete_batch`], the completion path the page's batches take too.
     /// Returns how many patches were made.
     #[cfg(not(target_arch = "wasm32"))]
     pub fn refine_blocking(&mut self, tem: &crate::models::tem::TemSet, max: usize) -> Result<usize, String> {
-        let jobs = self.refine_jobs(max);
-        let Some(first) = jobs.first() else { return Ok(0) };
-        let (level, epoch) = (first.key.level as usize, first.epoch);
-        let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
-        let t = web_time::Instant::now();
-        match tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE) {
-            Ok(raw) => {
-                let before = self.refine.stats().quads_made;
-                self.refine_done(epoch, &keys, &raw, t.elapsed().as_secs_f64() * 1e3)?;
-                Ok((self.refine.stats().quads_made - before) as usize)
-            }
-            Err(e) => {
-                self.refine_failed(epoch, &keys);
-                Err(e)
-            }
+        if self.refine_backend.is_none() {
+            return Ok(0);
         }
+        let jobs = self.refine.next_jobs(&self.world, max);
+        let world = &self.world;
+        crate::world::refine::run_blocking(&mut self.refine, tem, jobs, |t| world.contains(t))
     }
 
     /// Autopilot: fly level along the heading at the link's speed, following the terrain

@@ -14,8 +14,8 @@ use glam::DVec3;
 use super::loads::{Load, LoadError, Loads, ModelSet, notice, reason};
 use super::{LearnedStatus, REFINE_BATCH, TerrainApp};
 use crate::grid::TileCoord;
-use crate::jobs::Job;
 use crate::jobs::protocol::{Answer, Envelope, Reply, Request, SketchBytes};
+use crate::jobs::{Job, JobQueue, Outcome};
 use crate::models::runtime::{self, Backend, CpuReason, TemChoice};
 use crate::share::ShareState;
 use crate::sketch::{SKETCH_PX, Sketch};
@@ -82,6 +82,13 @@ enum For {
     Tile(Job<TileCoord>),
     Tem { epoch: u64, keys: Vec<PatchKey> },
     Sketch(Job<u64>, Target),
+    Variants(Job<SketchEdit>),
+    Blend(Job<SketchEdit>),
+}
+
+/// An edit of the canvas's sketch made by the sketch VAE: at most one of each in flight.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum SketchEdit {
     Variants,
     Blend,
 }
@@ -154,6 +161,8 @@ pub struct PageCore {
     last_eye: Option<(DVec3, f64)>,
     last_main_quad_ms: f64,
     pending_blend: Option<(Sketch, Sketch, f32)>,
+    /// The variants and the blend in flight.
+    edits: JobQueue<SketchEdit>,
     /// The fragment in the address bar as last read or written, and when it was written.
     link: (String, f64),
 }
@@ -199,6 +208,7 @@ impl PageCore {
             last_eye: None,
             last_main_quad_ms: f64::NEG_INFINITY,
             pending_blend: None,
+            edits: JobQueue::new(2),
             link: (String::new(), f64::NEG_INFINITY),
         };
         if let Err(why) = core.worker.clone() {
@@ -452,27 +462,35 @@ impl PageCore {
                 self.app.sketch_failed(&job);
                 self.message = Some(format!("The sketch could not be made into terrain: {}", failed(&r).unwrap_or_else(|| format!("an unexpected reply {r:?}"))));
             }
-            (For::Variants, Reply::Sketches { sketches, heights, .. }) => match pair_up(&sketches, heights) {
+            (For::Variants(job), Reply::Sketches { sketches, heights, .. }) if self.edits.finish(&job) == Outcome::Accepted => match pair_up(&sketches, heights) {
                 Ok(v) => self.variants = Some(v),
                 Err(e) => self.message = Some(format!("No variants: {e}")),
             },
-            (For::Variants, r) => self.message = Some(format!("No variants: {}", failed(&r).unwrap_or_default())),
-            (For::Blend, Reply::Sketches { sketches, heights, .. }) => match pair_up(&sketches, heights).map(|mut v| v.pop()) {
-                Ok(Some((s, _))) => {
-                    self.blends += 1;
-                    self.app.canvas.load(s);
+            (For::Variants(job), r) => {
+                self.edits.fail(&job);
+                self.message = Some(format!("No variants: {}", failed(&r).unwrap_or_default()));
+            }
+            (For::Blend(job), Reply::Sketches { sketches, heights, .. }) if self.edits.finish(&job) == Outcome::Accepted => {
+                match pair_up(&sketches, heights).map(|mut v| v.pop()) {
+                    Ok(Some((s, _))) => {
+                        self.blends += 1;
+                        self.app.canvas.load(s);
+                    }
+                    Ok(None) => self.message = Some("No blend: the reply has no sketch".into()),
+                    Err(e) => self.message = Some(format!("No blend: {e}")),
                 }
-                Ok(None) => self.message = Some("No blend: the reply has no sketch".into()),
-                Err(e) => self.message = Some(format!("No blend: {e}")),
-            },
-            (For::Blend, r) => self.message = Some(format!("No blend: {}", failed(&r).unwrap_or_default())),
+            }
+            (For::Blend(job), r) => {
+                self.edits.fail(&job);
+                self.message = Some(format!("No blend: {}", failed(&r).unwrap_or_default()));
+            }
             (For::File { .. }, _) => {}
         }
     }
 
     /// Variants or a blend are being made.
     pub fn sketch_busy(&self) -> bool {
-        self.waiting.values().any(|w| matches!(w, For::Variants | For::Blend))
+        self.edits.stats().in_flight > 0
     }
 
     /// Asks for four variants of the canvas's sketch (the VAE, in the CPU worker).
@@ -481,9 +499,11 @@ impl PageCore {
             self.message = Some("Variants need the sketch models, which are not ready.".into());
             return;
         }
+        // Asked again while they are being made: the ones on their way come.
+        let Some(job) = self.edits.start([SketchEdit::Variants]).pop() else { return };
         let sketch = SketchBytes::from(self.app.canvas.sketch());
         let seed = self.app.stats().sketch_revision;
-        self.post(Target::Worker, 0, Request::Variants { sketch, n: 4, seed }, For::Variants);
+        self.post(Target::Worker, 0, Request::Variants { sketch, n: 4, seed }, For::Variants(job));
     }
 
     /// Asks for the blend α·a + (1 − α)·b; while another is being made the latest asked wins.
@@ -580,8 +600,9 @@ impl PageCore {
         }
         if !self.sketch_busy()
             && let Some((a, b, alpha)) = self.pending_blend.take()
+            && let Some(job) = self.edits.start([SketchEdit::Blend]).pop()
         {
-            self.post(Target::Worker, 0, Request::Blend { a: (&a).into(), b: (&b).into(), alpha }, For::Blend);
+            self.post(Target::Worker, 0, Request::Blend { a: (&a).into(), b: (&b).into(), alpha }, For::Blend(job));
         }
         self.start_sketch_jobs();
     }

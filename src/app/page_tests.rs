@@ -163,8 +163,8 @@ fn without_a_worker_the_world_is_procedural_and_the_tem_runs_on_the_main_thread(
 }
 
 /// The sketch world: its models load when it is first shown, the canvas's sketch becomes
-/// terrain in the worker, variants come back as four sketches with terrains, and a blend is
-/// drawn on the canvas.
+/// terrain in the worker, variants (asked for twice while in flight: posted once) come back as
+/// four sketches with terrains, and a blend is drawn on the canvas.
 #[test]
 fn the_sketch_world_loads_its_models_and_makes_terrain_variants_and_blends() {
     let mut core = PageCore::new(ShareState { source: SourceKind::Sketch, ..ShareState::default() }, start(Ok(())));
@@ -173,7 +173,11 @@ fn the_sketch_world_loads_its_models_and_makes_terrain_variants_and_blends() {
     assert!(core.loads.sketch.is_ready(), "{:?}", core.loads.sketch);
     assert_eq!(core.app.stats().sketch_shown, core.app.canvas.revision() + 1);
     core.ask_variants();
+    core.ask_variants();
+    assert!(core.sketch_busy());
+    assert_eq!(core.in_flight(), 1, "variants asked for twice while in flight are posted once");
     shell.carry_out(&mut core);
+    assert!(!core.sketch_busy());
     let v = core.variants.take().expect("variants");
     assert_eq!(v.len(), 4);
     assert!(v.iter().all(|(_, h)| h.len() == SKETCH_PX * SKETCH_PX));

@@ -1,6 +1,8 @@
 //! Tests of the application core.
 
 use super::*;
+use crate::world::refine::INPUT_SIDE;
+use crate::world::{TILE_SAMPLES, Tile};
 
 /// Settings of a procedural world of `radius` tiles (the tests below stream it here, on
 /// this thread).
@@ -223,11 +225,11 @@ fn learned_tiles_arrive_as_jobs_and_stale_ones_are_dropped() {
     assert!(!old.is_empty());
     app.apply_settings(ShareState { seed: 99, ..app.settings().clone() });
     assert!(!app.tile_done(&old[0], fake_tile(old[0].key), 5.0), "stale tile landed");
-    assert_eq!(app.tile_jobs.stats().stale, 1);
+    assert_eq!(app.world.job_stats().stale, 1);
     let new = app.tile_jobs();
     assert!(!app.tile_done(&new[0], vec![f32::NAN; TILE_SAMPLES * TILE_SAMPLES], 5.0), "NaN heights refused");
     assert!(!app.tile_done(&new[1], vec![0.0; 3], 5.0), "a short tile refused");
-    assert_eq!(app.tile_jobs.stats().failed, 2);
+    assert_eq!(app.world.job_stats().failed, 2);
     assert!(!app.world.contains(new[0].key) && !app.world.contains(old[0].key));
 }
 

@@ -64,12 +64,16 @@ impl<K: Copy + Eq + Hash> JobQueue<K> {
         Self { epoch: 0, in_flight: HashMap::new(), budget: budget.max(1), stats: JobStats::default() }
     }
 
+    /// A queue of world `epoch` that keeps at most `budget` jobs in flight (at least 1).
+    pub fn at_epoch(budget: usize, epoch: u64) -> Self {
+        Self { epoch, ..Self::new(budget) }
+    }
+
     /// The current world epoch.
     pub fn epoch(&self) -> u64 {
         self.epoch
     }
 
-    /// A new world: every job in flight becomes stale; returns the new epoch.
     /// A new world whose epoch is at least `epoch` (a later world of the same runners must
     /// never reuse an earlier one's epochs); returns the new epoch.
     pub fn new_epoch_from(&mut self, epoch: u64) -> u64 {

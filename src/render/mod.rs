@@ -1,6 +1,7 @@
 //! Rendering: camera and controls, node meshes, and the wgpu renderer (WGSL in `shaders/`).
 
 pub mod camera;
+pub mod device;
 pub mod gpu;
 pub mod mesh;
 pub mod pacing;

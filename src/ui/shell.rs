@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering::SeqCst};
 
 use crate::app::MESH_KEEP_FRAMES;
-use crate::app::page::{Delivery, Effect, PageCore, Target};
+use crate::app::page::{Delivery, Effect, PageCore, PageStart, Target};
 use crate::app::runners::{Port, Runners};
 use crate::grid::TileCoord;
 use crate::render::gpu::TerrainRenderer;
@@ -135,6 +135,17 @@ impl<P: Platform> PageShell<P> {
             link_too_long: 0,
             import: Rc::default(),
         }
+    }
+
+    /// The page on `platform` as it opens: at the view of the address bar's fragment, or at
+    /// `restart`'s view (with its note) after a lost device, with what the platform found at
+    /// start-up and a notice about the page's options, if any.
+    pub fn open(platform: Rc<P>, runners: Rc<Runners<P::Worker>>, start: PageStart, restart: Option<(ShareState, String)>, notice: Option<String>, env: Environment) -> Self {
+        let fragment = platform.fragment();
+        let (share, message) = PageCore::opening_view(restart, &fragment, notice);
+        let mut core = PageCore::new(share.clone(), start).opened_at(fragment);
+        core.message = core.message.take().or(message);
+        Self::new(core, platform, runners, share, env)
     }
 
     /// The page clock (ms since the shell started).

@@ -8,18 +8,18 @@ mod hooks;
 mod shell;
 mod worker;
 
-use std::cell::{Cell, RefCell};
+use std::cell::RefCell;
 use std::rc::Rc;
-use std::sync::atomic::AtomicU32;
 use std::sync::atomic::Ordering::SeqCst;
 
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 
-use crate::app::page::{PageCore, PageStart};
+use crate::app::page::PageStart;
 use crate::app::runners::Port;
 use crate::jobs::gpu::GpuRunner;
 use crate::models;
+use crate::render::device::{self, DeviceWatch, Opened};
 use crate::share::{PageOptions, ShareState};
 use crate::ui::Environment;
 use crate::ui::shell::PageShell;
@@ -32,15 +32,10 @@ thread_local! {
     static DEVICE: RefCell<Option<wgpu::Device>> = const { RefCell::new(None) };
     /// The CPU worker (kept across device restarts), or why there is none.
     static WORKER: RefCell<Option<Result<Rc<worker::CpuWorker>, String>>> = const { RefCell::new(None) };
-    /// How many times the page replaced a lost GPU device.
-    static RESTARTS: Cell<u32> = const { Cell::new(0) };
 }
 
-/// The generation of the page's current GPU device (1 for the first, +1 per replacement).
-static DEVICE_GEN: AtomicU32 = AtomicU32::new(0);
-/// The generation of a device that was lost; the next frame then starts the page again on a
-/// new device, keeping the view. A late notice about an older device changes nothing.
-static LOST_DEVICE: AtomicU32 = AtomicU32::new(0);
+/// The page's devices and their loss.
+static DEVICES: DeviceWatch = DeviceWatch::new();
 
 /// The page's runners: the CPU worker, the GPU and the main thread.
 type Runners = crate::app::runners::Runners<worker::CpuWorker>;
@@ -49,20 +44,12 @@ type Runners = crate::app::runners::Runners<worker::CpuWorker>;
 /// page recovers); `false` if there is none.
 #[wasm_bindgen]
 pub fn terrain_lose_device() -> bool {
-    DEVICE.with(|d| match d.borrow().as_ref() {
-        Some(device) => {
-            LOST_DEVICE.store(DEVICE_GEN.load(SeqCst), SeqCst);
-            device.destroy();
-            true
-        }
-        None => false,
-    })
+    DEVICE.with(|d| d.borrow().as_ref().inspect(|_| DEVICES.lose_current()).map(|d| d.destroy()).is_some())
 }
 
 /// Replaces the lost device: stops the old renderer and starts the page again at `state`.
 async fn restart(state: ShareState, why: String) {
     RUNNER.with(|r| r.borrow_mut().take()).inspect(|r| r.destroy());
-    RESTARTS.set(RESTARTS.get() + 1);
     let note = format!("The GPU device was lost ({why}); the page started a new one and kept the view.");
     if let Err(e) = run(Some((state, note))).await {
         show_page_message(&format!("The GPU device was lost and a new one could not be started: {e}"));
@@ -175,20 +162,9 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     if gpu.is_undefined() || gpu.is_null() {
         return Err(NO_WEBGPU.into());
     }
-    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-    desc.backends = wgpu::Backends::BROWSER_WEBGPU;
-    let instance = wgpu::Instance::new(desc);
-    let adapter = instance
-        .request_adapter(&wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() })
-        .await
-        .map_err(|e| format!("{NO_WEBGPU} ({e})"))?;
-    let features = adapter.features().difference(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
-    let (device, queue) = adapter
-        .request_device(&wgpu::DeviceDescriptor { label: Some("terrain"), required_features: features, required_limits: adapter.limits(), ..Default::default() })
-        .await
-        .map_err(|e| format!("Could not open the GPU device: {e}"))?;
-    let generation = DEVICE_GEN.fetch_add(1, SeqCst) + 1;
-    device.set_device_lost_callback(move |_, _| LOST_DEVICE.store(generation, SeqCst));
+    let Opened { instance, adapter, device, queue } = device::open(wgpu::Backends::BROWSER_WEBGPU).await.map_err(|e| format!("{NO_WEBGPU} ({e})"))?;
+    let generation = DEVICES.new_device();
+    device.set_device_lost_callback(move |_, _| DEVICES.lost(generation));
     DEVICE.with(|d| *d.borrow_mut() = Some(device.clone()));
     let info = adapter.get_info();
     let label = [&info.name, &info.driver, &info.driver_info].into_iter().find(|s| !s.is_empty()).cloned().unwrap_or_else(|| "browser adapter".into());
@@ -212,8 +188,6 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
         status: burn.as_ref().map(|b| b.1.clone()).unwrap_or_default(),
     };
     let runners = Rc::new(Runners::new(worker.ok(), burn.ok().map(|b| GpuRunner::new(b.0))));
-    let hash = location_hash();
-    let (share, message) = PageCore::opening_view(restart, &hash, options_notice);
     let options = eframe::WebOptions {
         wgpu_options: eframe::egui_wgpu::WgpuConfiguration {
             wgpu_setup: eframe::egui_wgpu::WgpuSetup::Existing(eframe::egui_wgpu::WgpuSetupExisting { instance, adapter, device, queue }),
@@ -224,11 +198,9 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     let web_runner = eframe::WebRunner::new();
     let app = Box::new(move |cc: &eframe::CreationContext<'_>| -> Result<Box<dyn eframe::App>, Box<dyn std::error::Error + Send + Sync>> {
         cc.wgpu_render_state.as_ref().ok_or("eframe started without wgpu")?;
-        let mut core = PageCore::new(share.clone(), start).opened_at(hash);
-        core.message = core.message.take().or(message);
         let env = Environment { adapter: adapter_name, software_adapter: software, ..Default::default() };
-        let mut page = PageShell::new(core, Rc::new(shell::WebPlatform), runners.clone(), share, env);
-        page.device_restarts = RESTARTS.get();
+        let mut page = PageShell::open(Rc::new(shell::WebPlatform), runners.clone(), start, restart, options_notice, env);
+        page.device_restarts = DEVICES.restarts();
         hooks::PROBES.with(|p| *p.borrow_mut() = Some((page.probes.clone(), runners.clone())));
         Ok(Box::new(shell::WebApp(page)))
     });

@@ -3,12 +3,10 @@
 //! [`PageShell`] each frame, after the checks only a page has (paused by its test; its GPU
 //! device lost).
 
-use std::sync::atomic::Ordering::SeqCst;
-
 use wasm_bindgen::prelude::*;
 
 use super::worker::CpuWorker;
-use super::{DEVICE_GEN, LOST_DEVICE, files, hooks, location_hash};
+use super::{DEVICES, files, hooks, location_hash};
 use crate::ui::shell::{Fetching, PageShell, Platform, SketchSlot, Task, ViewGpu};
 
 /// A web page as the shell's platform.
@@ -63,12 +61,8 @@ impl eframe::App for WebApp {
             hooks::CONTEXT.with(|c| *c.borrow_mut() = Some(ui.ctx().clone()));
             return;
         }
-        let generation = DEVICE_GEN.load(SeqCst);
-        if LOST_DEVICE.load(SeqCst) == generation {
-            // Only the first frame after the loss starts the replacement.
-            if LOST_DEVICE.compare_exchange(generation, 0, SeqCst, SeqCst).is_ok() {
-                wasm_bindgen_futures::spawn_local(super::restart(self.0.core.app.share_state(), "device lost".into()));
-            }
+        if DEVICES.take_loss() {
+            wasm_bindgen_futures::spawn_local(super::restart(self.0.core.app.share_state(), "device lost".into()));
             return;
         }
         let Some(rs) = frame.wgpu_render_state() else { return };

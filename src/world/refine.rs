@@ -20,6 +20,7 @@ use std::sync::Arc;
 
 use super::stream::WorldStream;
 use crate::grid::coord::TileCoord;
+use crate::jobs::{Job, JobQueue, Outcome};
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, QUAD, RECEPTIVE_OUT_PX};
 
 /// Margin (pixels) kept around a stored patch's core and read around a quadrant. It must
@@ -139,11 +140,11 @@ impl RefineStats {
 /// jobs in flight.
 pub struct PatchStore {
     first_level: usize,
-    epoch: u64,
     patches: HashMap<PatchKey, Arc<Vec<f32>>>,
     /// Patch → smallest priority asked for it since the requests were last taken.
     requests: HashMap<PatchKey, f64>,
-    in_flight: HashSet<PatchKey>,
+    /// The jobs in flight, of the store's world epoch.
+    jobs: JobQueue<PatchKey>,
     stats: RefineStats,
 }
 
@@ -151,17 +152,18 @@ impl PatchStore {
     /// An empty store of world `epoch` whose first level reads a [`RefineInput`] (level 0
     /// reads the 32 m world; the CLI may start lower for finer input).
     pub fn new(first_level: usize, epoch: u64) -> Self {
-        Self { first_level: first_level.min(LEVELS - 1), epoch, patches: HashMap::new(), requests: HashMap::new(), in_flight: HashSet::new(), stats: RefineStats::default() }
+        let jobs = JobQueue::at_epoch(usize::MAX, epoch);
+        Self { first_level: first_level.min(LEVELS - 1), patches: HashMap::new(), requests: HashMap::new(), jobs, stats: RefineStats::default() }
     }
 
     /// The world epoch its jobs are tagged with.
     pub fn epoch(&self) -> u64 {
-        self.epoch
+        self.jobs.epoch()
     }
 
     /// Counters.
     pub fn stats(&self) -> RefineStats {
-        RefineStats { cached: self.patches.len(), in_flight: self.in_flight.len(), requests: self.requests.len(), ..self.stats }
+        RefineStats { cached: self.patches.len(), in_flight: self.jobs.stats().in_flight, requests: self.requests.len(), ..self.stats }
     }
 
     /// The stored patch `key` (STORED_SIDE² metres: the core at offset PATCH_MARGIN).
@@ -201,19 +203,17 @@ impl PatchStore {
             while key.level as usize > self.first_level && !self.patches.contains_key(&key.parent()) {
                 key = key.parent();
             }
-            if (key.level as usize) < self.first_level || self.patches.contains_key(&key) || self.in_flight.contains(&key) || !seen.insert(key) {
+            if (key.level as usize) < self.first_level || self.patches.contains_key(&key) || self.jobs.is_in_flight(&key) || !seen.insert(key) {
                 continue;
             }
             if jobs.first().is_some_and(|j| j.key.level != key.level) {
                 continue;
             }
             if let Some(inp) = self.input_for(key, input) {
-                jobs.push(RefineJob { key, input: inp, epoch: self.epoch });
+                jobs.push(RefineJob { key, input: inp, epoch: self.epoch() });
             }
         }
-        for j in &jobs {
-            self.in_flight.insert(j.key);
-        }
+        self.jobs.start(jobs.iter().map(|j| j.key));
         jobs
     }
 
@@ -223,12 +223,12 @@ impl PatchStore {
     pub fn jobs_for(&mut self, keys: &[PatchKey], input: &dyn RefineInput) -> Vec<RefineJob> {
         let mut jobs = Vec::with_capacity(keys.len());
         for &key in keys {
-            if self.patches.contains_key(&key) || self.in_flight.contains(&key) {
+            if self.patches.contains_key(&key) || self.jobs.is_in_flight(&key) {
                 continue;
             }
             if let Some(inp) = self.input_for(key, input) {
-                self.in_flight.insert(key);
-                jobs.push(RefineJob { key, input: inp, epoch: self.epoch });
+                self.jobs.start([key]);
+                jobs.push(RefineJob { key, input: inp, epoch: self.epoch() });
             }
         }
         jobs
@@ -251,41 +251,60 @@ impl PatchStore {
         Some(out)
     }
 
-    /// Stores the result of a job made for `epoch`: `raw` is the model's (2·INPUT_SIDE)²
-    /// output (metres); the patch keeps the core and margin. `ms` is this job's share of the
-    /// batch time. Returns whether it was stored: a result of another epoch (a world that has
-    /// since been replaced) or of the wrong size is dropped.
-    pub fn complete(&mut self, epoch: u64, key: PatchKey, raw: &[f32], ms: f64) -> bool {
-        let side = 2 * INPUT_SIDE;
-        if epoch != self.epoch {
-            self.stats.stale_dropped += 1;
-            return false;
+    /// Stores the results of a batch made for world `epoch`: `raw` is the models' output for
+    /// `keys` in order ((2·INPUT_SIDE)² metres each; a patch keeps its core and margin), `ms`
+    /// the batch's time. This is the one way results come back, whoever made them. A batch of
+    /// an older world is dropped whole (`Ok(0)`); a batch of the wrong size, or with a height
+    /// that is not finite, is dropped whole (its patches may be asked for again) and the error
+    /// says so; patches of tiles that `keep` rejects (they left meanwhile) are forgotten.
+    /// Returns how many patches were stored.
+    pub fn complete_batch(&mut self, epoch: u64, keys: &[PatchKey], raw: &[f32], ms: f64, keep: impl Fn(TileCoord) -> bool) -> Result<usize, String> {
+        let per = (2 * INPUT_SIDE).pow(2);
+        if epoch != self.epoch() {
+            self.stats.stale_dropped += keys.len() as u64;
+            return Ok(0);
         }
-        if raw.len() != side * side {
-            self.in_flight.remove(&key);
-            return false;
+        if raw.len() != per * keys.len() {
+            self.abandon(keys);
+            return Err(format!("the TEM returned {} heights for {} patches of {per}", raw.len(), keys.len()));
         }
-        let o = PATCH_MARGIN;
-        let mut out = Vec::with_capacity(STORED_SIDE * STORED_SIDE);
-        for y in o..o + STORED_SIDE {
-            out.extend_from_slice(&raw[y * side + o..y * side + o + STORED_SIDE]);
+        let bad = raw.iter().filter(|h| !h.is_finite()).count();
+        if bad > 0 {
+            // Not one patch of the batch is kept: a model that makes NaN or infinity somewhere
+            // is not trusted anywhere in the batch.
+            self.abandon(keys);
+            return Err(format!("the TEM returned {bad} heights that are not finite numbers; the batch was dropped"));
         }
-        self.in_flight.remove(&key);
-        self.patches.insert(key, Arc::new(out));
-        self.stats.quads_made += 1;
-        self.stats.inference_ms += ms;
-        true
-    }
-
-    /// Counts one model batch.
-    pub fn count_batch(&mut self) {
         self.stats.batches += 1;
+        let mut stored = 0;
+        for (&key, raw) in keys.iter().zip(raw.chunks_exact(per)) {
+            let job = Job { key, epoch };
+            if !keep(key.tile()) {
+                self.jobs.fail(&job);
+                continue;
+            }
+            if self.jobs.finish(&job) == Outcome::Stale {
+                self.stats.stale_dropped += 1;
+                continue;
+            }
+            let (side, o) = (2 * INPUT_SIDE, PATCH_MARGIN);
+            let mut out = Vec::with_capacity(STORED_SIDE * STORED_SIDE);
+            for y in o..o + STORED_SIDE {
+                out.extend_from_slice(&raw[y * side + o..y * side + o + STORED_SIDE]);
+            }
+            self.patches.insert(key, Arc::new(out));
+            self.stats.quads_made += 1;
+            self.stats.inference_ms += ms / keys.len() as f64;
+            stored += 1;
+        }
+        Ok(stored)
     }
 
     /// Forgets jobs that failed, so they can be asked for again.
     pub fn abandon(&mut self, keys: &[PatchKey]) {
-        for k in keys {
-            self.in_flight.remove(k);
+        let epoch = self.epoch();
+        for &key in keys {
+            self.jobs.fail(&Job { key, epoch });
         }
     }
 
@@ -310,30 +329,22 @@ impl PatchStore {
     }
 }
 
-/// Runs `jobs` (one level) on `tem` now and stores the results in `store` (blocking; native).
-/// Returns how many patches were made; on an error the jobs are forgotten so they can be asked
-/// for again.
+/// Runs `jobs` (one level) on `tem` now and stores the results in `store` through
+/// [`PatchStore::complete_batch`] (blocking; native). Returns how many patches were made; on
+/// an error the jobs are forgotten so they can be asked for again.
 #[cfg(not(target_arch = "wasm32"))]
-pub fn run_blocking(store: &mut PatchStore, tem: &crate::models::tem::TemSet, jobs: Vec<RefineJob>) -> Result<usize, String> {
+pub fn run_blocking(store: &mut PatchStore, tem: &crate::models::tem::TemSet, jobs: Vec<RefineJob>, keep: impl Fn(TileCoord) -> bool) -> Result<usize, String> {
     let Some(first) = jobs.first() else { return Ok(0) };
     let (level, epoch) = (first.key.level as usize, first.epoch);
     let keys: Vec<PatchKey> = jobs.iter().map(|j| j.key).collect();
     let t = web_time::Instant::now();
-    let raw = match tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE) {
-        Ok(raw) => raw,
+    match tem.enhance_blocking(level, jobs.into_iter().flat_map(|j| j.input).collect(), keys.len(), INPUT_SIDE) {
+        Ok(raw) => store.complete_batch(epoch, &keys, &raw, t.elapsed().as_secs_f64() * 1e3, keep),
         Err(e) => {
             store.abandon(&keys);
-            return Err(e);
+            Err(e)
         }
-    };
-    let ms = t.elapsed().as_secs_f64() * 1e3 / keys.len() as f64;
-    let per = (2 * INPUT_SIDE).pow(2);
-    store.count_batch();
-    let mut made = 0;
-    for (i, k) in keys.iter().enumerate() {
-        made += store.complete(epoch, *k, &raw[i * per..(i + 1) * per], ms) as usize;
     }
-    Ok(made)
 }
 
 #[cfg(test)]
@@ -361,7 +372,7 @@ pub(crate) mod tests {
             if jobs.is_empty() {
                 break;
             }
-            run_blocking(store, tem, jobs).unwrap();
+            run_blocking(store, tem, jobs, |_| true).unwrap();
         }
     }
 

@@ -1,5 +1,7 @@
-//! Streaming the world around the camera: which tiles are wanted, generating them (with the
-//! schedule's dependencies) under a time budget per frame, and keeping them in a bounded cache.
+//! Streaming the world around the camera: a base tile's whole life in one place. Tiles are
+//! wanted (near the camera), made here (with the schedule's dependencies, under a time budget
+//! per frame) or as jobs in flight elsewhere ([`WorldStream::start_jobs`] →
+//! [`WorldStream::finish`]), kept in a bounded cache, and evicted farthest first.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -9,6 +11,11 @@ use web_time::Instant;
 use super::tile::{Neighbourhood, Tile, TileSource};
 use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
 use crate::grid::schedule::dependencies;
+use crate::jobs::{Job, JobQueue, JobStats, Outcome};
+
+/// Tile jobs a world made elsewhere keeps in flight at most (the page's worker makes one at a
+/// time; a second waits in its queue so it never idles between replies).
+pub const TILE_JOBS_IN_FLIGHT: usize = 2;
 
 /// Counters of the streamer, shown in the overlay and read by the tests.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -49,6 +56,8 @@ pub struct WorldStream {
     radius_tiles: f64,
     capacity: usize,
     stats: StreamStats,
+    /// Tiles being made elsewhere, tagged with the world's epoch.
+    jobs: JobQueue<TileCoord>,
 }
 
 impl WorldStream {
@@ -67,7 +76,53 @@ impl WorldStream {
 
     fn with_maker(seed: u64, source: Maker, radius_tiles: f64) -> Self {
         let radius_tiles = radius_tiles.clamp(1.0, 32.0);
-        Self { seed, source, tiles: HashMap::new(), radius_tiles, capacity: capacity_for(radius_tiles), stats: StreamStats::default() }
+        let jobs = JobQueue::new(TILE_JOBS_IN_FLIGHT);
+        Self { seed, source, tiles: HashMap::new(), radius_tiles, capacity: capacity_for(radius_tiles), stats: StreamStats::default(), jobs }
+    }
+
+    /// The same world as world `epoch` of its viewer (jobs of other epochs are stale).
+    pub fn at_epoch(mut self, epoch: u64) -> Self {
+        self.jobs = JobQueue::at_epoch(TILE_JOBS_IN_FLIGHT, epoch);
+        self
+    }
+
+    /// The world's epoch.
+    pub fn epoch(&self) -> u64 {
+        self.jobs.epoch()
+    }
+
+    /// Counters of the tile jobs.
+    pub fn job_stats(&self) -> JobStats {
+        self.jobs.stats()
+    }
+
+    /// Starts jobs for the nearest missing tiles around (x, z) metres that are not in flight,
+    /// within [`TILE_JOBS_IN_FLIGHT`]; each must come back through [`finish`](Self::finish)
+    /// or [`fail`](Self::fail).
+    pub fn start_jobs(&mut self, x_m: f64, z_m: f64) -> Vec<Job<TileCoord>> {
+        let missing = self.missing(x_m, z_m);
+        self.jobs.start(missing)
+    }
+
+    /// A job's tile came back: `heights` (metres, [`TILE_SAMPLES`]² row-major) made in `ms`
+    /// milliseconds. Kept if it belongs to this world and is still in flight, and its heights
+    /// are whole and finite (else the job failed: it may be asked for again). Returns whether
+    /// it was kept.
+    pub fn finish(&mut self, job: &Job<TileCoord>, heights: Vec<f32>, ms: f64) -> bool {
+        if heights.len() != TILE_SAMPLES * TILE_SAMPLES || heights.iter().any(|h| !h.is_finite()) {
+            self.jobs.fail(job);
+            return false;
+        }
+        if self.jobs.finish(job) == Outcome::Stale {
+            return false;
+        }
+        self.insert(Tile::new(job.key, heights), ms);
+        true
+    }
+
+    /// A job's tile could not be made: it may be asked for again.
+    pub fn fail(&mut self, job: &Job<TileCoord>) {
+        self.jobs.fail(job);
     }
 
     /// The world's seed.
@@ -170,7 +225,8 @@ impl WorldStream {
     }
 
     /// Takes a tile made elsewhere in `ms` milliseconds (it replaces a cached one of the same
-    /// coordinate). The caller makes sure it belongs to this world (see [`crate::jobs`]).
+    /// coordinate). The caller makes sure it belongs to this world ([`finish`](Self::finish)
+    /// does).
     pub fn insert(&mut self, tile: Tile, ms: f64) {
         self.stats.generate_ms += ms;
         self.stats.generated += 1;

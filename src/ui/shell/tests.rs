@@ -107,11 +107,8 @@ fn page(fragment: &str) -> (PageShell<TestPlatform>, Rc<TestPlatform>, Rc<Runner
     *platform.fragment.borrow_mut() = fragment.into();
     let worker = Rc::new(TestWorker { runner: NativeRunner::spawn(1), dead: RefCell::new(None), calls_when_dead: Cell::new(0) });
     let runners = Rc::new(Runners::new(Some(worker), None));
-    let (share, message) = PageCore::opening_view(None, fragment, None);
     let start = PageStart { tem: TemChoice::Auto, gpu: Err("no GPU in this test".into()), software_adapter: false, worker: Ok(()), status: String::new() };
-    let mut core = PageCore::new(share.clone(), start).opened_at(fragment.to_string());
-    core.message = core.message.take().or(message);
-    let shell = PageShell::new(core, platform.clone(), runners.clone(), share, Environment::default());
+    let shell = PageShell::open(platform.clone(), runners.clone(), start, None, None, Environment::default());
     (shell, platform, runners)
 }
 
