@@ -121,6 +121,13 @@ static NEXT_ID: AtomicU32 = AtomicU32::new(1);
 /// core's (a core restarted after a lost device keeps the worker, which drops older epochs).
 static EPOCH_BLOCKS: AtomicU64 = AtomicU64::new(0);
 
+/// What the page says after a panic on its main thread: that it stopped and why (the first
+/// 300 characters), and that the view is kept in the address bar.
+pub fn stopped_message(why: &str) -> String {
+    let why: String = why.chars().take(300).collect();
+    format!("The page stopped because of an error: {why}. Your view is kept in the address bar; reload to go on.")
+}
+
 /// A new request id (unique in the page).
 pub fn next_id() -> u32 {
     NEXT_ID.fetch_add(1, Ordering::Relaxed).max(1)

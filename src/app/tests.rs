@@ -1,8 +1,8 @@
 //! Tests of the application core.
 
 use super::*;
+use crate::world::TILE_SAMPLES;
 use crate::world::refine::INPUT_SIDE;
-use crate::world::{TILE_SAMPLES, Tile};
 
 /// Settings of a procedural world of `radius` tiles (the tests below stream it here, on
 /// this thread).

@@ -7,6 +7,7 @@
 //! within a budget of jobs in flight. Every job carries the epoch of the world it was made
 //! for; a new world starts a new epoch, and whatever comes back for an older one is dropped.
 
+pub mod calls;
 pub mod gpu;
 #[cfg(not(target_arch = "wasm32"))]
 pub mod native;

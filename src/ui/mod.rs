@@ -64,6 +64,19 @@ impl Environment {
     }
 }
 
+/// The overlay's name of a WebGPU adapter and whether it rasterises on the CPU: the browser's
+/// own description (`adapter.info`'s vendor, architecture and description, joined, and its
+/// `isFallbackAdapter`) where it gives one, else the first of wgpu's names for it (name,
+/// driver, driver info) that is not empty. SwiftShader and llvmpipe are software rasterisers
+/// whatever the browser says.
+pub fn adapter_name(wgpu_names: [&str; 3], browser: Option<(String, bool)>) -> (String, bool) {
+    let label = wgpu_names.into_iter().find(|s| !s.is_empty()).unwrap_or("browser adapter");
+    let (text, fallback) = browser.unwrap_or_default();
+    let lower = text.to_ascii_lowercase();
+    let software = fallback || lower.contains("swiftshader") || lower.contains("llvmpipe");
+    (format!("WebGPU · {}", if text.is_empty() { label } else { &text }), software)
+}
+
 /// The camera input of this frame from egui's pointer, touch and keys over the 3-D view's
 /// response `resp`: two-finger drag moves and pinch zooms, a drag looks, the wheel scrolls,
 /// WASD/arrows/QE/PageUp/PageDown move (unless a text field has the keyboard), Shift boosts.
@@ -335,5 +348,21 @@ impl Overlay {
         }
         self.applied = self.draft.clone();
         Some(self.draft.clone())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The browser's description names the adapter and SwiftShader in it marks a software
+    /// rasteriser; without one, wgpu's first name stands in and nothing is taken for software.
+    #[test]
+    fn the_adapter_is_named_by_the_browser_and_swiftshader_is_software() {
+        let names = ["", "Some driver", "1.2"];
+        assert_eq!(adapter_name(names, Some(("google swiftshader".into(), false))), ("WebGPU · google swiftshader".into(), true));
+        assert_eq!(adapter_name(names, Some(("nvidia ampere".into(), false))), ("WebGPU · nvidia ampere".into(), false));
+        assert_eq!(adapter_name(names, Some(("".into(), true))), ("WebGPU · Some driver".into(), true));
+        assert_eq!(adapter_name(names, None), ("WebGPU · Some driver".into(), false));
     }
 }

@@ -25,8 +25,39 @@ use crate::ui::page::{BrowserAsks, PageUi};
 pub type Task = Pin<Box<dyn Future<Output = ()>>>;
 /// A download's body, or why there is none.
 pub type Fetching = Pin<Box<dyn Future<Output = Result<Vec<u8>, String>>>>;
-/// Where a sketch file the user picked lands once it is read (or why it is not a sketch).
-pub type SketchSlot = Rc<RefCell<Option<Result<Sketch, String>>>>;
+/// Where a file the user picked lands once it is read.
+pub type FileSlot = Rc<RefCell<Option<Picked>>>;
+
+/// A file the user picked: its name and bytes, or why they were not read.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Picked {
+    /// The file's name.
+    pub name: String,
+    /// Its bytes.
+    pub bytes: Result<Vec<u8>, Refused>,
+}
+
+/// Why a picked file's bytes were not read.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Refused {
+    /// It is larger than asked for (its size, bytes): refused before a byte of it is read.
+    TooBig(f64),
+    /// The platform could not read it (why).
+    Unreadable(String),
+}
+
+/// Largest sketch PNG read (bytes): a 256×256 PNG is far smaller.
+pub const MAX_SKETCH_FILE_BYTES: f64 = 2.0 * 1024.0 * 1024.0;
+
+/// The sketch in a picked file, or what to tell the user.
+pub fn sketch_from_file(file: Picked) -> Result<Sketch, String> {
+    let name = file.name;
+    match file.bytes {
+        Ok(bytes) => Sketch::read_png(std::io::Cursor::new(bytes)).map_err(|e| format!("{name}: {e}")),
+        Err(Refused::TooBig(size)) => Err(format!("{name} is {:.1} MB; a sketch PNG (256×256 pixels) is at most 2 MB", size / 1024.0 / 1024.0)),
+        Err(Refused::Unreadable(why)) => Err(format!("{name} could not be read: {why}")),
+    }
+}
 
 /// What the shell needs of the platform it runs on. Everything here only moves bytes.
 pub trait Platform: 'static {
@@ -46,8 +77,9 @@ pub trait Platform: 'static {
     fn warn(&self, note: &str);
     /// Offers `bytes` as a download named `name`.
     fn download(&self, name: &str, bytes: &[u8], mime: &str) -> Result<(), String>;
-    /// Asks the user for a sketch PNG; it lands in `slot`.
-    fn pick_sketch(&self, slot: SketchSlot) -> Result<(), String>;
+    /// Asks the user for a file of type `accept` (e.g. `image/png`); it lands in `slot`,
+    /// unread when it is larger than `max_bytes`.
+    fn pick_file(&self, accept: &str, max_bytes: f64, slot: FileSlot) -> Result<(), String>;
 }
 
 /// The GPU a frame draws the 3-D view with.
@@ -71,6 +103,20 @@ pub struct Probes {
     pub tile: (Option<TileCoord>, Option<Vec<f32>>),
     /// Where the TEM runs now (target, its name, the world epoch), once it is loaded.
     pub tem: Option<(Target, String, u64)>,
+    /// No frame runs while set (a test times CPU work without the rasteriser beside it).
+    pub paused: bool,
+    /// The context of the latest frame, to wake when the pause ends.
+    pub wake: Option<egui::Context>,
+}
+
+impl Probes {
+    /// Pauses the page's frames (`true`) or resumes them.
+    pub fn set_paused(&mut self, paused: bool) {
+        self.paused = paused;
+        if !paused && let Some(ctx) = &self.wake {
+            ctx.request_repaint();
+        }
+    }
 }
 
 /// Most frame intervals kept for the hooks (over half an hour at 60 fps).
@@ -103,8 +149,8 @@ pub struct PageShell<P: Platform> {
     frame_work: VecDeque<[f64; 7]>,
     /// Times "Copy link" found the sketch too detailed for a link and sent it as a file.
     link_too_long: u32,
-    /// A sketch PNG the user opened (or why it could not be read), once it is read.
-    import: SketchSlot,
+    /// A sketch PNG the user opened, once it is read.
+    import: FileSlot,
 }
 
 /// Asks for one more frame. egui answers `request_repaint()` with two; a non-zero delay asks
@@ -135,6 +181,38 @@ impl<P: Platform> PageShell<P> {
             link_too_long: 0,
             import: Rc::default(),
         }
+    }
+
+    /// The page as it starts on `platform`: burn on the GPU (or why not), the adapter's name
+    /// and whether it is a software rasteriser, the CPU worker (or why there is none), the
+    /// page's query (`?tem=`) and, after a lost device, the view to keep and a note.
+    pub fn start(
+        platform: Rc<P>,
+        burn: Result<(burn::tensor::Device, String), String>,
+        adapter: (String, bool),
+        worker: Result<Rc<P::Worker>, String>,
+        query: &str,
+        restart: Option<(ShareState, String)>,
+    ) -> Self {
+        let (options, notice) = crate::share::PageOptions::from_query(query);
+        if let Err(e) = &worker {
+            platform.warn(&format!("CPU worker unavailable ({e}); the CPU models run on the main thread"));
+        }
+        let start = PageStart {
+            tem: options.tem,
+            gpu: burn.as_ref().map(|_| ()).map_err(Clone::clone),
+            software_adapter: adapter.1,
+            worker: worker.as_ref().map(|_| ()).map_err(Clone::clone),
+            status: burn.as_ref().map(|b| b.1.clone()).unwrap_or_default(),
+        };
+        let runners = Rc::new(Runners::new(worker.ok(), burn.ok().map(|b| crate::jobs::gpu::GpuRunner::new(b.0))));
+        let env = Environment { adapter: adapter.0, software_adapter: adapter.1, ..Default::default() };
+        Self::open(platform, runners, start, restart, notice, env)
+    }
+
+    /// The page's runners.
+    pub fn runners(&self) -> &Rc<Runners<P::Worker>> {
+        &self.runners
     }
 
     /// The page on `platform` as it opens: at the view of the address bar's fragment, or at
@@ -193,11 +271,12 @@ impl<P: Platform> PageShell<P> {
             self.core.message = Some(format!("The sketch could not be exported: {e}"));
         }
         if asks.import_sketch
-            && let Err(e) = self.platform.pick_sketch(self.import.clone())
+            && let Err(e) = self.platform.pick_file("image/png", MAX_SKETCH_FILE_BYTES, self.import.clone())
         {
             self.core.message = Some(format!("No file dialog: {e}"));
         }
-        match self.import.borrow_mut().take() {
+        let picked = self.import.borrow_mut().take();
+        match picked.map(sketch_from_file) {
             Some(Ok(s)) => self.core.app.canvas.load(s),
             Some(Err(e)) => self.core.message = Some(e),
             None => {}
@@ -286,6 +365,10 @@ impl<P: Platform> PageShell<P> {
     /// is one.
     pub fn frame(&mut self, ui: &mut egui::Ui, gpu: Option<ViewGpu<'_>>) {
         let ctx = ui.ctx().clone();
+        if self.probes.borrow().paused {
+            self.probes.borrow_mut().wake = Some(ctx);
+            return;
+        }
         let now = self.now_ms();
         let dt_ms = self.last_frame_ms.map(|t| now - t).unwrap_or(16.0);
         self.last_frame_ms = Some(now);

@@ -5,8 +5,7 @@ use std::cell::RefCell;
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 
-use crate::sketch::Sketch;
-use crate::ui::shell::SketchSlot;
+use crate::ui::shell::{FileSlot, Picked, Refused};
 
 fn js(e: JsValue) -> String {
     format!("{e:?}")
@@ -32,46 +31,37 @@ pub fn download(name: &str, bytes: &[u8], mime: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// Largest sketch PNG read (bytes): a 256×256 PNG is far smaller; anything larger is refused
-/// by its size before a byte of it is read.
-const MAX_SKETCH_FILE_BYTES: f64 = 2.0 * 1024.0 * 1024.0;
-
 thread_local! {
-    /// The slot of the latest [`pick_sketch_file`] (a page restarted after a lost device has
-    /// a new one; the one file input stays).
-    static SLOT: RefCell<Option<SketchSlot>> = const { RefCell::new(None) };
+    /// The slot and size limit of the latest [`pick_file`] (the page has one file input; a
+    /// page restarted after a lost device has a new slot).
+    static SLOT: RefCell<Option<(FileSlot, f64)>> = const { RefCell::new(None) };
 }
 
-/// Asks the user for a sketch PNG; the sketch (or why it is not one) lands in `slot`. The page
-/// has one hidden file input, made at the first call and reused (a cancelled dialog leaves
-/// nothing behind).
-pub fn pick_sketch_file(slot: SketchSlot) -> Result<(), String> {
-    SLOT.with(|s| *s.borrow_mut() = Some(slot));
+/// Asks the user for a file of type `accept`; it lands in `slot`, unread when it is larger
+/// than `max_bytes`. The page has one hidden file input, made at the first call and reused (a
+/// cancelled dialog leaves nothing behind).
+pub fn pick_file(accept: &str, max_bytes: f64, slot: FileSlot) -> Result<(), String> {
+    SLOT.with(|s| *s.borrow_mut() = Some((slot, max_bytes)));
     let document = web_sys::window().and_then(|w| w.document()).ok_or("no document")?;
     let input: web_sys::HtmlInputElement = match document.get_element_by_id("terrain_sketch_file") {
         Some(el) => el.dyn_into().map_err(|_| "#terrain_sketch_file is not an input")?,
         None => {
             let input: web_sys::HtmlInputElement = document.create_element("input").map_err(js)?.dyn_into().map_err(|_| "no input element")?;
             input.set_type("file");
-            input.set_accept("image/png");
             input.set_id("terrain_sketch_file");
             let _ = input.set_attribute("style", "display:none");
             document.body().ok_or("no body")?.append_child(&input).map_err(js)?;
             let el = input.clone();
             let on_change = Closure::<dyn FnMut()>::new(move || {
-                let Some(file) = el.files().and_then(|f| f.get(0)) else { return };
-                let Some(slot) = SLOT.with(|s| s.borrow().clone()) else { return };
-                if file.size() > MAX_SKETCH_FILE_BYTES {
-                    let mb = file.size() / 1024.0 / 1024.0;
-                    *slot.borrow_mut() = Some(Err(format!("{} is {mb:.1} MB; a sketch PNG (256×256 pixels) is at most 2 MB", file.name())));
+                let (Some(file), Some((slot, max_bytes))) = (el.files().and_then(|f| f.get(0)), SLOT.with(|s| s.borrow().clone())) else { return };
+                if file.size() > max_bytes {
+                    *slot.borrow_mut() = Some(Picked { name: file.name(), bytes: Err(Refused::TooBig(file.size())) });
                     return;
                 }
                 wasm_bindgen_futures::spawn_local(async move {
-                    let result = match wasm_bindgen_futures::JsFuture::from(file.array_buffer()).await {
-                        Ok(buf) => Sketch::read_png(std::io::Cursor::new(js_sys::Uint8Array::new(&buf).to_vec())).map_err(|e| format!("{}: {e}", file.name())),
-                        Err(e) => Err(format!("{} could not be read: {e:?}", file.name())),
-                    };
-                    *slot.borrow_mut() = Some(result);
+                    let bytes = wasm_bindgen_futures::JsFuture::from(file.array_buffer()).await;
+                    let bytes = bytes.map(|b| js_sys::Uint8Array::new(&b).to_vec()).map_err(|e| Refused::Unreadable(js(e)));
+                    *slot.borrow_mut() = Some(Picked { name: file.name(), bytes });
                 });
             });
             input.set_onchange(Some(on_change.as_ref().unchecked_ref()));
@@ -80,6 +70,7 @@ pub fn pick_sketch_file(slot: SketchSlot) -> Result<(), String> {
             input
         }
     };
+    input.set_accept(accept);
     // The same file chosen again is a change too.
     input.set_value("");
     input.click();

@@ -2,7 +2,7 @@
 //! latest statistics, frame intervals, a tile's heights, the TEM probe, memory and the
 //! static-constructor count. A user never needs them.
 
-use std::cell::{Cell, RefCell};
+use std::cell::RefCell;
 use std::rc::Rc;
 use std::sync::atomic::AtomicU32;
 use std::sync::atomic::Ordering::SeqCst;
@@ -12,7 +12,7 @@ use wasm_bindgen::prelude::*;
 use super::Runners;
 use crate::grid::TileCoord;
 use crate::jobs::runner::Runner;
-use crate::models::tem::{LEVELS, probe_input};
+use crate::models::tem::LEVELS;
 use crate::ui::shell::Probes;
 
 /// What the page's shell publishes for the hooks, and its runners (for the TEM probe).
@@ -20,9 +20,6 @@ pub(super) type Published = (Rc<RefCell<Probes>>, Rc<Runners>);
 
 thread_local! {
     pub(super) static PROBES: RefCell<Option<Published>> = const { RefCell::new(None) };
-    /// Frames are not drawn while set ([`terrain_set_paused`]), and the context to wake.
-    pub(super) static PAUSED: Cell<bool> = const { Cell::new(false) };
-    pub(super) static CONTEXT: RefCell<Option<egui::Context>> = const { RefCell::new(None) };
 }
 
 /// `f` of the shell's probes (`None` before the page runs).
@@ -47,10 +44,7 @@ pub fn terrain_stats() -> String {
 /// software rasteriser drawing on the same cores.
 #[wasm_bindgen]
 pub fn terrain_set_paused(paused: bool) {
-    PAUSED.set(paused);
-    if !paused {
-        CONTEXT.with(|c| c.borrow().as_ref().map(|ctx| ctx.request_repaint()));
-    }
+    probes(|p| p.set_paused(paused));
 }
 
 /// Asks for the heights of tile (i, j) of the world shown (see [`terrain_tile_heights`]).
@@ -72,16 +66,8 @@ pub fn terrain_wasm_memory_bytes() -> f64 {
     (core::arch::wasm32::memory_size(0) * 65_536) as f64
 }
 
-/// The TEM probe's input window of level `level` (JSON array of heights).
-#[wasm_bindgen]
-pub fn terrain_probe_input(level: usize) -> String {
-    serde_json::to_string(&probe_input(level.min(LEVELS - 1))).unwrap_or_default()
-}
-
 /// Runs the fixed TEM probe on the page's TEM (wherever it runs) and returns JSON
-/// `{backend, levels, round_trip_ms, compute_ms}` ([`Runners::tem_probe`]).
-///
-/// [`Runners::tem_probe`]: crate::app::runners::Runners::tem_probe
+/// `{backend, levels, round_trip_ms, compute_ms}` ([`crate::app::runners::Runners::tem_probe`]).
 #[wasm_bindgen]
 pub async fn terrain_tem_probe() -> Result<String, JsValue> {
     let runners = PROBES.with(|p| p.borrow().as_ref().map(|(_, r)| r.clone())).ok_or("the page is not running")?;

@@ -1,6 +1,6 @@
-//! The browser shell: checks for WebGPU, creates the one wgpu device that rendering and burn
-//! share, starts the CPU worker, and runs the page's core ([`PageCore`]) inside eframe. It
-//! only moves bytes: fetches, posts to the worker or the GPU, and hands back what came of it
+//! The browser shell: checks for WebGPU, opens the one wgpu device that rendering and burn
+//! share, starts the CPU worker, and runs the page ([`PageShell`]) inside eframe. It only
+//! moves bytes: fetches, posts to the worker or the GPU, and hands back what came of it
 //! ([`shell`]); everything it decides is in the core, tested natively.
 
 mod files;
@@ -15,13 +15,10 @@ use std::sync::atomic::Ordering::SeqCst;
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 
-use crate::app::page::PageStart;
 use crate::app::runners::Port;
-use crate::jobs::gpu::GpuRunner;
 use crate::models;
 use crate::render::device::{self, DeviceWatch, Opened};
-use crate::share::{PageOptions, ShareState};
-use crate::ui::Environment;
+use crate::share::ShareState;
 use crate::ui::shell::PageShell;
 
 const NO_WEBGPU: &str = "This page needs WebGPU, which this browser does not offer. Try a current Chrome, Edge or Safari (or enable WebGPU in the browser's settings).";
@@ -52,7 +49,7 @@ async fn restart(state: ShareState, why: String) {
     RUNNER.with(|r| r.borrow_mut().take()).inspect(|r| r.destroy());
     let note = format!("The GPU device was lost ({why}); the page started a new one and kept the view.");
     if let Err(e) = run(Some((state, note))).await {
-        show_page_message(&format!("The GPU device was lost and a new one could not be started: {e}"));
+        show_page_message(&format!("The GPU device was lost and a new one could not be started: {e}"), false);
     }
 }
 
@@ -68,8 +65,8 @@ fn cpu_worker() -> Result<Rc<worker::CpuWorker>, String> {
     w
 }
 
-/// The browser's description of its WebGPU adapter ("vendor architecture") and whether it is
-/// a software (CPU-emulated) adapter such as SwiftShader, from `adapter.info`.
+/// The browser's description of its WebGPU adapter (`adapter.info`'s vendor, architecture and
+/// description) and whether it says it is a fallback adapter.
 async fn browser_adapter_info() -> Option<(String, bool)> {
     use js_sys::Reflect;
     let gpu = Reflect::get(&web_sys::window()?.navigator(), &"gpu".into()).ok()?;
@@ -78,9 +75,7 @@ async fn browser_adapter_info() -> Option<(String, bool)> {
     let info = Reflect::get(&adapter, &"info".into()).ok()?;
     let field = |k: &str| Reflect::get(&info, &k.into()).ok().and_then(|v| v.as_string()).unwrap_or_default();
     let text = [field("vendor"), field("architecture"), field("description")].into_iter().filter(|s| !s.is_empty()).collect::<Vec<_>>().join(" ");
-    let fallback = Reflect::get(&info, &"isFallbackAdapter".into()).ok().and_then(|v| v.as_bool()).unwrap_or(false);
-    let lower = text.to_ascii_lowercase();
-    Some((text, fallback || lower.contains("swiftshader") || lower.contains("llvmpipe")))
+    Some((text, Reflect::get(&info, &"isFallbackAdapter".into()).ok().and_then(|v| v.as_bool()).unwrap_or(false)))
 }
 
 unsafe extern "C" {
@@ -99,9 +94,11 @@ pub fn start() {
     unsafe { __wasm_call_ctors() };
     std::panic::set_hook(Box::new(|info| {
         console_error_panic_hook::hook(info);
-        // The worker has no page: its trap reaches the page as a dead worker instead.
-        if web_sys::window().is_some() {
-            show_stopped(&info.to_string());
+        // The worker has no page: its trap reaches the page as a dead worker instead. A later
+        // panic (the module's state is broken after the first) changes nothing.
+        static SHOWN: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+        if web_sys::window().is_some() && !SHOWN.swap(true, SeqCst) {
+            show_page_message(&crate::app::page::stopped_message(&info.to_string()), true);
         }
     }));
     // The same module also runs in the CPU worker, which has no page to start.
@@ -110,40 +107,28 @@ pub fn start() {
     }
     wasm_bindgen_futures::spawn_local(async {
         if let Err(e) = run(None).await {
-            show_page_message(&e);
+            show_page_message(&e, false);
         }
     });
 }
 
-/// Shows `text` in the page's message box (outside the canvas, so it works without WebGPU).
-fn show_page_message(text: &str) {
+/// Shows `text` in the page's message box (outside the canvas, so it works without WebGPU),
+/// with a Reload button after a panic.
+fn show_page_message(text: &str, reload: bool) {
     web_sys::console::warn_1(&text.into());
     let Some(doc) = web_sys::window().and_then(|w| w.document()) else { return };
     if let Some(el) = doc.get_element_by_id("message") {
         el.set_text_content(Some(text));
         let _ = el.set_attribute("style", "display:block");
+        if reload && let Ok(button) = doc.create_element("button") {
+            button.set_text_content(Some("Reload"));
+            button.set_id("reload");
+            let _ = button.set_attribute("onclick", "location.reload()");
+            let _ = el.append_child(&button);
+        }
     }
     if let Some(el) = doc.get_element_by_id("loading") {
         let _ = el.set_attribute("style", "display:none");
-    }
-}
-
-/// After a panic on the main thread: the page says it stopped and why (the first 300
-/// characters), that the view is kept in the address bar, and offers a Reload button.
-fn show_stopped(why: &str) {
-    // A later panic (the module's state is broken after the first) changes nothing.
-    static SHOWN: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-    if SHOWN.swap(true, SeqCst) {
-        return;
-    }
-    let why: String = why.chars().take(300).collect();
-    show_page_message(&format!("The page stopped because of an error: {why}. Your view is kept in the address bar; reload to go on."));
-    let Some(doc) = web_sys::window().and_then(|w| w.document()) else { return };
-    if let (Some(el), Ok(button)) = (doc.get_element_by_id("message"), doc.create_element("button")) {
-        button.set_text_content(Some("Reload"));
-        button.set_id("reload");
-        let _ = button.set_attribute("onclick", "location.reload()");
-        let _ = el.append_child(&button);
     }
 }
 
@@ -158,8 +143,7 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     let document = window.document().ok_or("no document")?;
     let canvas: web_sys::HtmlCanvasElement =
         document.get_element_by_id("terrain_canvas").ok_or("the page has no #terrain_canvas")?.dyn_into().map_err(|_| "#terrain_canvas is not a canvas")?;
-    let gpu = js_sys::Reflect::get(&window.navigator(), &"gpu".into()).unwrap_or(JsValue::UNDEFINED);
-    if gpu.is_undefined() || gpu.is_null() {
+    if !wgpu::util::is_browser_webgpu_supported().await {
         return Err(NO_WEBGPU.into());
     }
     let Opened { instance, adapter, device, queue } = device::open(wgpu::Backends::BROWSER_WEBGPU).await.map_err(|e| format!("{NO_WEBGPU} ({e})"))?;
@@ -167,27 +151,14 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     device.set_device_lost_callback(move |_, _| DEVICES.lost(generation));
     DEVICE.with(|d| *d.borrow_mut() = Some(device.clone()));
     let info = adapter.get_info();
-    let label = [&info.name, &info.driver, &info.driver_info].into_iter().find(|s| !s.is_empty()).cloned().unwrap_or_else(|| "browser adapter".into());
-    let browser_info = browser_adapter_info().await;
-    let software = browser_info.as_ref().is_some_and(|i| i.1);
-    let adapter_name = format!("WebGPU · {}", browser_info.map(|i| i.0).filter(|t| !t.is_empty()).unwrap_or(label));
-
+    let adapter_name = crate::ui::adapter_name([&info.name, &info.driver, &info.driver_info], browser_adapter_info().await);
     // burn on the same device, if its self-check passes.
     let setup = models::WgpuSetup { instance: instance.clone(), adapter: adapter.clone(), device: device.clone(), queue: queue.clone(), backend: wgpu::Backend::BrowserWebGpu };
     let burn = models::start_burn(setup).await;
-    let (page_opts, options_notice) = PageOptions::from_query(&window.location().search().unwrap_or_default());
-    let worker = cpu_worker();
-    if let Err(e) = &worker {
-        web_sys::console::warn_1(&format!("CPU worker unavailable ({e}); the CPU models run on the main thread").into());
-    }
-    let start = PageStart {
-        tem: page_opts.tem,
-        gpu: burn.as_ref().map(|_| ()).map_err(Clone::clone),
-        software_adapter: software,
-        worker: worker.as_ref().map(|_| ()).map_err(Clone::clone),
-        status: burn.as_ref().map(|b| b.1.clone()).unwrap_or_default(),
-    };
-    let runners = Rc::new(Runners::new(worker.ok(), burn.ok().map(|b| GpuRunner::new(b.0))));
+    let query = window.location().search().unwrap_or_default();
+    let mut page = PageShell::start(Rc::new(shell::WebPlatform), burn, adapter_name, cpu_worker(), &query, restart);
+    page.device_restarts = DEVICES.restarts();
+    hooks::PROBES.with(|p| *p.borrow_mut() = Some((page.probes.clone(), page.runners().clone())));
     let options = eframe::WebOptions {
         wgpu_options: eframe::egui_wgpu::WgpuConfiguration {
             wgpu_setup: eframe::egui_wgpu::WgpuSetup::Existing(eframe::egui_wgpu::WgpuSetupExisting { instance, adapter, device, queue }),
@@ -198,10 +169,6 @@ async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
     let web_runner = eframe::WebRunner::new();
     let app = Box::new(move |cc: &eframe::CreationContext<'_>| -> Result<Box<dyn eframe::App>, Box<dyn std::error::Error + Send + Sync>> {
         cc.wgpu_render_state.as_ref().ok_or("eframe started without wgpu")?;
-        let env = Environment { adapter: adapter_name, software_adapter: software, ..Default::default() };
-        let mut page = PageShell::open(Rc::new(shell::WebPlatform), runners.clone(), start, restart, options_notice, env);
-        page.device_restarts = DEVICES.restarts();
-        hooks::PROBES.with(|p| *p.borrow_mut() = Some((page.probes.clone(), runners.clone())));
         Ok(Box::new(shell::WebApp(page)))
     });
     web_runner.start(canvas, options, app).await.map_err(|e| format!("The page could not start its renderer: {e:?}"))?;

@@ -1,13 +1,12 @@
 //! The page's side of each frame: the [`Platform`] of a web page (fetches, microtasks, the
 //! address bar, files, the console) and the eframe app that runs the platform-free
-//! [`PageShell`] each frame, after the checks only a page has (paused by its test; its GPU
-//! device lost).
+//! [`PageShell`] each frame, after the check only a page has (its GPU device lost).
 
 use wasm_bindgen::prelude::*;
 
 use super::worker::CpuWorker;
-use super::{DEVICES, files, hooks, location_hash};
-use crate::ui::shell::{Fetching, PageShell, Platform, SketchSlot, Task, ViewGpu};
+use super::{DEVICES, files, location_hash};
+use crate::ui::shell::{Fetching, FileSlot, PageShell, Platform, Task, ViewGpu};
 
 /// A web page as the shell's platform.
 pub(super) struct WebPlatform;
@@ -29,9 +28,8 @@ impl Platform for WebPlatform {
     }
 
     fn set_fragment(&self, fragment: &str) {
-        if let Some(h) = web_sys::window().and_then(|w| w.history().ok()) {
-            let _ = h.replace_state_with_url(&JsValue::NULL, "", Some(fragment));
-        }
+        let history = web_sys::window().and_then(|w| w.history().ok());
+        let _ = history.map(|h| h.replace_state_with_url(&JsValue::NULL, "", Some(fragment)));
     }
 
     fn address(&self) -> String {
@@ -47,8 +45,8 @@ impl Platform for WebPlatform {
         files::download(name, bytes, mime)
     }
 
-    fn pick_sketch(&self, slot: SketchSlot) -> Result<(), String> {
-        files::pick_sketch_file(slot)
+    fn pick_file(&self, accept: &str, max_bytes: f64, slot: FileSlot) -> Result<(), String> {
+        files::pick_file(accept, max_bytes, slot)
     }
 }
 
@@ -57,10 +55,6 @@ pub(super) struct WebApp(pub PageShell<WebPlatform>);
 
 impl eframe::App for WebApp {
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
-        if hooks::PAUSED.get() {
-            hooks::CONTEXT.with(|c| *c.borrow_mut() = Some(ui.ctx().clone()));
-            return;
-        }
         if DEVICES.take_loss() {
             wasm_bindgen_futures::spawn_local(super::restart(self.0.core.app.share_state(), "device lost".into()));
             return;

@@ -5,55 +5,26 @@
 //! page sees a dead worker instead of a reply that never comes.
 
 use std::cell::RefCell;
-use std::collections::HashMap;
 use std::rc::Rc;
 
 use js_sys::{Array, Object, Reflect, Uint8Array};
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
-use wasm_bindgen_futures::JsFuture;
 
 use crate::app::runners::Port;
+use crate::jobs::calls::Calls;
 use crate::jobs::protocol::{Answer, Envelope};
 use crate::jobs::runner::Queue;
 
-/// The worker's script: the first message carries the glue's URL and the compiled module;
-/// later messages are `{id, bytes}` requests. A trap is reported as `{id, trap}`.
-const SCRIPT: &str = r#"
-let ready = null;
-self.onmessage = (e) => {
-  if (ready === null) {
-    ready = import(e.data.glue).then(async (m) => { await m.default({ module_or_path: e.data.module }); return m; });
-    ready.catch((err) => self.postMessage({ id: 0, trap: 'the CPU worker could not start: ' + err }));
-    return;
-  }
-  const id = e.data.id;
-  ready.then((m) => m.terrain_worker_message(e.data.bytes)).catch((err) => self.postMessage({ id, trap: 'the CPU worker failed: ' + err }));
-};
-"#;
+/// The worker's script (`www/cpu_worker.js`): it loads the module, hands each request to
+/// [`terrain_worker_message`] and reports a trap.
+const SCRIPT: &str = include_str!("../../www/cpu_worker.js");
 
 #[wasm_bindgen]
 extern "C" {
     /// The URL of the page's wasm-bindgen glue (the glue module's `import.meta.url`).
     #[wasm_bindgen(thread_local_v2, js_namespace = ["import", "meta"], js_name = url)]
     static GLUE_URL: js_sys::JsString;
-}
-
-/// The requests waiting for a reply (their resolve functions, by id), and why the worker is
-/// gone once it is.
-#[derive(Default)]
-struct Waiting {
-    waiting: HashMap<u32, (js_sys::Function, js_sys::Function)>,
-    dead: Option<String>,
-}
-
-/// Marks the worker dead and rejects every waiting request with `why`.
-fn fail_all(pending: &Rc<RefCell<Waiting>>, why: &str) {
-    pending.borrow_mut().dead.get_or_insert_with(|| why.to_string());
-    let waiting: Vec<_> = pending.borrow_mut().waiting.drain().collect();
-    for (_, (_, reject)) in waiting {
-        let _ = reject.call1(&JsValue::NULL, &JsValue::from_str(why));
-    }
 }
 
 fn js_error(e: JsValue) -> String {
@@ -63,7 +34,7 @@ fn js_error(e: JsValue) -> String {
 /// The main thread's handle on the CPU worker (terminated when dropped).
 pub struct CpuWorker {
     worker: web_sys::Worker,
-    pending: Rc<RefCell<Waiting>>,
+    calls: Rc<RefCell<Calls>>,
     _on_message: Closure<dyn FnMut(web_sys::MessageEvent)>,
     _on_error: Closure<dyn FnMut(web_sys::ErrorEvent)>,
 }
@@ -80,65 +51,54 @@ impl CpuWorker {
         opts.set_type(web_sys::WorkerType::Module);
         let worker = web_sys::Worker::new_with_options(&url, &opts).map_err(|e| format!("the browser cannot start a module worker: {}", js_error(e)))?;
         let _ = web_sys::Url::revoke_object_url(&url);
-        let pending: Rc<RefCell<Waiting>> = Rc::default();
-        let p = pending.clone();
-        let on_message = Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| {
-            let data = e.data();
-            if let Ok(bytes) = data.clone().dyn_into::<Uint8Array>() {
-                let id = Answer::peek_id(&bytes.subarray(0, 8.min(bytes.length())).to_vec()).unwrap_or(0);
-                if let Some((resolve, _)) = p.borrow_mut().waiting.remove(&id) {
-                    let _ = resolve.call1(&JsValue::NULL, &bytes);
-                }
-                return;
+        let calls: Rc<RefCell<Calls>> = Rc::default();
+        let c = calls.clone();
+        let on_message = Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| match e.data().dyn_into::<Uint8Array>() {
+            Ok(bytes) => c.borrow_mut().reply(bytes.to_vec()),
+            Err(data) => {
+                let trap = Reflect::get(&data, &"trap".into()).ok().and_then(|t| t.as_string());
+                c.borrow_mut().fail_all(&trap.unwrap_or_else(|| "the CPU worker sent a message that is not a reply".into()));
             }
-            let trap = Reflect::get(&data, &"trap".into()).ok().and_then(|t| t.as_string());
-            fail_all(&p, &trap.unwrap_or_else(|| "the CPU worker sent a message that is not a reply".into()));
         });
         worker.set_onmessage(Some(on_message.as_ref().unchecked_ref()));
-        let p = pending.clone();
-        let on_error = Closure::<dyn FnMut(web_sys::ErrorEvent)>::new(move |e: web_sys::ErrorEvent| fail_all(&p, &format!("the CPU worker failed: {}", e.message())));
+        let c = calls.clone();
+        let on_error = Closure::<dyn FnMut(web_sys::ErrorEvent)>::new(move |e: web_sys::ErrorEvent| c.borrow_mut().fail_all(&format!("the CPU worker failed: {}", e.message())));
         worker.set_onerror(Some(on_error.as_ref().unchecked_ref()));
         let first = Object::new();
         let _ = Reflect::set(&first, &"glue".into(), &GLUE_URL.with(|u| u.clone()).into());
         let _ = Reflect::set(&first, &"module".into(), &wasm_bindgen::module());
         worker.post_message(&first).map_err(js_error)?;
-        Ok(Self { worker, pending, _on_message: on_message, _on_error: on_error })
+        Ok(Self { worker, calls, _on_message: on_message, _on_error: on_error })
     }
 }
 
 impl Port for CpuWorker {
     /// Why the worker is gone, if it is.
     fn gone(&self) -> Option<String> {
-        self.pending.borrow().dead.clone()
+        self.calls.borrow().gone()
     }
 
     /// Posts `env` (its bytes transferred) and waits for the answer; `Err` when the worker is
     /// gone (why).
     async fn call(&self, env: &Envelope) -> Result<Answer, String> {
-        if let Some(why) = self.gone() {
-            return Err(why);
+        let reply = self.calls.borrow_mut().wait(env.id);
+        if self.gone().is_none() {
+            let bytes = Uint8Array::from(env.encode().as_slice());
+            let msg = Object::new();
+            let _ = Reflect::set(&msg, &"id".into(), &env.id.into());
+            let _ = Reflect::set(&msg, &"bytes".into(), &bytes);
+            if let Err(e) = self.worker.post_message_with_transfer(&msg, &Array::of1(&bytes.buffer())) {
+                self.calls.borrow_mut().drop_call(env.id, js_error(e));
+            }
         }
-        let bytes = Uint8Array::from(env.encode().as_slice());
-        let msg = Object::new();
-        let _ = Reflect::set(&msg, &"id".into(), &env.id.into());
-        let _ = Reflect::set(&msg, &"bytes".into(), &bytes);
-        let pending = self.pending.clone();
-        let promise = js_sys::Promise::new(&mut |resolve, reject| {
-            pending.borrow_mut().waiting.insert(env.id, (resolve, reject));
-        });
-        if let Err(e) = self.worker.post_message_with_transfer(&msg, &Array::of1(&bytes.buffer())) {
-            self.pending.borrow_mut().waiting.remove(&env.id);
-            return Err(js_error(e));
-        }
-        let reply = JsFuture::from(promise).await.map_err(js_error)?;
-        Answer::decode(&Uint8Array::new(&reply).to_vec()).map_err(|e| e.to_string())
+        Answer::decode(&reply.await?).map_err(|e| e.to_string())
     }
 }
 
 impl Drop for CpuWorker {
     fn drop(&mut self) {
         self.worker.terminate();
-        fail_all(&self.pending, "the CPU worker was stopped");
+        self.calls.borrow_mut().fail_all("the CPU worker was stopped");
     }
 }
 
@@ -153,9 +113,7 @@ thread_local! {
 #[wasm_bindgen]
 pub fn terrain_worker_message(bytes: Uint8Array) {
     let (answer, start) = QUEUE.with(|q| q.borrow_mut().accept_bytes(&bytes.to_vec()));
-    if let Some(a) = answer {
-        post(&a);
-    }
+    post(answer);
     if start {
         wasm_bindgen_futures::spawn_local(make_tasks());
     }
@@ -165,27 +123,17 @@ pub fn terrain_worker_message(bytes: Uint8Array) {
 /// answered meanwhile).
 async fn make_tasks() {
     while let Some((answer, rest_ms)) = QUEUE.with(|q| q.borrow_mut().next_piece()) {
-        if let Some(a) = answer {
-            post(&a);
-        }
+        post(answer);
         if rest_ms > 0.0 {
-            rest(rest_ms).await;
+            gloo_timers::future::TimeoutFuture::new(rest_ms.round() as u32).await;
         }
     }
 }
 
-/// Posts an answer to the page (its buffer transferred).
-fn post(a: &Answer) {
+/// Posts an answer, if any, to the page (its buffer transferred).
+fn post(a: Option<Answer>) {
+    let Some(a) = a else { return };
     let bytes = Uint8Array::from(a.encode().as_slice());
     let scope: web_sys::DedicatedWorkerGlobalScope = js_sys::global().unchecked_into();
     let _ = scope.post_message_with_transfer(&bytes, &Array::of1(&bytes.buffer()));
-}
-
-/// Resolves after `ms` milliseconds (a timer of the worker's global scope).
-async fn rest(ms: f64) {
-    let wait = js_sys::Promise::new(&mut |resolve, _| {
-        let scope: web_sys::DedicatedWorkerGlobalScope = js_sys::global().unchecked_into();
-        let _ = scope.set_timeout_with_callback_and_timeout_and_arguments_0(&resolve, ms.round() as i32);
-    });
-    let _ = JsFuture::from(wait).await;
 }

@@ -5,10 +5,8 @@ use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
 use super::*;
-use crate::app::page::PageStart;
 use crate::jobs::native::NativeRunner;
 use crate::jobs::protocol::{Answer, Envelope};
-use crate::models::runtime::TemChoice;
 
 /// The thread runner, which the test can take for dead.
 struct TestWorker {
@@ -95,8 +93,8 @@ impl Platform for TestPlatform {
         Ok(())
     }
 
-    fn pick_sketch(&self, slot: SketchSlot) -> Result<(), String> {
-        *slot.borrow_mut() = Some(Err("no file in this test".into()));
+    fn pick_file(&self, _accept: &str, _max_bytes: f64, slot: FileSlot) -> Result<(), String> {
+        *slot.borrow_mut() = Some(Picked { name: "x.png".into(), bytes: Err(Refused::Unreadable("no file in this test".into())) });
         Ok(())
     }
 }
@@ -106,9 +104,8 @@ fn page(fragment: &str) -> (PageShell<TestPlatform>, Rc<TestPlatform>, Rc<Runner
     let platform = Rc::new(TestPlatform::default());
     *platform.fragment.borrow_mut() = fragment.into();
     let worker = Rc::new(TestWorker { runner: NativeRunner::spawn(1), dead: RefCell::new(None), calls_when_dead: Cell::new(0) });
-    let runners = Rc::new(Runners::new(Some(worker), None));
-    let start = PageStart { tem: TemChoice::Auto, gpu: Err("no GPU in this test".into()), software_adapter: false, worker: Ok(()), status: String::new() };
-    let shell = PageShell::open(platform.clone(), runners.clone(), start, None, None, Environment::default());
+    let shell = PageShell::start(platform.clone(), Err("no GPU in this test".into()), ("test".into(), false), Ok(worker), "", None);
+    let runners = shell.runners().clone();
     (shell, platform, runners)
 }
 
@@ -150,10 +147,11 @@ fn frames_load_the_learned_world_make_its_tiles_and_write_the_link() {
 }
 
 /// A fragment the user types into the address bar is followed on the next frame (the world's
-/// seed changes to the typed one), and a worker found dead between frames is noticed without
-/// any request: the core falls back to the procedural world and says so.
+/// seed changes to the typed one); no frame runs while the page is paused; a worker found dead
+/// between frames is noticed without any request: the core falls back to the procedural world
+/// and says so.
 #[test]
-fn a_typed_fragment_is_followed_and_a_dead_worker_is_noticed_between_frames() {
+fn a_typed_fragment_is_followed_paused_frames_do_not_run_and_a_dead_worker_is_noticed() {
     let (mut shell, platform, runners) = page("");
     let ctx = egui::Context::default();
     frames(&mut shell, &platform, &ctx, 3);
@@ -162,6 +160,13 @@ fn a_typed_fragment_is_followed_and_a_dead_worker_is_noticed_between_frames() {
     *platform.fragment.borrow_mut() = typed.to_fragment();
     frames(&mut shell, &platform, &ctx, 1);
     assert_eq!(shell.core.app.settings().seed, 4242);
+    let frames_before = shell.core.app.stats().frames;
+    shell.probes.borrow_mut().set_paused(true);
+    frames(&mut shell, &platform, &ctx, 3);
+    assert_eq!(shell.core.app.stats().frames, frames_before, "no frame runs while paused");
+    shell.probes.borrow_mut().set_paused(false);
+    frames(&mut shell, &platform, &ctx, 1);
+    assert_eq!(shell.core.app.stats().frames, frames_before + 1);
     *runners.worker.as_ref().unwrap().dead.borrow_mut() = Some("the test stopped it".into());
     frames(&mut shell, &platform, &ctx, 2);
     assert_eq!(runners.worker.as_ref().unwrap().calls_when_dead.get(), 0, "noticed before any request was posted to it");
@@ -169,4 +174,19 @@ fn a_typed_fragment_is_followed_and_a_dead_worker_is_noticed_between_frames() {
     assert_eq!(shell.core.app.source(), crate::world::SourceKind::Procedural);
     let message = shell.core.message.clone().unwrap_or_default();
     assert!(message.contains("the test stopped it"), "{message}");
+}
+
+/// A picked sketch PNG becomes the sketch; one over 2 MB is refused by its size with the size
+/// in the message; bytes that are not a PNG and an unreadable file are said with the file's
+/// name.
+#[test]
+fn picked_files_become_sketches_or_clear_messages() {
+    let mut png = Vec::new();
+    let sketch = crate::sketch::examples::first().1;
+    sketch.write_png(&mut png).unwrap();
+    let pick = |bytes| sketch_from_file(Picked { name: "s.png".into(), bytes });
+    assert_eq!(pick(Ok(png)).unwrap(), sketch);
+    assert_eq!(pick(Err(Refused::TooBig(3.0 * 1024.0 * 1024.0))).unwrap_err(), "s.png is 3.0 MB; a sketch PNG (256×256 pixels) is at most 2 MB");
+    assert!(pick(Ok(b"not a png".to_vec())).unwrap_err().starts_with("s.png: "));
+    assert_eq!(pick(Err(Refused::Unreadable("gone".into()))).unwrap_err(), "s.png could not be read: gone");
 }
