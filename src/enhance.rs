@@ -85,7 +85,7 @@ pub fn levels_for(input_res_m: f64, output_res_m: f64) -> Result<(usize, usize),
     Ok((first, last))
 }
 
-/// Largest output `enhance` makes (samples): 2²⁷ (e.g. 11,585 × 11,585). The output, the
+/// Largest output `enhance` makes (samples): 2²⁷ = 134,217,728 (a square of up to 11,585²). The output, the
 /// stored patches of the last level (≈ 1.6× the output) and the level above them take about
 /// 1.5 GiB at this size.
 pub const MAX_OUTPUT_SAMPLES: u64 = 1 << 27;

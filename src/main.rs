@@ -3,7 +3,7 @@
 //! `terrain world --seed S --tiles X0 Y0 W H --out region.tif [--source procedural]`
 //! writes the 32 m heights (metres) of tiles [X0, X0+W) × [Y0, Y0+H) as a float32 TIFF.
 //!
-//! `terrain enhance --input in.tif --input-res 32 --output-res 1 --out out.tif` refines a DEM
+//! `terrain enhance --input in.tif --output-res 1 --out out.tif` refines a DEM
 //! with the TEM ladder (the world's patch code path) and writes the same extent at the output
 //! spacing. `terrain tem-probe` prints the digest of the fixed probe per level (CPU), which the
 //! browser test compares with the page's WebGPU result.
@@ -99,9 +99,10 @@ enum Command {
         /// Input DEM (.tif, .tiff, .png).
         #[arg(long)]
         input: PathBuf,
-        /// Input spacing (m per pixel): 32, 16, 8, 4 or 2.
+        /// Input spacing (m per pixel): 32, 16, 8, 4 or 2. Default: the file's own pixel size
+        /// (GeoTIFF); needed for a PNG. A value that conflicts with the file's own is refused.
         #[arg(long)]
-        input_res: f64,
+        input_res: Option<f64>,
         /// Output spacing (m per pixel): 16, 8, 4, 2 or 1, finer than the input.
         #[arg(long)]
         output_res: f64,

@@ -115,31 +115,46 @@ fn forge_tiff_size(mut t: Vec<u8>, w: u32, h: u32) -> Vec<u8> {
 }
 
 /// PNGs whose headers claim up to 16384² samples (the old reader allocated the whole image
-/// first: 512 MiB at 16 bits) but hold 6 bytes of data: errors, holding under 4 MiB.
+/// first: 512 MiB at 16 bits) but hold 6 bytes of data, each refused for the reason it
+/// deserves, holding under 4 MiB: over the 2²⁶-sample cap (16384², 8193 × 8192) as too
+/// large; at or under it (8192², 4096²) as more data than the file can hold; a small claim
+/// (65535×1, 128 KiB) is decoded and runs out of data.
 #[test]
 fn a_forged_png_size_is_refused_before_allocating() {
     let _s = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    for (w, h) in [(16_384, 16_384), (8192, 8192), (4096, 4096), (65_535, 1)] {
+    let cases = [
+        (16_384, 16_384, "is larger than the 67108864 samples"),
+        (8193, 8192, "is larger than"),
+        (8192, 8192, "it is truncated or its header is wrong"),
+        (4096, 4096, "it is truncated or its header is wrong"),
+        (65_535, 1, "not have enough data"),
+    ];
+    for (w, h, why) in cases {
         let bytes = forge_png_size(png16(3, 1), w, h);
         let (r, peak) = peak_of(|| Heightfield::read_png(Cursor::new(bytes.clone()), PngScale::default(), 1.0));
         let e = r.unwrap_err().to_string();
-        // Large claims are refused from the header; a small one (65535×1, 128 KiB) is decoded
-        // and runs out of data.
-        assert!(e.contains("truncated") || e.contains("larger than") || e.contains("not have enough data"), "{w}×{h}: {e}");
+        assert!(e.contains(why), "{w}×{h}: {e}");
         assert!(peak < 4 * MIB, "{w}×{h}: held {peak} bytes");
     }
 }
 
-/// A TIFF whose tags claim 30000² or 8000² samples with 24 bytes of data: refused (too large,
-/// or truncated), holding under 4 MiB.
+/// A TIFF whose tags claim 30000² or 8193 × 8192 samples with 24 bytes of data is refused
+/// as over the 2²⁶-sample cap; one claiming 8000² or 2000² (under the cap) as more data than
+/// the file holds; holding under 4 MiB.
 #[test]
 fn a_forged_tiff_size_is_refused_before_allocating() {
     let _s = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    for (w, h) in [(30_000, 30_000), (8000, 8000), (2000, 2000)] {
+    let cases = [
+        (30_000, 30_000, "is larger than the 67108864 samples"),
+        (8193, 8192, "is larger than"),
+        (8000, 8000, "it is truncated or its header is wrong"),
+        (2000, 2000, "it is truncated or its header is wrong"),
+    ];
+    for (w, h, why) in cases {
         let bytes = forge_tiff_size(tiff32(3, 2), w, h);
         let (r, peak) = peak_of(|| Heightfield::read_tiff(Cursor::new(bytes.clone()), 1.0));
-        let e = r.unwrap_err();
-        assert!(e.to_string().contains("truncated") || e.to_string().contains("larger than"), "{w}×{h}: {e}");
+        let e = r.unwrap_err().to_string();
+        assert!(e.contains(why), "{w}×{h}: {e}");
         assert!(peak < 4 * MIB, "{w}×{h}: held {peak} bytes");
     }
 }

@@ -13,10 +13,21 @@ pub(crate) fn weights_dir(given: Option<PathBuf>) -> PathBuf {
     if here.join("manifest.json").exists() { here } else { PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/weights")) }
 }
 
-pub(crate) fn enhance(input: &std::path::Path, input_res: f64, output_res: f64, out: &std::path::Path, weights: Option<PathBuf>, batch: usize) -> Result<(), String> {
+/// `terrain enhance`: the input's spacing is the file's own where it has one (a conflicting
+/// `--input-res` is refused), else `--input-res`.
+pub(crate) fn enhance(input: &std::path::Path, input_res: Option<f64>, output_res: f64, out: &std::path::Path, weights: Option<PathBuf>, batch: usize) -> Result<(), String> {
     use terrain::dem::{Heightfield, PngScale};
-    let (first, last) = terrain::enhance::levels_for(input_res, output_res).map_err(|e| e.to_string())?;
-    let hf = Heightfield::read_path(input, Some(input_res), PngScale::default()).map_err(|e| format!("{}: {e}", input.display()))?;
+    if let Some(r) = input_res {
+        terrain::enhance::levels_for(r, output_res).map_err(|e| e.to_string())?;
+    }
+    let hf = Heightfield::read_user_path(input, input_res, PngScale::default()).map_err(|e| format!("{}: {e}", input.display()))?;
+    let input_res = hf.spacing_m;
+    let (first, last) = terrain::enhance::levels_for(input_res, output_res).map_err(|e| match e {
+        terrain::enhance::EnhanceError::InputRes(_) => {
+            format!("{}'s pixels are {input_res} m; the TEM refines 32, 16, 8, 4 or 2 m grids: resample the file to one of them first", input.display())
+        }
+        e => e.to_string(),
+    })?;
     terrain::enhance::output_size(hf.width, hf.height, last - first + 1).map_err(|e| e.to_string())?;
     let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(weights), &terrain::models::tem::Exec::cpu())?;
     let t = std::time::Instant::now();
@@ -30,6 +41,10 @@ pub(crate) fn enhance(input: &std::path::Path, input_res: f64, output_res: f64, 
     .map_err(|e| e.to_string())?;
     let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     result.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    match result.geo {
+        Some(g) => eprintln!("georeference kept: north-west corner ({}, {}) m, {}", g.origin_m[0], g.origin_m[1], g.epsg.map_or("a local frame".into(), |c| format!("EPSG {c}"))),
+        None => eprintln!("no georeference written: the input has none in a projected CRS (a degree grid is converted to metres, its place on Earth is not kept)"),
+    }
     eprintln!(
         "wrote {}: {}×{} at {} m from {}×{} at {input_res} m; {} patches in {:.1} s ({:.1} ms per patch)",
         out.display(),

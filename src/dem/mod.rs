@@ -64,6 +64,9 @@ impl From<png::DecodingError> for DemError {
     }
 }
 
+/// The end of the error for a file without a pixel size and no spacing given.
+const NO_PIXEL_SIZE: &str = " has no pixel size: give the spacing in metres";
+
 /// GeoTIFF's ModelPixelScaleTag: (x, y, z) size of a pixel in model units.
 const MODEL_PIXEL_SCALE: u16 = 33550;
 /// GeoTIFF's ModelTiepointTag: (i, j, k, x, y, z) raster point (i, j) at model (x, y).
@@ -95,9 +98,10 @@ const MAX_EXPANSION: u64 = 1100;
 const SLACK_BYTES: u64 = 1 << 20;
 /// Largest pixel spacing read as degrees (a metric grid has spacings far above this).
 const MAX_DEGREE_SPACING: f64 = 0.1;
-/// Largest difference between the east–west and north–south size of a degree pixel (as a
-/// fraction) that is read as a square grid; beyond it the file must be reprojected first.
-const MAX_DEGREE_ANISOTROPY: f64 = 0.02;
+/// Largest difference between the east–west and north–south size of a pixel (as a fraction,
+/// in metres for a degree pixel) that is read as a square grid; beyond it the file must be
+/// reprojected or resampled first.
+const MAX_PIXEL_ANISOTROPY: f64 = 0.02;
 
 /// Checks declared image dimensions before any allocation: at most [`MAX_SAMPLES`] samples,
 /// and at most `raw_bytes` that `file_len` bytes can plausibly hold.
@@ -216,9 +220,28 @@ impl Heightfield {
             hf.spacing_m = s;
         }
         if hf.spacing_m.is_nan() {
-            return Err(DemError::Invalid(format!("{} has no pixel size: give the spacing in metres", path.display())));
+            return Err(DemError::Invalid(format!("{}{NO_PIXEL_SIZE}", path.display())));
         }
         hf.validate()
+    }
+
+    /// Reads a DEM a user gave with the spacing they gave, if any: the file's own pixel size
+    /// (GeoTIFF) is used when it has one, and a `given` spacing that differs from it by more
+    /// than 1 % is refused (the message says both); a file without one (a PNG, a plain TIFF)
+    /// needs `given`.
+    pub fn read_user_path(path: &Path, given: Option<f64>, png_scale: PngScale) -> Result<Self, DemError> {
+        let hf = match Self::read_path(path, None, png_scale) {
+            Err(DemError::Invalid(e)) if e.ends_with(NO_PIXEL_SIZE) && given.is_some() => return Self::read_path(path, given, png_scale),
+            other => other?,
+        };
+        match given {
+            Some(g) if (g - hf.spacing_m).abs() > 0.01 * hf.spacing_m => Err(DemError::Invalid(format!(
+                "{} says its pixels are {} m, but {g} m was given: leave the spacing out to use the file's own, or resample the file",
+                path.display(),
+                hf.spacing_m
+            ))),
+            _ => Ok(hf),
+        }
     }
 
     /// Writes a single-band float32 GeoTIFF (metres, NaN as no-data): the pixel size
@@ -479,7 +502,7 @@ fn georeference(scale: Option<&[f64]>, tie: Option<&[f64]>, keys: &[u16], rows: 
         }
         let (per_lon, per_lat) = metres_per_degree(lat);
         let (sx, sy) = (s[0] * per_lon, s[1] * per_lat);
-        if ((sx - sy) / sy).abs() > MAX_DEGREE_ANISOTROPY {
+        if ((sx - sy) / sy).abs() > MAX_PIXEL_ANISOTROPY {
             return Err(DemError::Invalid(format!(
                 "the pixels are {sx:.1} m × {sy:.1} m ({}° × {}° at {lat:.1}°): heightfields need square pixels, so reproject the file to a metric CRS (e.g. UTM) first",
                 s[0], s[1]
@@ -493,6 +516,11 @@ fn georeference(scale: Option<&[f64]>, tie: Option<&[f64]>, keys: &[u16], rows: 
         Some(9003) => 1200.0 / 3937.0,
         Some(u) => return Err(DemError::Invalid(format!("linear unit {u} (EPSG) is not supported: metres or feet"))),
     };
+    if let [sx, sy, ..] = *s
+        && ((sx - sy) / sy).abs() > MAX_PIXEL_ANISOTROPY
+    {
+        return Err(DemError::Invalid(format!("the pixels are {sx} × {sy} (model units): heightfields need square pixels, so resample the file to square pixels first")));
+    }
     let epsg = geo_key(keys, geokey::PROJECTED_CS).filter(|&c| c != 32767 && c != 0);
     let geo = corner.map(|c| GeoRef { origin_m: [c[0] * unit_m, c[1] * unit_m], epsg });
     Ok((s[0] * unit_m, geo))

@@ -128,13 +128,36 @@ fn degree_pixels_are_converted_or_refused() {
     assert!((lon - 111_319.5).abs() < 1.0 && (lat - 110_574.3).abs() < 1.0, "{lon} {lat}");
 }
 
+/// The terrain-RGB fixture (Mount Fuji) decodes to its exact highest sample, 3,751.0 m (the
+/// summit is 3,776 m; the tile's pixels average over tens of metres), and a far lower foot.
 #[test]
-fn terrain_rgb_fixture_decodes_to_plausible_heights() {
+fn terrain_rgb_fixture_decodes_to_its_exact_summit() {
     let hf = Heightfield::read_path(&shared("fixtures/fuji_terrain_rgb.png"), Some(30.0), PngScale::default()).unwrap();
     let max = hf.data.iter().copied().filter(|v| !v.is_nan()).fold(f32::MIN, f32::max);
     let min = hf.data.iter().copied().filter(|v| !v.is_nan()).fold(f32::MAX, f32::min);
-    assert!((2500.0..4000.0).contains(&max), "Fuji's summit is 3776 m, read {max}");
+    assert!((max - 3751.0).abs() < 0.05, "the fixture's highest sample is 3751.0 m, read {max}");
     assert!(min < 1500.0, "the foot is far lower: {min}");
+}
+
+/// A projected GeoTIFF in US survey feet (EPSG linear unit 9003) or international feet (9002)
+/// with 100-unit pixels reads as 30.48006 m or 30.48 m pixels.
+#[test]
+fn feet_pixels_are_read_in_metres() {
+    for (unit, metres) in [(9002u16, 30.48), (9003, 30.480_060_960_121_92)] {
+        let mut buf = Cursor::new(Vec::new());
+        {
+            let mut enc = TiffEncoder::new(&mut buf).unwrap();
+            let mut img = enc.new_image::<colortype::Gray32Float>(2, 2).unwrap();
+            img.encoder().write_tag(Tag::Unknown(MODEL_PIXEL_SCALE), &[100.0, 100.0, 0.0][..]).unwrap();
+            img.encoder().write_tag(Tag::Unknown(MODEL_TIEPOINT), &[0.0, 0.0, 0.0, 1000.0, 2000.0, 0.0][..]).unwrap();
+            img.encoder().write_tag(Tag::Unknown(GEO_KEY_DIRECTORY), &[1u16, 1, 0, 2, geokey::MODEL_TYPE, 0, 1, 1, geokey::LINEAR_UNITS, 0, 1, unit][..]).unwrap();
+            img.write_data(&[1f32, 2.0, 3.0, 4.0]).unwrap();
+        }
+        buf.set_position(0);
+        let hf = Heightfield::read_tiff(buf, f64::NAN).unwrap();
+        assert!((hf.spacing_m - metres).abs() < 1e-9, "unit {unit}: {} m", hf.spacing_m);
+        assert_eq!(hf.geo.unwrap().origin_m, [1000.0 * metres / 100.0, 2000.0 * metres / 100.0]);
+    }
 }
 
 #[test]
@@ -201,4 +224,45 @@ fn bicubic_upsampling_follows_smooth_surfaces() {
     assert!(flat.data.iter().all(|&v| (v - 123.5).abs() < 1e-4));
     let w: f32 = cubic_weights(0.3).iter().sum();
     assert!((w - 1.0).abs() < 1e-6);
+}
+
+/// A DEM a user gives: the GeoTIFF's own 25 m is used without a spacing and with a
+/// matching one; a conflicting 30 m is refused with both numbers; a file without a pixel
+/// size needs one (refused without, read with it).
+#[test]
+fn a_user_spacing_must_agree_with_the_files_own() {
+    let dir = std::env::temp_dir().join(format!("terrain-user-spacing-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let tif = dir.join("own.tif");
+    Heightfield::new(2, 2, 25.0, vec![1.0, 2.0, 3.0, 4.0]).write_tiff(std::fs::File::create(&tif).unwrap()).unwrap();
+    let read = |path: &std::path::Path, given| Heightfield::read_user_path(path, given, PngScale::default());
+    assert_eq!(read(&tif, None).unwrap().spacing_m, 25.0);
+    assert_eq!(read(&tif, Some(25.1)).unwrap().spacing_m, 25.0, "within 1 %");
+    let e = read(&tif, Some(30.0)).unwrap_err().to_string();
+    assert!(e.contains("says its pixels are 25 m, but 30 m was given"), "{e}");
+    let plain = dir.join("plain.tif");
+    {
+        let mut enc = TiffEncoder::new(std::fs::File::create(&plain).unwrap()).unwrap();
+        enc.write_image::<colortype::Gray32Float>(2, 2, &[1.0, 2.0, 3.0, 4.0]).unwrap();
+    }
+    assert!(read(&plain, None).unwrap_err().to_string().contains("has no pixel size"));
+    assert_eq!(read(&plain, Some(8.0)).unwrap().spacing_m, 8.0);
+}
+
+/// A projected GeoTIFF with pixels 10 m × 12 m is refused (heightfields are square), instead
+/// of being read as 10 m in both directions.
+#[test]
+fn non_square_projected_pixels_are_refused() {
+    let mut buf = Cursor::new(Vec::new());
+    {
+        let mut enc = TiffEncoder::new(&mut buf).unwrap();
+        let mut img = enc.new_image::<colortype::Gray32Float>(2, 2).unwrap();
+        img.encoder().write_tag(Tag::Unknown(MODEL_PIXEL_SCALE), &[10.0, 12.0, 0.0][..]).unwrap();
+        img.encoder().write_tag(Tag::Unknown(MODEL_TIEPOINT), &[0.0, 0.0, 0.0, 500_000.0, 5_000_000.0, 0.0][..]).unwrap();
+        img.encoder().write_tag(Tag::Unknown(GEO_KEY_DIRECTORY), &[1u16, 1, 0, 1, geokey::MODEL_TYPE, 0, 1, 1][..]).unwrap();
+        img.write_data(&[1f32, 2.0, 3.0, 4.0]).unwrap();
+    }
+    buf.set_position(0);
+    let e = Heightfield::read_tiff(buf, f64::NAN).unwrap_err().to_string();
+    assert!(e.contains("10 × 12") && e.contains("square pixels"), "{e}");
 }

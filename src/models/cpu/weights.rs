@@ -57,7 +57,8 @@ pub fn convs_from_burnpack(bytes: &[u8], layers: &[(String, usize, usize)]) -> R
             _ => return Err(crate::models::WeightError::Type { name: name.to_string(), dtype: format!("{dtype:?}") }),
         };
         let dims = shape.to_vec();
-        if data.len() != dims.iter().product::<usize>() * size {
+        // A crafted shape may overflow: then no file can fill it.
+        if dims.iter().try_fold(size, |n, &d| n.checked_mul(d)) != Some(data.len()) {
             return Err(crate::models::WeightError::Size { name: name.to_string(), bytes: data.len(), shape: dims });
         }
         let values = data.chunks_exact(size).map(decode).collect();

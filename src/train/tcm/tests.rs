@@ -52,7 +52,8 @@ fn smoke_training_resumes_from_its_checkpoint() {
 /// fresh CPU run's checkpoint), three steps of each network (L1, adversarial and
 /// discriminator terms) on burn's wgpu backend (lavapipe here) and on its CPU backend give
 /// running L1 losses within 1e-4 (units of the height scale; f32 with other summation
-/// orders), and the steps change the TCM's by more than ten times that gap.
+/// orders), and the steps change the TCM's by more than ten times the TCM's own gap between
+/// the backends (the ×4 step's gap, ~2e-5 on some runs, is not the TCM's).
 #[test]
 fn gpu_and_cpu_backends_train_the_same_three_tcm_and_x4_steps() {
     use crate::train::Backend;
@@ -83,7 +84,8 @@ fn gpu_and_cpu_backends_train_the_same_three_tcm_and_x4_steps() {
     // running mean of a smaller loss, by about 1e-5 in three steps; a running mean can come
     // back near where it started, so the largest move counts, not the last).
     let moved = cpu.iter().map(|l| (l[0] - cpu[0][0]).abs()).fold(0f64, f64::max);
-    assert!(moved > 10.0 * gap.max(1e-6), "the steps did not change the TCM's loss: {cpu:?}");
+    let tcm_gap = gpu.iter().zip(&cpu).map(|(a, b)| (a[0] - b[0]).abs()).fold(0f64, f64::max);
+    assert!(moved > 10.0 * tcm_gap.max(1e-6), "the steps did not change the TCM's loss: {cpu:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
