@@ -21,6 +21,15 @@ pub const LINK_VERSION: u32 = 2;
 /// Longest weights hash a link may carry (hex digits).
 const MAX_HASH_DIGITS: usize = 16;
 
+/// Relevance radius a link may carry and the settings panel offers (tiles): one range, so
+/// neither clamps the other's values. The node budget keeps the largest within the GPU's
+/// memory ([`crate::render::node_budget`]).
+pub const RADIUS_TILES: std::ops::RangeInclusive<f64> = 1.0..=16.0;
+/// LOD target (screen pixels per sample) a link may carry and the settings panel offers.
+pub const LOD_PX: std::ops::RangeInclusive<f64> = 0.5..=64.0;
+/// Autopilot speed (m/s) a link may carry and the settings panel offers.
+pub const AUTOPILOT_MPS: std::ops::RangeInclusive<f64> = 0.0..=5000.0;
+
 /// Everything a link carries.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShareState {
@@ -227,15 +236,15 @@ impl ShareState {
                 }
                 "r" => {
                     let [r] = numbers::<1>(key, value)?;
-                    if !(1.0..=16.0).contains(&r) {
-                        return Err(ShareError(format!("radius {r} is outside 1..16 tiles")));
+                    if !RADIUS_TILES.contains(&r) {
+                        return Err(ShareError(format!("radius {r} is outside {}..{} tiles", RADIUS_TILES.start(), RADIUS_TILES.end())));
                     }
                     s.radius_tiles = r;
                 }
                 "lod" => {
                     let [px] = numbers::<1>(key, value)?;
-                    if !(0.5..=64.0).contains(&px) {
-                        return Err(ShareError(format!("lod {px} is outside 0.5..64 px")));
+                    if !LOD_PX.contains(&px) {
+                        return Err(ShareError(format!("lod {px} is outside {}..{} px", LOD_PX.start(), LOD_PX.end())));
                     }
                     s.lod_px = px;
                 }
@@ -275,8 +284,8 @@ impl ShareState {
                 }
                 "auto" => {
                     let [v] = numbers::<1>(key, value)?;
-                    if !(0.0..=5000.0).contains(&v) {
-                        return Err(ShareError(format!("autopilot speed {v} is outside 0..5000 m/s")));
+                    if !AUTOPILOT_MPS.contains(&v) {
+                        return Err(ShareError(format!("autopilot speed {v} is outside {}..{} m/s", AUTOPILOT_MPS.start(), AUTOPILOT_MPS.end())));
                     }
                     s.autopilot_mps = v;
                 }

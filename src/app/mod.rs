@@ -85,6 +85,11 @@ pub struct TerrainApp {
     pub show_lod: bool,
     frame_ms: VecDeque<f64>,
     stats: AppStats,
+    /// Most nodes a frame may draw (the GPU's mesh memory; unbounded without a GPU).
+    node_budget: Option<usize>,
+    /// The factor (≥ 1) the user's LOD target is raised by to keep the view within the node
+    /// budget.
+    lod_boost: f64,
     time_s: f64,
     /// The sketch canvas (the sketch world shows its terrain).
     pub canvas: Canvas,
@@ -134,6 +139,8 @@ impl TerrainApp {
             show_lod: false,
             frame_ms: VecDeque::new(),
             stats: AppStats::default(),
+            node_budget: None,
+            lod_boost: 1.0,
             time_s: 0.0,
             canvas,
             sketch_models: LearnedStatus::Loading,
@@ -475,10 +482,14 @@ impl TerrainApp {
         let aspect = size_px[0].max(1) as f32 / size_px[1].max(1) as f32;
         let refining = self.refine_backend.is_some();
         let max_depth = if refining { BASE_DATA_DEPTH + LEVELS as u8 } else { BASE_DATA_DEPTH };
-        let view = self.camera.lod_view(aspect, size_px[1].max(1) as f32, self.settings.lod_px, max_depth);
+        let lod_px = self.settings.lod_px * self.lod_boost;
+        let view = self.camera.lod_view(aspect, size_px[1].max(1) as f32, lod_px, max_depth);
         let mut budget = NODE_BUILD_BUDGET;
         let refine = if refining { Some(&mut self.refine) } else { None };
         let nodes = self.nodes.select(&tiles, &self.world, refine, &view, &mut budget);
+        self.fit_node_budget(nodes.len());
+        self.stats.lod_px_effective = lod_px;
+        self.stats.node_budget = self.node_budget;
         self.stats.world_ms = (t1 - t0).as_secs_f64() * 1e3;
         self.stats.nodes_ms = t1.elapsed().as_secs_f64() * 1e3;
 
@@ -522,6 +533,26 @@ impl TerrainApp {
             time_s: self.time_s as f32,
         };
         (nodes, params)
+    }
+
+    /// Most nodes a frame may draw on the GPU the view is drawn with
+    /// ([`crate::render::node_budget`]).
+    pub fn set_node_budget(&mut self, nodes: usize) {
+        self.node_budget = Some(nodes.max(1));
+    }
+
+    /// Raises the LOD target by a quarter while the view selected with it has more nodes
+    /// than the budget (up to the coarsest target a link may ask for), and lowers it again by
+    /// a tenth (never below the user's) while it has fewer than 60 % of them. Each step
+    /// changes the node count by less than the band between the two, so it settles.
+    fn fit_node_budget(&mut self, nodes: usize) {
+        let Some(budget) = self.node_budget else { return };
+        let most = crate::share::LOD_PX.end() / self.settings.lod_px;
+        if nodes > budget {
+            self.lod_boost = (self.lod_boost * 1.25).min(most.max(1.0));
+        } else if (nodes as f64) < 0.6 * budget as f64 {
+            self.lod_boost = (self.lod_boost / 1.1).max(1.0);
+        }
     }
 
     /// Turns learned refinement on (TEM models ready; `backend` names where they run, for the

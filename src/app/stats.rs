@@ -26,6 +26,11 @@ pub struct AppStats {
     pub nodes_cached: usize,
     /// Deepest quadtree depth drawn in the last frame.
     pub max_depth_drawn: u8,
+    /// Most nodes a frame may draw on this device (`None`: no GPU limit known).
+    pub node_budget: Option<usize>,
+    /// The LOD target the view is selected with (px): the user's, or coarser while the
+    /// view would exceed the node budget.
+    pub lod_px_effective: f64,
     /// Refined patches (TEM quads) made since the world was created.
     pub quads_made: u64,
     /// Mean TEM inference time per quad (milliseconds, read-back included).

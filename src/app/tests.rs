@@ -367,3 +367,35 @@ fn a_sketch_link_with_other_weights_gets_a_note_when_the_generator_is_ready() {
     let mut same = TerrainApp::new(ShareState { source: SourceKind::Sketch, weights: Some("new".into()), ..ShareState::default() });
     assert_eq!(same.set_sketch_models(LearnedStatus::Ready { hash: "new".into() }), None);
 }
+
+/// On a device whose buffers hold 600 node meshes (a budget of 300 nodes), the widest view a
+/// link may ask for (radius 16 tiles, LOD target 0.5 px) of the procedural world selects
+/// more nodes than that without the budget; with it, the app raises its LOD target until the
+/// view fits and, from frame 40 of 60 on, stays within 5 % of the budget (nodes are built a
+/// few per frame, so the count may pass it by a few before the target moves; the renderer's
+/// buffer holds twice the budget); at the default settings a 256 MiB device's budget changes
+/// nothing.
+#[test]
+fn the_view_fits_the_gpus_node_budget() {
+    let small = crate::render::node_budget(600 * crate::render::MESH_BYTES);
+    assert_eq!(small, 300);
+    let run = |s: ShareState, budget: Option<usize>| {
+        let mut app = TerrainApp::new(s);
+        if let Some(b) = budget {
+            app.set_node_budget(b);
+        }
+        let eye = app.camera.position_m;
+        app.world.update(eye.x, eye.z, 1e9);
+        let drawn: Vec<usize> = (0..60).map(|_| app.frame(&ControlInput::default(), 1.0 / 60.0, [1280, 800]).0.len()).collect();
+        (drawn, app.stats().clone())
+    };
+    let widest = ShareState { lod_px: 0.5, ..procedural(16.0) };
+    let (free, s) = run(widest.clone(), None);
+    let (fitted, f) = run(widest, Some(small));
+    eprintln!("widest view: {} nodes free; {} nodes at LOD {:.2} px with a budget of {small}", free[59], fitted[59], f.lod_px_effective);
+    assert!(free[59] > small && s.lod_px_effective == 0.5 && s.node_budget.is_none(), "{}", free[59]);
+    assert!(fitted[40..].iter().all(|&n| n <= small + small / 20), "{fitted:?}");
+    assert!(f.lod_px_effective > 0.5 && f.node_budget == Some(small));
+    let (_, d) = run(procedural(4.0), Some(crate::render::node_budget(crate::render::MESH_MEMORY_BUDGET)));
+    assert_eq!(d.lod_px_effective, ShareState::default().lod_px);
+}

@@ -7,6 +7,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use wgpu::util::DeviceExt;
 
+use super::MESH_BYTES;
 use super::camera::Camera;
 use super::mesh::{NODE_VERTICES, Vertex, node_indices, node_vertices};
 use super::resident::{ResidentMeshes, Slots};
@@ -74,6 +75,8 @@ pub struct RenderStats {
     pub triangles: usize,
     /// Node meshes resident on the GPU.
     pub resident: usize,
+    /// Nodes of the frame not drawn: more than the mesh buffer's slots on this device.
+    pub over_budget: usize,
     /// Wall time (milliseconds) of the frame's uniform writes and mesh uploads.
     pub upload_ms: f64,
     /// Wall time (milliseconds) of encoding the pass and submitting it.
@@ -102,12 +105,12 @@ pub struct TerrainRenderer {
     slots: Slots,
     /// All node meshes, [`NODE_VERTICES`] vertices per slot.
     slab: wgpu::Buffer,
+    /// Most slots the mesh buffer may have on this device.
+    slot_limit: u32,
     target: Option<Target>,
 }
 
-/// Bytes of one node mesh (one slot of the mesh buffer).
-const MESH_BYTES: u64 = (NODE_VERTICES * std::mem::size_of::<Vertex>()) as u64;
-/// Slots the mesh buffer starts with (it doubles when full).
+/// Slots the mesh buffer starts with (it doubles when full, up to [`super::mesh_slots`]).
 const FIRST_SLOTS: u32 = 64;
 const _: () = assert!(MESH_BYTES.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT));
 
@@ -198,6 +201,7 @@ impl TerrainRenderer {
             meshes: ResidentMeshes::default(),
             slots,
             slab,
+            slot_limit: super::mesh_slots(device.limits().max_buffer_size).max(FIRST_SLOTS),
             target: None,
         }
     }
@@ -274,10 +278,22 @@ impl TerrainRenderer {
         let t0 = web_time::Instant::now();
         queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&g));
 
+        // Never more nodes than the device's mesh buffer can hold (the app keeps its view
+        // within half of that by raising its LOD target).
+        let drawn = nodes.len().min(self.slot_limit as usize);
+        stats.over_budget = nodes.len() - drawn;
+        let nodes = &nodes[..drawn];
         let mut inst = Vec::with_capacity(nodes.len());
         // Room for every node of this frame, should all be new: the mesh buffer doubles (its
-        // contents copied on the GPU) when needed.
-        let capacity = self.slots.capacity_for(nodes.len() as u32, FIRST_SLOTS);
+        // contents copied on the GPU) when needed, up to the limit; at the limit, meshes of
+        // nodes not in this frame leave first.
+        let capacity = self.slots.capacity_for(nodes.len() as u32, FIRST_SLOTS).min(self.slot_limit);
+        if self.slots.in_use() as usize + nodes.len() > capacity as usize {
+            let ids: std::collections::HashSet<_> = nodes.iter().map(|n| n.id).collect();
+            for slot in self.meshes.evict_unless(|id| ids.contains(id)) {
+                self.slots.give(slot);
+            }
+        }
         if capacity > self.slots.capacity() {
             let slab = Self::slab_buffer(device, capacity);
             let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("grow node meshes") });
@@ -293,7 +309,7 @@ impl TerrainRenderer {
                 // One buffer for all meshes, written with queued writes: a buffer per mesh
                 // (and worse, one mapped at creation) costs a round trip to the browser's GPU
                 // process each (7–9 ms on SwiftShader, measured in the page).
-                let slot = old.or_else(|| slots.take()).expect("capacity reserved above");
+                let slot = old.or_else(|| slots.take()).expect("room made above");
                 queue.write_buffer(slab, slot as u64 * MESH_BYTES, bytemuck::cast_slice(&node_vertices(n)));
                 slot
             });

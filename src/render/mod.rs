@@ -17,6 +17,26 @@ pub use pacing::FramePacer;
 /// full resolution.
 pub const SOFTWARE_VIEW_SCALE: f32 = 0.5;
 
+/// Bytes of one node mesh on the GPU (one slot of the renderer's mesh buffer).
+pub const MESH_BYTES: u64 = (mesh::NODE_VERTICES * std::mem::size_of::<mesh::Vertex>()) as u64;
+
+/// Most GPU memory the node meshes take on any device (bytes): 256 MiB, the largest buffer
+/// every WebGPU device must offer.
+pub const MESH_MEMORY_BUDGET: u64 = 256 << 20;
+
+/// Slots of the mesh buffer on a device whose buffers may hold `max_buffer_size` bytes: the
+/// buffer never exceeds that limit nor [`MESH_MEMORY_BUDGET`].
+pub fn mesh_slots(max_buffer_size: u64) -> u32 {
+    (max_buffer_size.min(MESH_MEMORY_BUDGET) / MESH_BYTES).min(u32::MAX as u64) as u32
+}
+
+/// Nodes a frame may draw on such a device: half the mesh slots, the other half keeping the
+/// meshes of recent frames (turning back needs no uploads). Over it, the app raises its
+/// effective LOD target until the view fits.
+pub fn node_budget(max_buffer_size: u64) -> usize {
+    mesh_slots(max_buffer_size) as usize / 2
+}
+
 /// Size (pixels) of the 3-D view's target for a view of `points` (egui points) at
 /// `pixels_per_point`, drawn at [`SOFTWARE_VIEW_SCALE`] on a software adapter; at least 1×1.
 pub fn view_size(points: [f32; 2], pixels_per_point: f32, software_adapter: bool) -> [u32; 2] {

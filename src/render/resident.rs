@@ -60,6 +60,12 @@ impl<M> ResidentMeshes<M> {
         self.entries.extract_if(|_, e| frame - e.last_used > keep_frames).map(|(_, e)| e.mesh).collect()
     }
 
+    /// Drops the meshes of the nodes `keep` rejects and returns them (room for a frame that
+    /// needs every slot).
+    pub fn evict_unless(&mut self, keep: impl Fn(&NodeId) -> bool) -> Vec<M> {
+        self.entries.extract_if(|id, _| !keep(id)).map(|(_, e)| e.mesh).collect()
+    }
+
     /// Meshes resident now.
     pub fn len(&self) -> usize {
         self.entries.len()

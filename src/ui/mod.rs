@@ -166,12 +166,14 @@ pub struct Overlay {
     pub show_settings: bool,
     /// Where "Copy link" was drawn last frame (points), for tests that click it.
     pub copy_link_rect: Option<egui::Rect>,
+    /// Where the settings' seed field is on screen, once shown (points).
+    pub seed_rect: Option<egui::Rect>,
 }
 
 impl Overlay {
     /// An overlay editing `s`.
     pub fn new(s: ShareState) -> Self {
-        Self { draft: s.clone(), applied: s, show_settings: false, copy_link_rect: None }
+        Self { draft: s.clone(), applied: s, show_settings: false, copy_link_rect: None, seed_rect: None }
     }
 
     /// Replaces the draft with settings that came from elsewhere (e.g. a link opened in the
@@ -212,6 +214,10 @@ impl Overlay {
             ui.monospace(format!("tiles {} generated, {}/{} cached", stats.tiles_generated, stats.tiles_cached, stats.tiles_capacity));
             ui.monospace(format!("{:.2} ms per tile   {} evicted", stats.ms_per_tile, stats.tiles_evicted));
             ui.monospace(format!("nodes {} drawn (depth ≤ {}), {} cached", stats.nodes_drawn, stats.max_depth_drawn, stats.nodes_cached));
+            if stats.lod_px_effective > self.applied.lod_px * 1.001 {
+                let text = format!("Detail lowered to fit the GPU's memory: LOD target {:.1} px instead of {:.1} px", stats.lod_px_effective, self.applied.lod_px);
+                ui.label(egui::RichText::new(text).color(egui::Color32::from_rgb(255, 200, 120)));
+            }
             ui.monospace(format!("{} k triangles, {} uploads, CPU {:.1} ms", env.triangles / 1000, env.uploads, env.cpu_ms));
             ui.monospace(format!("eye {:.0}, {:.0}, {:.0} m", stats.eye_m[0], stats.eye_m[1], stats.eye_m[2]));
             ui.label(format!("GPU: {}", env.adapter));
@@ -292,16 +298,20 @@ impl Overlay {
     }
 
     fn settings_ui(&mut self, ui: &mut egui::Ui) -> Option<ShareState> {
+        use crate::world::noise::ranges;
         let d = &mut self.draft;
         egui::Grid::new("settings").num_columns(2).show(ui, |ui| {
             ui.label("Seed");
-            ui.add(egui::DragValue::new(&mut d.seed));
+            // A typed seed applies on Enter or when the field loses focus, not per keystroke
+            // (every seed is a new world).
+            let seed = ui.add(egui::DragValue::new(&mut d.seed).update_while_editing(false));
+            self.seed_rect = Some(seed.rect);
             ui.end_row();
             ui.label("Radius (tiles)");
-            ui.add(egui::Slider::new(&mut d.radius_tiles, 1.0..=8.0).step_by(0.5));
+            ui.add(egui::Slider::new(&mut d.radius_tiles, crate::share::RADIUS_TILES));
             ui.end_row();
             ui.label("LOD target (px)");
-            ui.add(egui::Slider::new(&mut d.lod_px, 1.0..=32.0).logarithmic(true));
+            ui.add(egui::Slider::new(&mut d.lod_px, crate::share::LOD_PX).logarithmic(true));
             ui.end_row();
             ui.label("World");
             ui.horizontal(|ui| {
@@ -311,7 +321,7 @@ impl Overlay {
             });
             ui.end_row();
             ui.label("Autopilot (m/s)");
-            ui.add(egui::Slider::new(&mut d.autopilot_mps, 0.0..=2000.0));
+            ui.add(egui::Slider::new(&mut d.autopilot_mps, crate::share::AUTOPILOT_MPS));
             ui.end_row();
             if d.source != SourceKind::Procedural {
                 return;
@@ -323,22 +333,22 @@ impl Overlay {
             });
             ui.end_row();
             ui.label("Octaves");
-            ui.add(egui::Slider::new(&mut d.noise.octaves, 1..=12));
+            ui.add(egui::Slider::new(&mut d.noise.octaves, ranges::OCTAVES));
             ui.end_row();
             ui.label("Persistence");
-            ui.add(egui::Slider::new(&mut d.noise.persistence, 0.2..=0.8));
+            ui.add(egui::Slider::new(&mut d.noise.persistence, ranges::PERSISTENCE));
             ui.end_row();
             ui.label("Lacunarity");
-            ui.add(egui::Slider::new(&mut d.noise.lacunarity, 1.5..=3.0));
+            ui.add(egui::Slider::new(&mut d.noise.lacunarity, ranges::LACUNARITY));
             ui.end_row();
             ui.label("Wavelength (m)");
-            ui.add(egui::Slider::new(&mut d.noise.wavelength_m, 1000.0..=100_000.0).logarithmic(true));
+            ui.add(egui::Slider::new(&mut d.noise.wavelength_m, ranges::WAVELENGTH_M).logarithmic(true));
             ui.end_row();
             ui.label("Amplitude (m)");
-            ui.add(egui::Slider::new(&mut d.noise.amplitude_m, 0.0..=6000.0));
+            ui.add(egui::Slider::new(&mut d.noise.amplitude_m, ranges::AMPLITUDE_M));
             ui.end_row();
             ui.label("Base (m)");
-            ui.add(egui::Slider::new(&mut d.noise.base_m, -2000.0..=2000.0));
+            ui.add(egui::Slider::new(&mut d.noise.base_m, ranges::BASE_M));
             ui.end_row();
         });
         // Apply once a drag ends (or a value is typed), not on every intermediate value: each
@@ -354,6 +364,74 @@ impl Overlay {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::world::NoiseParams;
+
+    /// Draws the overlay for one frame with `events`, returning the settings it applied.
+    fn overlay_frame(ctx: &egui::Context, overlay: &mut Overlay, events: Vec<egui::Event>) -> Option<ShareState> {
+        let input = egui::RawInput { screen_rect: Some(egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1280.0, 1600.0))), events, ..Default::default() };
+        let (mut speed, mut lod, mut refine) = (100.0, false, true);
+        let mut applied = None;
+        let out = ctx.run_ui(input, |ui| {
+            applied = overlay.show(ui.ctx(), &AppStats::default(), &Environment::default(), CameraMode::Fly, &mut speed, &mut lod, &mut refine, None, false).settings;
+        });
+        let mut delta = out.textures_delta;
+        delta.clear();
+        applied
+    }
+
+    /// A seed typed digit by digit into the settings is applied once, on Enter: no world is
+    /// made for "1" or "12" on the way to "123".
+    #[test]
+    fn a_typed_seed_applies_on_enter_not_per_keystroke() {
+        let mut overlay = Overlay::new(ShareState::default());
+        overlay.show_settings = true;
+        let ctx = egui::Context::default();
+        for _ in 0..3 {
+            assert_eq!(overlay_frame(&ctx, &mut overlay, vec![]), None);
+        }
+        let at = overlay.seed_rect.expect("the seed field is shown").center();
+        let button = |pressed| egui::Event::PointerButton { pos: at, button: egui::PointerButton::Primary, pressed, modifiers: Default::default() };
+        let mut applied = Vec::new();
+        applied.extend(overlay_frame(&ctx, &mut overlay, vec![egui::Event::PointerMoved(at), button(true)]));
+        applied.extend(overlay_frame(&ctx, &mut overlay, vec![button(false)]));
+        applied.extend(overlay_frame(&ctx, &mut overlay, vec![]));
+        // The click selected the field's text: the digits replace it.
+        for digit in ["1", "2", "3"] {
+            applied.extend(overlay_frame(&ctx, &mut overlay, vec![egui::Event::Text(digit.into())]));
+        }
+        assert!(applied.is_empty(), "applied while typing: {:?}", applied.iter().map(|s| s.seed).collect::<Vec<_>>());
+        let enter = egui::Event::Key { key: egui::Key::Enter, physical_key: None, pressed: true, repeat: false, modifiers: Default::default() };
+        applied.extend(overlay_frame(&ctx, &mut overlay, vec![enter]));
+        applied.extend(overlay_frame(&ctx, &mut overlay, vec![]));
+        assert_eq!(applied.iter().map(|s| s.seed).collect::<Vec<_>>(), vec![123], "one world, for the whole seed");
+    }
+
+    /// Linked values at both ends of every range a link may carry (radius 1 and 16 tiles, LOD
+    /// 0.5 and 64 px, autopilot 0 and 5000 m/s, 1 and 16 octaves, persistence 0 and 1,
+    /// lacunarity 1 and 4, wavelength 100 m and 1000 km, amplitude 0 and 20 km, base ±20 km)
+    /// survive opening Settings: nothing is clamped and no change is applied.
+    #[test]
+    fn opening_settings_keeps_every_value_a_link_may_carry() {
+        let low = NoiseParams { octaves: 1, persistence: 0.0, lacunarity: 1.0, wavelength_m: 100.0, amplitude_m: 0.0, base_m: -20_000.0, ..Default::default() };
+        let high = NoiseParams { octaves: 16, persistence: 1.0, lacunarity: 4.0, wavelength_m: 1.0e6, amplitude_m: 20_000.0, base_m: 20_000.0, ..Default::default() };
+        let linked = [
+            ShareState { source: SourceKind::Procedural, radius_tiles: 1.0, lod_px: 0.5, autopilot_mps: 0.0, noise: low, ..Default::default() },
+            ShareState { source: SourceKind::Procedural, radius_tiles: 16.0, lod_px: 64.0, autopilot_mps: 5000.0, noise: high, ..Default::default() },
+            ShareState { source: SourceKind::Procedural, radius_tiles: 5.3, lod_px: 3.3, autopilot_mps: 1234.5, ..Default::default() },
+        ];
+        for s in linked {
+            let s = ShareState::from_fragment(&s.to_fragment()).expect("a link the parser takes");
+            let mut overlay = Overlay::new(s.clone());
+            overlay.show_settings = true;
+            let ctx = egui::Context::default();
+            let mut applied = None;
+            for _ in 0..3 {
+                applied = applied.or(overlay_frame(&ctx, &mut overlay, vec![]));
+            }
+            assert_eq!(overlay.draft, s, "the settings panel changed a linked value");
+            assert_eq!(applied, None);
+        }
+    }
 
     /// The browser's description names the adapter and SwiftShader in it marks a software
     /// rasteriser; without one, wgpu's first name stands in and nothing is taken for software.

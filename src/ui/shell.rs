@@ -323,6 +323,9 @@ impl<P: Platform> PageShell<P> {
         let Some(gpu) = gpu else { return };
         let clock = self.clock;
         let ms = move || clock.elapsed().as_secs_f64() * 1e3;
+        if self.renderer.is_none() {
+            self.core.app.set_node_budget(crate::render::node_budget(gpu.device.limits().max_buffer_size));
+        }
         let renderer = self.renderer.get_or_insert_with(|| TerrainRenderer::new(gpu.device));
         if renderer.ensure_target(gpu.device, size) || self.texture.is_none() {
             let view = renderer.color_view().expect("target just ensured");

@@ -17,6 +17,24 @@ pub enum NoiseKind {
     Ridged,
 }
 
+/// The range of each parameter: what [`NoiseParams::validate`] accepts, what a link may carry
+/// and what the settings panel offers (one table, so no value is clamped on the way).
+pub mod ranges {
+    use std::ops::RangeInclusive;
+    /// Octaves.
+    pub const OCTAVES: RangeInclusive<u32> = 1..=16;
+    /// Persistence.
+    pub const PERSISTENCE: RangeInclusive<f32> = 0.0..=1.0;
+    /// Lacunarity.
+    pub const LACUNARITY: RangeInclusive<f32> = 1.0..=4.0;
+    /// Wavelength of the first octave (metres).
+    pub const WAVELENGTH_M: RangeInclusive<f32> = 100.0..=1.0e6;
+    /// Amplitude (metres).
+    pub const AMPLITUDE_M: RangeInclusive<f32> = 0.0..=20_000.0;
+    /// Base height (metres).
+    pub const BASE_M: RangeInclusive<f32> = -20_000.0..=20_000.0;
+}
+
 /// Parameters of the procedural source. Units: metres unless stated.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct NoiseParams {
@@ -49,19 +67,19 @@ impl NoiseParams {
         if !finite {
             return Err("noise parameters must be finite numbers".into());
         }
-        if !(1..=16).contains(&self.octaves) {
+        if !ranges::OCTAVES.contains(&self.octaves) {
             return Err(format!("octaves must be 1..=16, got {}", self.octaves));
         }
-        if !(0.0..=1.0).contains(&self.persistence) {
+        if !ranges::PERSISTENCE.contains(&self.persistence) {
             return Err(format!("persistence must be in 0..1, got {}", self.persistence));
         }
-        if !(1.0..=4.0).contains(&self.lacunarity) {
+        if !ranges::LACUNARITY.contains(&self.lacunarity) {
             return Err(format!("lacunarity must be in 1..4, got {}", self.lacunarity));
         }
-        if !(100.0..=1.0e6).contains(&self.wavelength_m) {
+        if !ranges::WAVELENGTH_M.contains(&self.wavelength_m) {
             return Err(format!("wavelength must be 100 m..1000 km, got {} m", self.wavelength_m));
         }
-        if !(0.0..=20_000.0).contains(&self.amplitude_m) || self.base_m.abs() > 20_000.0 {
+        if !ranges::AMPLITUDE_M.contains(&self.amplitude_m) || !ranges::BASE_M.contains(&self.base_m) {
             return Err("amplitude and base must be within ±20 km".into());
         }
         Ok(())
