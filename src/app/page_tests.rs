@@ -123,6 +123,19 @@ fn broken_and_missing_weight_files_fail_their_set_with_the_fallback_said() {
     assert_eq!(core.app.stats().refine_backend, "");
 }
 
+/// A broken TCM file (bytes that are not weights) fails the learned world with the file named
+/// in the message, and the procedural world stands in.
+#[test]
+fn a_broken_tcm_file_is_named_and_the_procedural_world_stands_in() {
+    let swap = |name: &str| (name == TCM_FILE).then(|| Ok(b"not a burnpack file".to_vec()));
+    let mut core = PageCore::new(ShareState::default(), start(Ok(())));
+    let mut shell = Shell::new(&swap);
+    shell.frames(&mut core, 2);
+    let message = core.message.clone().unwrap_or_default();
+    assert!(message.starts_with("The learned world is not available") && message.contains(TCM_FILE) && message.ends_with("Showing the procedural world."), "{message}");
+    assert_eq!(core.app.source(), SourceKind::Procedural);
+}
+
 /// A worker that dies with requests in flight: those requests fail, the learned world falls
 /// back to the procedural one (made on the main thread again) with a message, and the TEM on
 /// the worker stops; nothing stays in flight.

@@ -60,11 +60,6 @@ impl DeviceWatch {
         self.lost.store(generation, SeqCst);
     }
 
-    /// The current device is being lost (destroyed on purpose).
-    pub fn lose_current(&self) {
-        self.lost(self.current.load(SeqCst));
-    }
-
     /// Whether the current device was lost and this is the first to ask since (then the page
     /// starts again on a new device; a restart is counted).
     pub fn take_loss(&self) -> bool {
@@ -102,7 +97,7 @@ mod tests {
     #[test]
     fn a_loss_of_the_current_device_is_taken_once_and_older_ones_never() {
         let w = DeviceWatch::new();
-        w.lose_current();
+        w.lost(0);
         assert!(!w.take_loss(), "no device yet");
         let first = w.new_device();
         assert_eq!(first, 1);

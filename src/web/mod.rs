@@ -37,11 +37,11 @@ static DEVICES: DeviceWatch = DeviceWatch::new();
 /// The page's runners: the CPU worker, the GPU and the main thread.
 type Runners = crate::app::runners::Runners<worker::CpuWorker>;
 
-/// Destroys the page's GPU device, as a driver reset would (the end-to-end test shows the
-/// page recovers); `false` if there is none.
+/// Destroys the page's GPU device, as a driver reset would: only the device's own lost
+/// callback tells the page (the end-to-end test shows it recovers); `false` if there is none.
 #[wasm_bindgen]
 pub fn terrain_lose_device() -> bool {
-    DEVICE.with(|d| d.borrow().as_ref().inspect(|_| DEVICES.lose_current()).map(|d| d.destroy()).is_some())
+    DEVICE.with(|d| d.borrow().as_ref().map(|d| d.destroy()).is_some())
 }
 
 /// Replaces the lost device: stops the old renderer and starts the page again at `state`.

@@ -170,7 +170,7 @@ function readTiffF32(buf) {
 const LEARNED_VIEW = 'v=2&seed=7&src=tcm&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6&auto=150';
 const LEARNED_FLIGHT_S = 20;
 
-test('the learned world: tiles from the CPU worker match the native CLI within 0.05 m; frame times while flying over it', async () => {
+test('the learned world: tiles from the CPU worker match the native CLI within 0.05 m and new ones stream in while flying (frame times reported as a benchmark)', async () => {
   const { page, errors } = await open(LEARNED_VIEW);
   const s = await waitFor(page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 20, 'the learned view', 300_000);
   // The tile under the camera's start, in the page and natively.
@@ -224,17 +224,24 @@ test('the learned world: tiles from the CPU worker match the native CLI within 0
 
 const FLIGHT_S = 60;
 // A fast flight over a small radius fills the tile cache (capacity 121 tiles) and, with the
-// CPU detail models in a worker refining during the flight, the patch store within the
-// warm-up (wasm memory stopped growing ~75 s in); memory is sampled after that, while tiles
-// keep being evicted and made.
-const WARM_UP_S = 60;
+// CPU detail models in a worker refining during the flight, the patch store: the warm-up
+// lasts until tiles are evicted and wasm memory stopped growing for 10 s (~75 s in, measured);
+// memory is sampled after that, while tiles keep being evicted and made.
+const WARM_UP_MAX_S = 300;
 const FLIGHT_VIEW = 'v=2&seed=7&src=procedural&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6&auto=5000';
 const mean = (v) => v.reduce((a, b) => a + b, 0) / v.length;
 
 test('a 60-second autopilot flight with a full tile cache streams new tiles with flat JS heap and wasm memory, and the module\'s static constructors ran once', async () => {
   const { page, errors } = await open(FLIGHT_VIEW);
   await waitFor(page, (s) => s.stats.frames > 10 && s.stats.nodes_drawn > 0, 'the flight view');
-  await page.waitForTimeout(WARM_UP_S * 1000);
+  const warm0 = Date.now();
+  await waitFor(page, (s) => s.stats.tiles_evicted > 0, 'a full tile cache (tiles evicted)', WARM_UP_MAX_S * 1000);
+  for (let last = -1; Date.now() - warm0 < WARM_UP_MAX_S * 1000; await page.waitForTimeout(10_000)) {
+    const now = await page.evaluate(() => window.wasmBindings.terrain_wasm_memory_bytes());
+    if (now === last) break;
+    last = now;
+  }
+  const warmUpS = (Date.now() - warm0) / 1000;
   const s0 = await stats(page);
   // Frame times (intervals between the 3-D view's frames) and the main thread's long tasks
   // (> 50 ms).
@@ -272,7 +279,7 @@ test('a 60-second autopilot flight with a full tile cache streams new tiles with
   const [wasmFirst, wasmLast] = firstLast(wasm);
   report.flight = {
     seconds: FLIGHT_S,
-    warm_up_s: WARM_UP_S,
+    warm_up_s: warmUpS,
     js_heap_mb_samples: heap.map((v) => +(v / 2 ** 20).toFixed(2)),
     wasm_mb_samples: wasm.map((v) => +(v / 2 ** 20).toFixed(2)),
     js_heap_mb_first_third: heapFirst / 2 ** 20,
@@ -343,6 +350,24 @@ test('a share link reproduces the same view and the same tiles', async () => {
   assert.match(sb.stats.view_checksum, /^[0-9a-f]{16}$/);
   assert.notEqual(sb.stats.view_checksum, '0000000000000000');
   assert.equal(sb.stats.nodes_drawn, sa2.stats.nodes_drawn);
+  assert.deepEqual(a.errors, []);
+  assert.deepEqual(b.errors, []);
+  await a.page.close();
+  await b.page.close();
+});
+
+test('a share link of the learned world reproduces the same view and the same tiles', async () => {
+  const still = LEARNED_VIEW.replace('&auto=150', '');
+  const a = await open(still);
+  const sa = await waitFor(a.page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 30, 'learned view A to settle', 300_000);
+  const b = await open(sa.link);
+  const sb = await waitFor(b.page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 30, 'learned view B to settle', 300_000);
+  const sa2 = await stats(a.page);
+  report.share_learned = { link: sa.link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum };
+  assert.match(sa.link, /src=tcm&w=[0-9a-f]{8}&/);
+  assert.deepEqual(sb.stats.eye_m, sa2.stats.eye_m);
+  assert.equal(sb.stats.view_checksum, sa2.stats.view_checksum, 'different learned tiles for the same link');
+  assert.notEqual(sb.stats.view_checksum, '0000000000000000');
   assert.deepEqual(a.errors, []);
   assert.deepEqual(b.errors, []);
   await a.page.close();
