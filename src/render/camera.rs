@@ -110,19 +110,46 @@ pub struct CameraController {
     pub orbit_target_m: DVec3,
     /// Orbit distance from the centre (metres).
     pub orbit_distance_m: f64,
+    /// The orbit's centre is where entering orbit put it (on the ground under the screen's
+    /// centre, or in the air looking at the sky): it follows the ground once the user moves it.
+    pub orbit_free: bool,
 }
+
+/// Steps of 50 m along the view ray searched for the orbit's pivot (50 km).
+const ORBIT_SEARCH_STEPS: usize = 1000;
 
 impl Default for CameraController {
     fn default() -> Self {
-        Self { mode: CameraMode::Fly, speed_mps: 300.0, look_per_px: 0.004, orbit_target_m: DVec3::ZERO, orbit_distance_m: 3000.0 }
+        Self { mode: CameraMode::Fly, speed_mps: 300.0, look_per_px: 0.004, orbit_target_m: DVec3::ZERO, orbit_distance_m: 3000.0, orbit_free: false }
     }
 }
 
 impl CameraController {
-    /// Switches mode; entering orbit picks the point `orbit_distance_m` ahead of the eye.
-    pub fn set_mode(&mut self, mode: CameraMode, cam: &Camera) {
+    /// Switches mode without moving the camera; entering orbit puts the pivot on the terrain
+    /// under the screen's centre (`ground(x, z)`: its height, metres, `None` where unknown).
+    pub fn set_mode(&mut self, mode: CameraMode, cam: &Camera, ground: impl Fn(f64, f64) -> Option<f32>) {
         if mode == CameraMode::Orbit && self.mode != CameraMode::Orbit {
-            self.orbit_target_m = cam.position_m + cam.forward().as_dvec3() * self.orbit_distance_m;
+            // The pivot is the terrain under the screen's centre, where the view ray first
+            // meets the ground (50 m steps, then halved to 1 m); looking at the sky, a point on
+            // the ray.
+            let (eye, dir) = (cam.position_m, cam.forward().as_dvec3());
+            let above = |t: f64| {
+                let p = eye + dir * t;
+                ground(p.x, p.z).is_none_or(|g| p.y > g as f64)
+            };
+            let hit = (1..=ORBIT_SEARCH_STEPS).map(|k| k as f64 * 50.0).find(|&t| !above(t)).map(|mut t| {
+                let mut step = 25.0;
+                while step >= 0.5 {
+                    t += if above(t) { step } else { -step };
+                    step *= 0.5;
+                }
+                t
+            });
+            self.orbit_distance_m = hit.unwrap_or(self.orbit_distance_m).clamp(50.0, 50_000.0);
+            self.orbit_target_m = eye + dir * self.orbit_distance_m;
+            // Not put on the ground (to the 1 m of the search) until the user moves it: entering
+            // orbit never moves the camera.
+            self.orbit_free = true;
         }
         self.mode = mode;
     }
@@ -154,7 +181,10 @@ impl CameraController {
                 let m = input.movement.as_dvec3();
                 let step = self.orbit_distance_m * 0.8 * boost * dt_s;
                 self.orbit_target_m += (r * m.x + flat * m.z + DVec3::Y * m.y) * step;
-                if let Some(g) = ground(self.orbit_target_m.x, self.orbit_target_m.z) {
+                self.orbit_free &= m == DVec3::ZERO;
+                if !self.orbit_free
+                    && let Some(g) = ground(self.orbit_target_m.x, self.orbit_target_m.z)
+                {
                     self.orbit_target_m.y = g as f64;
                 }
                 cam.position_m = self.orbit_target_m - cam.forward().as_dvec3() * self.orbit_distance_m;
@@ -202,10 +232,37 @@ mod tests {
             let g = 50.0 + (cam.position_m.x * 0.01).sin() * 40.0;
             assert!(cam.position_m.y >= g + MIN_CLEARANCE_M - 1e-3, "{} below {}", cam.position_m.y, g);
         }
-        ctl.set_mode(CameraMode::Orbit, &cam);
+        ctl.set_mode(CameraMode::Orbit, &cam, |_, _| None);
         for _ in 0..50 {
             ctl.update(&mut cam, &ControlInput { look_px: Vec2::new(3.0, -8.0), scroll: 2.0, ..Default::default() }, 0.1, |_, _| Some(500.0));
             assert!(cam.position_m.y >= 500.0 + MIN_CLEARANCE_M - 1e-3);
+        }
+    }
+
+    /// Switching from flying to orbiting leaves the camera where it was (to 1 mm): looking
+    /// down at ground 100 m high, the pivot is the ground under the screen's centre (to 1 m)
+    /// at the eye's distance to it; looking at the sky, a point on the view ray that stays
+    /// in the air until the user moves it.
+    #[test]
+    fn entering_orbit_keeps_the_camera_and_pivots_on_the_ground_at_the_screen_centre() {
+        let ground = |_: f64, _: f64| Some(100.0f32);
+        for pitch in [-0.5f32, 0.3] {
+            let mut cam = Camera { position_m: DVec3::new(10.0, 2000.0, -30.0), yaw: 0.7, pitch, ..Camera::default() };
+            let before = cam.position_m;
+            let mut ctl = CameraController::default();
+            ctl.set_mode(CameraMode::Orbit, &cam, ground);
+            for _ in 0..5 {
+                ctl.update(&mut cam, &ControlInput::default(), 0.016, ground);
+            }
+            assert!((cam.position_m - before).length() < 1e-3, "pitch {pitch}: moved from {before} to {}", cam.position_m);
+            let pivot = ctl.orbit_target_m;
+            if pitch < 0.0 {
+                assert!((pivot.y - 100.0).abs() < 1.0, "the pivot is at {pivot}");
+                assert!(((pivot - before).length() - ctl.orbit_distance_m).abs() < 1e-3, "{} vs {}", (pivot - before).length(), ctl.orbit_distance_m);
+                assert!(((pivot - before).normalize() - cam.forward().as_dvec3().normalize()).length() < 1e-6, "the pivot is on the view ray");
+            } else {
+                assert!(ctl.orbit_free && pivot.y > 2000.0, "a pivot in the air: {pivot}");
+            }
         }
     }
 

@@ -168,12 +168,14 @@ pub struct Overlay {
     pub copy_link_rect: Option<egui::Rect>,
     /// Where the settings' seed field is on screen, once shown (points).
     pub seed_rect: Option<egui::Rect>,
+    /// The statistics are shown (off by default: the overlay is for people).
+    pub show_stats: bool,
 }
 
 impl Overlay {
     /// An overlay editing `s`.
     pub fn new(s: ShareState) -> Self {
-        Self { draft: s.clone(), applied: s, show_settings: false, copy_link_rect: None, seed_rect: None }
+        Self { draft: s.clone(), applied: s, show_settings: false, copy_link_rect: None, seed_rect: None, show_stats: false }
     }
 
     /// Replaces the draft with settings that came from elsewhere (e.g. a link opened in the
@@ -209,39 +211,18 @@ impl Overlay {
             });
         }
         egui::Window::new("Terrain").anchor(egui::Align2::LEFT_TOP, [8.0, 8.0]).resizable(false).default_width(260.0).show(ctx, |ui| {
-            let fps = if stats.frame_ms_median > 0.0 { 1000.0 / stats.frame_ms_median } else { 0.0 };
-            ui.monospace(format!("{fps:5.1} FPS   {:5.1} ms (worst {:.1})", stats.frame_ms_median, stats.frame_ms_worst));
-            ui.monospace(format!("tiles {} generated, {}/{} cached", stats.tiles_generated, stats.tiles_cached, stats.tiles_capacity));
-            ui.monospace(format!("{:.2} ms per tile   {} evicted", stats.ms_per_tile, stats.tiles_evicted));
-            ui.monospace(format!("nodes {} drawn (depth ≤ {}), {} cached", stats.nodes_drawn, stats.max_depth_drawn, stats.nodes_cached));
-            if stats.lod_px_effective > self.applied.lod_px * 1.001 {
-                let text = format!("Detail lowered to fit the GPU's memory: LOD target {:.1} px instead of {:.1} px", stats.lod_px_effective, self.applied.lod_px);
-                ui.label(egui::RichText::new(text).color(egui::Color32::from_rgb(255, 200, 120)));
-            }
-            ui.monospace(format!("{} k triangles, {} uploads, CPU {:.1} ms", env.triangles / 1000, env.uploads, env.cpu_ms));
-            ui.monospace(format!("eye {:.0}, {:.0}, {:.0} m", stats.eye_m[0], stats.eye_m[1], stats.eye_m[2]));
-            ui.label(format!("GPU: {}", env.adapter));
-            if env.software_adapter {
-                ui.label(format!("software GPU: 3-D view at {:.0} % resolution", crate::render::SOFTWARE_VIEW_SCALE * 100.0));
-                if env.worker_rest_per_work > 0.0 {
-                    ui.label(format!("CPU worker at 1/{:.0} of a core while flying (smooth frames)", 1.0 + env.worker_rest_per_work));
-                }
-            }
-            ui.label(format!("ML: {}", env.ml_status));
-            ui.label(format!("Source: {}", env.source));
-            if stats.source == SourceKind::Sketch.label() && stats.sketch_shown > 0 {
-                ui.monospace(format!("sketch → terrain {:.0} ms on {}", stats.sketch_ms, env.sketch_backend));
-            }
-            if stats.source == SourceKind::Learned.label() {
-                ui.monospace(format!(
-                    "tile queue {} waiting, {} in flight, {:.0} ms/tile",
-                    stats.tiles_pending.saturating_sub(stats.tile_jobs.in_flight),
-                    stats.tile_jobs.in_flight,
-                    stats.ms_per_tile
-                ));
-            }
+            // For people: the world, what is being made, the controls. The numbers behind
+            // "Statistics" (the tests read them from the statistics JSON either way).
+            let seed = if stats.source == SourceKind::Sketch.label() { String::new() } else { format!(" · seed {}", self.applied.seed) };
+            ui.label(egui::RichText::new(format!("{}{seed}", env.source)).strong());
+            // Always shown, and no spinner: a widget that appears, or a spinner, asks egui for
+            // repaints, which would draw the overlay between the paced frames of the 3-D view
+            // (render::pacing) and delay the next one.
+            let total = stats.tiles_pending + stats.tiles_cached.min(1000);
+            let text = if stats.tiles_pending > 0 { format!("making {} tiles of terrain", stats.tiles_pending) } else { "every tile in view made".to_string() };
+            ui.add(egui::ProgressBar::new(1.0 - stats.tiles_pending as f32 / total.max(1) as f32).text(text));
             if let Some((done, total)) = env.tem_loading {
-                ui.add(egui::ProgressBar::new(done as f32 / total.max(1) as f32).text(format!("loading TEM weights {done}/{total}")));
+                ui.add(egui::ProgressBar::new(done as f32 / total.max(1) as f32).text(format!("loading learned detail {done}/{total}")));
             } else if let Some(e) = &env.tem_error {
                 ui.label(egui::RichText::new(e).color(egui::Color32::from_rgb(255, 200, 120)));
             } else if env.tem_ready {
@@ -250,18 +231,14 @@ impl Overlay {
                     if stats.refine_backend.is_empty() {
                         ui.label("off");
                     } else {
-                        ui.label(format!("TEM on {}", stats.refine_backend));
+                        ui.label(format!("on {}", stats.refine_backend));
                     }
                 });
-                let depth_m = crate::world::TILE_SIZE_M / f64::from(1u32 << stats.max_depth_drawn) / crate::world::quadtree::NODE_QUADS as f64;
-                ui.monospace(format!("depth {} ({depth_m} m)  {:.1} ms/quad  {} quads", stats.max_depth_drawn, stats.ms_per_quad, stats.quads_made));
             }
-            // Always shown, and no spinner: a widget that appears, or a spinner, asks egui for
-            // repaints, which would draw the overlay between the paced frames of the 3-D view
-            // (render::pacing) and delay the next one.
-            let total = stats.tiles_pending + stats.tiles_cached.min(1000);
-            let text = if stats.tiles_pending > 0 { format!("generating {} tiles", stats.tiles_pending) } else { "every tile in view made".to_string() };
-            ui.add(egui::ProgressBar::new(1.0 - stats.tiles_pending as f32 / total.max(1) as f32).text(text));
+            if stats.lod_px_effective > self.applied.lod_px * 1.001 {
+                let text = format!("Detail lowered to fit the GPU's memory: LOD target {:.1} px instead of {:.1} px", stats.lod_px_effective, self.applied.lod_px);
+                ui.label(egui::RichText::new(text).color(egui::Color32::from_rgb(255, 200, 120)));
+            }
             ui.separator();
             ui.horizontal(|ui| {
                 let mut m = mode;
@@ -270,7 +247,6 @@ impl Overlay {
                 if m != mode {
                     act.mode = Some(m);
                 }
-                ui.checkbox(show_lod, "LOD colours");
             });
             ui.add(egui::Slider::new(speed_mps, 5.0..=20_000.0).logarithmic(true).text("speed m/s"));
             ui.horizontal(|ui| {
@@ -283,18 +259,59 @@ impl Overlay {
                     ui.label("copied ✔");
                 }
                 ui.toggle_value(&mut self.show_settings, "Settings");
+                ui.toggle_value(&mut self.show_stats, "Statistics");
             });
             if self.show_settings
                 && let Some(s) = self.settings_ui(ui)
             {
                 act.settings = Some(s);
             }
-            ui.collapsing("Controls", |ui| {
+            if self.show_stats {
+                ui.separator();
+                Self::statistics(ui, stats, env, show_lod);
+            }
+            egui::CollapsingHeader::new("Controls").default_open(true).show(ui, |ui| {
                 ui.label("Drag: look · WASD: move · Q/E: down/up · Shift: faster · wheel: speed (fly) or zoom (orbit)");
                 ui.label("Touch: drag to look · two fingers to move · pinch to fly forward/zoom");
             });
         });
         act
+    }
+
+    /// The numbers behind the view: frame times, tiles, nodes, triangles, the eye, the GPU and
+    /// where each model runs.
+    fn statistics(ui: &mut egui::Ui, stats: &AppStats, env: &Environment, show_lod: &mut bool) {
+        let fps = if stats.frame_ms_median > 0.0 { 1000.0 / stats.frame_ms_median } else { 0.0 };
+        ui.monospace(format!("{fps:5.1} FPS   {:5.1} ms (worst {:.1})", stats.frame_ms_median, stats.frame_ms_worst));
+        ui.monospace(format!("tiles {} generated, {}/{} cached", stats.tiles_generated, stats.tiles_cached, stats.tiles_capacity));
+        ui.monospace(format!("{:.2} ms per tile   {} evicted", stats.ms_per_tile, stats.tiles_evicted));
+        ui.monospace(format!("nodes {} drawn (depth ≤ {}), {} cached", stats.nodes_drawn, stats.max_depth_drawn, stats.nodes_cached));
+        ui.monospace(format!("{} k triangles, {} uploads, CPU {:.1} ms", env.triangles / 1000, env.uploads, env.cpu_ms));
+        ui.monospace(format!("eye {:.0}, {:.0}, {:.0} m", stats.eye_m[0], stats.eye_m[1], stats.eye_m[2]));
+        ui.label(format!("GPU: {}", env.adapter));
+        if env.software_adapter {
+            ui.label(format!("software GPU: 3-D view at {:.0} % resolution", crate::render::SOFTWARE_VIEW_SCALE * 100.0));
+            if env.worker_rest_per_work > 0.0 {
+                ui.label(format!("CPU worker at 1/{:.0} of a core while flying (smooth frames)", 1.0 + env.worker_rest_per_work));
+            }
+        }
+        ui.label(format!("ML: {}", env.ml_status));
+        if stats.source == SourceKind::Sketch.label() && stats.sketch_shown > 0 {
+            ui.monospace(format!("sketch → terrain {:.0} ms on {}", stats.sketch_ms, env.sketch_backend));
+        }
+        if stats.source == SourceKind::Learned.label() {
+            ui.monospace(format!(
+                "tile queue {} waiting, {} in flight, {:.0} ms/tile",
+                stats.tiles_pending.saturating_sub(stats.tile_jobs.in_flight),
+                stats.tile_jobs.in_flight,
+                stats.ms_per_tile
+            ));
+        }
+        if env.tem_ready {
+            let depth_m = crate::world::TILE_SIZE_M / f64::from(1u32 << stats.max_depth_drawn) / crate::world::quadtree::NODE_QUADS as f64;
+            ui.monospace(format!("depth {} ({depth_m} m)  {:.1} ms/quad  {} quads", stats.max_depth_drawn, stats.ms_per_quad, stats.quads_made));
+        }
+        ui.checkbox(show_lod, "LOD colours");
     }
 
     fn settings_ui(&mut self, ui: &mut egui::Ui) -> Option<ShareState> {

@@ -48,8 +48,7 @@ impl PageUi {
         let act = self.overlay.show(ctx, &stats, env, mode, &mut speed, &mut show_lod, &mut refine_on, core.message.as_deref(), copied);
         (core.app.controller.speed_mps, core.app.show_lod, core.refine_on) = (speed, show_lod, refine_on);
         if let Some(m) = act.mode {
-            let cam = core.app.camera;
-            core.app.controller.set_mode(m, &cam);
+            core.app.set_camera_mode(m);
         }
         if let Some(s) = act.settings {
             core.app.apply_settings(s);
@@ -74,6 +73,9 @@ impl PageUi {
             }
             if let Some(r) = sk.relief_m {
                 self.overlay.reset(core.set_relief(r));
+            }
+            if sk.frame {
+                core.app.frame_sketch();
             }
         }
         asks

@@ -20,6 +20,8 @@ pub struct SketchActions {
     pub blend: Option<f32>,
     /// A new relief (metres).
     pub relief_m: Option<f64>,
+    /// Put the camera where it shows the whole sketch.
+    pub frame: bool,
 }
 
 /// Thumbnails of proposed variants: each sketch and a shaded picture of its terrain.
@@ -138,6 +140,11 @@ impl SketchPanel {
                 note("import", &r);
                 if r.clicked() {
                     act.import = true;
+                }
+                let r = ui.button("Frame the sketch").on_hover_text("put the 3-D view where it shows the whole sketch");
+                note("frame", &r);
+                if r.clicked() {
+                    act.frame = true;
                 }
                 if busy {
                     // Text, not a spinner, which would repaint between paced frames.
