@@ -416,7 +416,7 @@ mod tests {
         assert!(link.contains("&cam=-123456.79,1234.5,0.3,-2.12346,0.33333&"), "{link}");
         let back = ShareState::from_fragment(&format!("#{link}")).unwrap();
         assert!(back.position_m.iter().zip(&s.position_m).all(|(a, b)| (a - b).abs() <= 0.005), "{:?}", back.position_m);
-        assert!((back.yaw - s.yaw).abs() <= 5e-6 && (back.pitch - s.pitch).abs() <= 5e-6);
+        assert!((back.yaw - s.yaw).abs() <= 6e-6 && (back.pitch - s.pitch).abs() <= 6e-6);
         assert_eq!(ShareState { position_m: s.position_m, yaw: s.yaw, pitch: s.pitch, ..back.clone() }, s);
         assert_eq!(back.to_fragment(), link);
         let procedural = ShareState { source: SourceKind::Procedural, weights: None, ..s };
