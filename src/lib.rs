@@ -20,6 +20,7 @@ pub mod geomorph;
 pub mod grid;
 pub mod jobs;
 pub mod models;
+pub mod queue;
 pub mod render;
 pub mod share;
 pub mod sketch;

@@ -20,7 +20,7 @@ use std::sync::Arc;
 
 use super::stream::WorldStream;
 use crate::grid::coord::TileCoord;
-use crate::jobs::{Job, JobQueue, Outcome};
+use crate::queue::{Job, JobQueue, Outcome};
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, QUAD, RECEPTIVE_OUT_PX};
 
 /// Margin (pixels) kept around a stored patch's core and read around a quadrant. It must

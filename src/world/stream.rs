@@ -11,7 +11,7 @@ use web_time::Instant;
 use super::tile::{Neighbourhood, Tile, TileSource};
 use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
 use crate::grid::schedule::dependencies;
-use crate::jobs::{Job, JobQueue, JobStats, Outcome};
+use crate::queue::{Job, JobQueue, JobStats, Outcome};
 
 /// Tile jobs a world made elsewhere keeps in flight at most (the page's worker makes one at a
 /// time; a second waits in its queue so it never idles between replies).
