@@ -6,8 +6,9 @@
 //! buffer ([`render`]) → frame. [`app`] drives it per frame, [`ui`] draws the overlay,
 //! [`share`] reads and writes links, [`dem`] reads and writes heightfields, [`models`] hosts
 //! the neural networks and their runtime, `enhance` refines whole DEMs (native), [`geomorph`]
-//! measures how terrain-like a heightfield is, [`jobs`] tracks work handed to a device or
-//! worker, [`sketch`] reads, draws and extracts the sketches that sketch-to-terrain turns into
+//! measures how terrain-like a heightfield is, [`queue`] tracks work in flight (epochs and
+//! budgets), [`jobs`] runs it on a device, a worker or a thread, [`grid`] holds the tile
+//! coordinates and the order-free schedule, [`sketch`] reads, draws and extracts the sketches that sketch-to-terrain turns into
 //! a world ([`world::sketched`]).
 
 #![warn(missing_docs)]
