@@ -20,8 +20,8 @@ use std::sync::Arc;
 
 use super::stream::WorldStream;
 use crate::grid::coord::TileCoord;
-use crate::queue::{Job, JobQueue, Outcome};
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, QUAD, RECEPTIVE_OUT_PX};
+use crate::queue::{Job, JobQueue, Outcome};
 
 /// Margin (pixels) kept around a stored patch's core and read around a quadrant. It must
 /// cover the receptive field, and node vertices (cell corners, apron included) of every node a
