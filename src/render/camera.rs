@@ -5,8 +5,15 @@ use glam::{DVec3, Mat4, Vec2, Vec3};
 
 use crate::world::quadtree::{Frustum, LodView};
 
-/// Metres the eye always keeps above the ground.
-pub const MIN_CLEARANCE_M: f64 = 3.0;
+/// Metres the eye always keeps above the highest ground within [`CLEARANCE_RADIUS_M`]: the
+/// 32 m ground the controller knows, plus room for the learned detail drawn on it (a few
+/// metres) and the near plane.
+pub const MIN_CLEARANCE_M: f64 = 5.0;
+
+/// Radius (metres) around the eye whose ground the eye keeps clear of: flying into a slope,
+/// the eye rises before the slope fills the screen (it used to stop 3 m above the ground
+/// under it, inside the slope ahead: a grey screen).
+pub const CLEARANCE_RADIUS_M: f64 = 20.0;
 
 /// A perspective camera in world metres (x east, y up, z south).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -154,8 +161,9 @@ impl CameraController {
         self.mode = mode;
     }
 
-    /// Applies `input` over `dt_s` seconds, then lifts the eye to at least `MIN_CLEARANCE_M`
-    /// above `ground(x, z)` (metres; `None` where unknown).
+    /// Applies `input` over `dt_s` seconds, then lifts the eye to at least [`MIN_CLEARANCE_M`]
+    /// above the highest ground within [`CLEARANCE_RADIUS_M`] (a 9-point stencil of
+    /// `ground(x, z)`: metres, `None` where unknown).
     pub fn update(&mut self, cam: &mut Camera, input: &ControlInput, dt_s: f64, ground: impl Fn(f64, f64) -> Option<f32>) {
         cam.yaw = (cam.yaw + input.look_px.x * self.look_per_px).rem_euclid(std::f32::consts::TAU);
         cam.pitch = (cam.pitch - input.look_px.y * self.look_per_px).clamp(-1.55, 1.55);
@@ -190,11 +198,11 @@ impl CameraController {
                 cam.position_m = self.orbit_target_m - cam.forward().as_dvec3() * self.orbit_distance_m;
             }
         }
-        if let Some(g) = ground(cam.position_m.x, cam.position_m.z) {
-            let floor = g as f64 + MIN_CLEARANCE_M;
-            if cam.position_m.y < floor {
-                cam.position_m.y = floor;
-            }
+        let (x, z, r) = (cam.position_m.x, cam.position_m.z, CLEARANCE_RADIUS_M);
+        let around = [(0.0, 0.0), (r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r), (0.7 * r, 0.7 * r), (-0.7 * r, 0.7 * r), (0.7 * r, -0.7 * r), (-0.7 * r, -0.7 * r)];
+        let highest = around.iter().filter_map(|&(dx, dz)| ground(x + dx, z + dz)).fold(f32::NEG_INFINITY, f32::max);
+        if highest.is_finite() {
+            cam.position_m.y = cam.position_m.y.max(highest as f64 + MIN_CLEARANCE_M);
         }
     }
 }
@@ -264,6 +272,22 @@ mod tests {
                 assert!(ctl.orbit_free && pivot.y > 2000.0, "a pivot in the air: {pivot}");
             }
         }
+    }
+
+    /// Flying into a 45° slope, the eye stays at least the clearance above the highest ground
+    /// within 20 m (not only the ground under it), frame after frame.
+    #[test]
+    fn flying_into_a_slope_keeps_the_eye_clear_of_the_slope_ahead() {
+        let slope = |x: f64, _: f64| Some(x.max(0.0) as f32);
+        let mut cam = Camera { position_m: DVec3::new(-100.0, 10.0, 0.0), yaw: std::f32::consts::FRAC_PI_2, pitch: 0.0, ..Camera::default() };
+        let mut ctl = CameraController::default();
+        let ahead = ControlInput { movement: Vec3::new(0.0, 0.0, 1.0), boost: true, ..Default::default() };
+        for _ in 0..40 {
+            ctl.update(&mut cam, &ahead, 0.05, slope);
+            let highest = (cam.position_m.x + CLEARANCE_RADIUS_M).max(0.0);
+            assert!(cam.position_m.y >= highest + MIN_CLEARANCE_M - 1e-6, "eye at {} with ground {highest} m within 20 m", cam.position_m);
+        }
+        assert!(cam.position_m.x > 0.0, "it flew on, up the slope");
     }
 
     #[test]
