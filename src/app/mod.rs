@@ -90,6 +90,11 @@ pub struct TerrainApp {
     /// The factor (≥ 1) the user's LOD target is raised by to keep the view within the node
     /// budget.
     lod_boost: f64,
+    /// The nodes drawn in the last frame and where the eye was.
+    last_nodes: (Vec<Arc<NodeData>>, DVec3),
+    /// The previous world's picture and where the eye was: drawn instead of a new world until
+    /// that world has made the tiles near the eye (a new seed never blanks the view).
+    stand_in: Option<(Vec<Arc<NodeData>>, DVec3)>,
     time_s: f64,
     /// The sketch canvas (the sketch world shows its terrain).
     pub canvas: Canvas,
@@ -142,6 +147,8 @@ impl TerrainApp {
             stats: AppStats::default(),
             node_budget: None,
             lod_boost: 1.0,
+            last_nodes: (Vec::new(), DVec3::ZERO),
+            stand_in: None,
             time_s: 0.0,
             canvas,
             sketch_models: LearnedStatus::Loading,
@@ -224,6 +231,8 @@ impl TerrainApp {
         let epoch = self.world.epoch().max(epoch.saturating_sub(1)) + 1;
         self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere).at_epoch(epoch);
         self.nodes = NodeCache::new();
+        let (last, at) = std::mem::take(&mut self.last_nodes);
+        self.stand_in = (!last.is_empty()).then_some((last, at));
         self.refine = PatchStore::new(0, epoch);
     }
 
@@ -489,6 +498,7 @@ impl TerrainApp {
         let refine = if refining { Some(&mut self.refine) } else { None };
         let nodes = self.nodes.select(&tiles, &self.world, refine, &view, &mut budget);
         self.fit_node_budget(nodes.len());
+        let nodes = self.or_stand_in(nodes, &tiles);
         self.stats.lod_px_effective = lod_px;
         self.stats.node_budget = self.node_budget;
         self.stats.world_ms = (t1 - t0).as_secs_f64() * 1e3;
@@ -534,6 +544,32 @@ impl TerrainApp {
             time_s: self.time_s as f32,
         };
         (nodes, params)
+    }
+
+    /// `nodes` of the world shown, or the previous world's picture while this world has not
+    /// made the tiles within a tile of the eye and the eye stayed within a tile of where that
+    /// picture was taken ([`SourceKind`] or seed changed in place). `tiles` are this world's
+    /// drawable tiles.
+    fn or_stand_in(&mut self, nodes: Vec<Arc<NodeData>>, tiles: &[TileCoord]) -> Vec<Arc<NodeData>> {
+        let eye = self.camera.position_m;
+        let near_made = || {
+            let near = self.world.wanted(eye.x, eye.z).into_iter().filter(|c| c.distance_tiles(eye.x, eye.z) <= 1.0f64.min(self.world.radius_tiles()));
+            near.into_iter().all(|c| tiles.contains(&c))
+        };
+        let keep = match &self.stand_in {
+            Some((_, at)) => (eye - *at).length() < TILE_SIZE_M && !near_made(),
+            None => false,
+        };
+        if !keep {
+            self.stand_in = None;
+        }
+        self.stats.previous_world_shown = keep;
+        let drawn = match (&self.stand_in, keep) {
+            (Some((old, _)), true) => old.clone(),
+            _ => nodes,
+        };
+        self.last_nodes = (drawn.clone(), eye);
+        drawn
     }
 
     /// Most nodes a frame may draw on the GPU the view is drawn with

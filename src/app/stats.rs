@@ -26,6 +26,9 @@ pub struct AppStats {
     pub nodes_cached: usize,
     /// Deepest quadtree depth drawn in the last frame.
     pub max_depth_drawn: u8,
+    /// The last frame drew the previous world's picture: the world shown changed and has not
+    /// yet made the tiles near the eye.
+    pub previous_world_shown: bool,
     /// Most nodes a frame may draw on this device (`None`: no GPU limit known).
     pub node_budget: Option<usize>,
     /// The LOD target the view is selected with (px): the user's, or coarser while the

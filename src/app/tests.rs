@@ -401,3 +401,41 @@ fn the_view_fits_the_gpus_node_budget() {
     let (_, d) = run(procedural(4.0), Some(crate::render::node_budget(crate::render::MESH_MEMORY_BUDGET)));
     assert_eq!(d.lod_px_effective, ShareState::default().lod_px);
 }
+
+/// A new seed keeps the old picture: the first frame after it draws the previous world's
+/// nodes (the same node data), no frame is empty, and once the new world has made the tiles
+/// within a tile of the eye its own nodes are drawn. A camera moved elsewhere (a link to
+/// another place) drops the old picture at once.
+#[test]
+fn a_new_seed_keeps_the_old_picture_until_the_new_world_has_its_near_tiles() {
+    let mut app = TerrainApp::new(procedural(2.0));
+    let frame = |app: &mut TerrainApp| app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]).0;
+    let mut old = Vec::new();
+    for _ in 0..300 {
+        old = frame(&mut app);
+        if app.stats().tiles_pending == 0 && !old.is_empty() {
+            break;
+        }
+    }
+    let old_versions: std::collections::HashSet<u64> = old.iter().map(|n| n.version).collect();
+    app.apply(ShareState { seed: 99, ..app.share_state() });
+    let mut switched = None;
+    for k in 0..300 {
+        let nodes = frame(&mut app);
+        assert!(!nodes.is_empty(), "frame {k} after the new seed is empty");
+        let from_old = nodes.iter().all(|n| old_versions.contains(&n.version));
+        assert_eq!(from_old, app.stats().previous_world_shown, "frame {k}");
+        if k == 0 {
+            assert!(from_old, "the first frame after the new seed draws the old picture");
+        }
+        if !from_old {
+            switched = Some(k);
+            break;
+        }
+    }
+    eprintln!("the new world's own nodes from frame {switched:?}");
+    assert!(switched.is_some_and(|k| k > 0));
+    app.apply(ShareState { seed: 5, position_m: [50_000.0, 3000.0, 50_000.0], ..app.share_state() });
+    frame(&mut app);
+    assert!(!app.stats().previous_world_shown, "a view elsewhere does not keep the old picture");
+}

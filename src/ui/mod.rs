@@ -221,6 +221,9 @@ impl Overlay {
             let total = stats.tiles_pending + stats.tiles_cached.min(1000);
             let text = if stats.tiles_pending > 0 { format!("making {} tiles of terrain", stats.tiles_pending) } else { "every tile in view made".to_string() };
             ui.add(egui::ProgressBar::new(1.0 - stats.tiles_pending as f32 / total.max(1) as f32).text(text));
+            if stats.previous_world_shown {
+                ui.label("showing the previous world until the new one's nearest tiles are made");
+            }
             if let Some((done, total)) = env.tem_loading {
                 ui.add(egui::ProgressBar::new(done as f32 / total.max(1) as f32).text(format!("loading learned detail {done}/{total}")));
             } else if let Some(e) = &env.tem_error {
