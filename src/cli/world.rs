@@ -49,7 +49,7 @@ pub(crate) fn train_tcm(
     [tcm_only, grow_only]: [bool; 2],
     run_args: &RunArgs,
 ) -> Result<(), String> {
-    use terrain::train::{grow, pairs, tcm};
+    use terrain::train::{grow, tcm};
     for (flag, w) in [
         ("--adversarial", adversarial),
         ("--ruggedness", ruggedness),
@@ -65,32 +65,7 @@ pub(crate) fn train_tcm(
             return Err(format!("{flag} must be a finite number ≥ 0, not {w}"));
         }
     }
-    let dems = pairs::load_dems(dem_dir)?;
-    let grids = tcm::grids(&dems);
-    let fine = grow::grids(&dems);
-    let names = |v: Vec<&str>| v.join(", ");
-    if grids.is_empty() || fine.is_empty() {
-        return Err(format!(
-            "{} needs DEMs with room for a 3×3-tile window at 128 m ({} found) and for a 224² window at 32 m or finer ({} found) in both splits",
-            dem_dir.display(),
-            grids.len(),
-            fine.len()
-        ));
-    }
-    eprintln!("TCM data, {} DEMs at 128 m: {}", grids.len(), names(grids.iter().map(|g| g.id.as_str()).collect()));
-    let (level, level_sd, step) = tcm::tile_mean_stats(&grids);
-    eprintln!("real 4 km tile means: level {level:.0} ± {level_sd:.0} m, rms step between neighbours {step:.0} m");
-    eprintln!("×4 data, {} DEMs at 32 m: {}", fine.len(), names(fine.iter().map(|g| g.id.as_str()).collect()));
-    let fine_ids: Vec<&str> = fine.iter().map(|g| g.id.as_str()).collect();
-    let all: Vec<&pairs::Grid> = grids.iter().collect();
-    let (fine_coarse, rest): (Vec<_>, Vec<_>) = grids.iter().partition(|g| fine_ids.contains(&g.id.as_str()));
-    for (what, set) in [("all", &all), ("32 m or finer", &fine_coarse), ("coarser", &rest)] {
-        for split in [pairs::Split::Train, pairs::Split::Validation] {
-            if let Some((m, sd, p95)) = tcm::ruggedness_stats(set, split) {
-                eprintln!("ruggedness of {what} DEMs ({split:?}): {m:.2} ± {sd:.2}, 95th percentile {p95:.2}");
-            }
-        }
-    }
+    let (grids, fine) = tcm_data(dem_dir)?;
     let (device, mut budget) = run_args.start()?;
     let cfg = tcm::TcmConfig {
         batch,
@@ -106,33 +81,11 @@ pub(crate) fn train_tcm(
         position: position.unwrap_or(0.0),
         ..Default::default()
     };
-    let from = resume.then_some(checkpoint);
-    let start = match init {
-        Some(dir) => {
-            let file = dir.join(tcm::GEN_FILE);
-            let bytes = std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))?;
-            // Weights of today's layout as they are, else of the first layout widened.
-            let g = terrain::models::tcm::TcmCpu::from_burnpack(&bytes).or_else(|_| terrain::models::tcm::TcmCpu::widened(&bytes));
-            Some(g.map_err(|e| format!("{}: {e}", file.display()))?)
-        }
-        None => None,
-    };
-    // A part that is not trained needs no checkpoint: it starts fresh and is not saved.
-    let mut run = tcm::start_run(cfg, &device, from.filter(|_| !grow_only), start.as_ref())?;
-    if let Some(w) = position {
-        run.cfg.position = w;
-    }
-    let mut up = grow::GrowRun::start(batch, adversarial, &device, from.filter(|_| !tcm_only))?;
-    if let Some(dir) = init.filter(|_| !tcm_only) {
-        // The shipped file holds float16 weights, which burn's loader does not convert.
-        let file = dir.join(grow::GROW_FILE);
-        let bytes = std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))?;
-        let g = terrain::models::grow::GrowCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", file.display()))?;
-        up.g = g.into_model(up.g);
-    }
+    let (run, mut up) = start_tcm_runs(cfg, position, &device, resume.then_some(checkpoint), init, [tcm_only, grow_only])?;
     if let Some(w) = grow_position {
         up.position = w;
     }
+    let mut run = run;
     eprintln!("TCM: {} parameters, ×4: {} parameters; {:?}; from step {}", run.g.parameters(), up.parameters(), run.cfg, run.progress.step);
     // The step count of the part being trained.
     let at = |run: &tcm::TcmRun, up: &grow::GrowRun| if grow_only { up.progress.step } else { run.progress.step };
@@ -179,6 +132,81 @@ pub(crate) fn train_tcm(
         serde_json::json!({ "tcm": summary(&run.progress, &tcm_rate, run.cfg.batch), "grow": summary(&up.progress, &grow_rate, up.batch), "checkpoint": checkpoint, "backend": run_args.backend })
     );
     Ok(())
+}
+
+/// The TCM's 128 m grids and the ×4 step's 32 m grids of the DEMs in `dem_dir`, with what
+/// they hold reported on stderr (the DEMs, the real tiles' level statistics, ruggedness by
+/// split).
+#[cfg(feature = "train")]
+fn tcm_data(dem_dir: &std::path::Path) -> Result<(Vec<terrain::train::pairs::Grid>, Vec<terrain::train::pairs::Grid>), String> {
+    use terrain::train::{grow, pairs, tcm};
+    let dems = pairs::load_dems(dem_dir)?;
+    let grids = tcm::grids(&dems);
+    let fine = grow::grids(&dems);
+    let names = |v: Vec<&str>| v.join(", ");
+    if grids.is_empty() || fine.is_empty() {
+        return Err(format!(
+            "{} needs DEMs with room for a 3×3-tile window at 128 m ({} found) and for a 224² window at 32 m or finer ({} found) in both splits",
+            dem_dir.display(),
+            grids.len(),
+            fine.len()
+        ));
+    }
+    eprintln!("TCM data, {} DEMs at 128 m: {}", grids.len(), names(grids.iter().map(|g| g.id.as_str()).collect()));
+    let (level, level_sd, step) = tcm::tile_mean_stats(&grids);
+    eprintln!("real 4 km tile means: level {level:.0} ± {level_sd:.0} m, rms step between neighbours {step:.0} m");
+    eprintln!("×4 data, {} DEMs at 32 m: {}", fine.len(), names(fine.iter().map(|g| g.id.as_str()).collect()));
+    let fine_ids: Vec<&str> = fine.iter().map(|g| g.id.as_str()).collect();
+    let all: Vec<&pairs::Grid> = grids.iter().collect();
+    let (fine_coarse, rest): (Vec<_>, Vec<_>) = grids.iter().partition(|g| fine_ids.contains(&g.id.as_str()));
+    for (what, set) in [("all", &all), ("32 m or finer", &fine_coarse), ("coarser", &rest)] {
+        for split in [pairs::Split::Train, pairs::Split::Validation] {
+            if let Some((m, sd, p95)) = tcm::ruggedness_stats(set, split) {
+                eprintln!("ruggedness of {what} DEMs ({split:?}): {m:.2} ± {sd:.2}, 95th percentile {p95:.2}");
+            }
+        }
+    }
+    Ok((grids, fine))
+}
+
+/// The TCM run and the ×4 step's run: from the checkpoint in `from` (each part that is
+/// trained; `[tcm_only, grow_only]`), else fresh or from the weights in `init`. A `position`
+/// weight given replaces a resumed run's.
+#[cfg(feature = "train")]
+fn start_tcm_runs(
+    cfg: terrain::train::tcm::TcmConfig,
+    position: Option<f32>,
+    device: &burn::tensor::Device,
+    from: Option<&std::path::Path>,
+    init: Option<&std::path::Path>,
+    [tcm_only, grow_only]: [bool; 2],
+) -> Result<(terrain::train::tcm::TcmRun, terrain::train::grow::GrowRun), String> {
+    use terrain::train::{grow, tcm};
+    let (batch, adversarial) = (cfg.batch, cfg.adversarial);
+    let start = match init {
+        Some(dir) => {
+            let file = dir.join(tcm::GEN_FILE);
+            let bytes = std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+            // Weights of today's layout as they are, else of the first layout widened.
+            let g = terrain::models::tcm::TcmCpu::from_burnpack(&bytes).or_else(|_| terrain::models::tcm::TcmCpu::widened(&bytes));
+            Some(g.map_err(|e| format!("{}: {e}", file.display()))?)
+        }
+        None => None,
+    };
+    // A part that is not trained needs no checkpoint: it starts fresh and is not saved.
+    let mut run = tcm::start_run(cfg, device, from.filter(|_| !grow_only), start.as_ref())?;
+    if let Some(w) = position {
+        run.cfg.position = w;
+    }
+    let mut up = grow::GrowRun::start(batch, adversarial, device, from.filter(|_| !tcm_only))?;
+    if let Some(dir) = init.filter(|_| !tcm_only) {
+        // The shipped file holds float16 weights, which burn's loader does not convert.
+        let file = dir.join(grow::GROW_FILE);
+        let bytes = std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+        let g = terrain::models::grow::GrowCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", file.display()))?;
+        up.g = g.into_model(up.g);
+    }
+    Ok((run, up))
 }
 
 #[cfg(feature = "train")]
