@@ -67,9 +67,14 @@ enum Command {
         /// Tiles [X0, X0+W) × [Y0, Y0+H): 128 × 128 samples each.
         #[arg(long, num_args = 4, value_names = ["X0", "Y0", "W", "H"], allow_negative_numbers = true, required = true)]
         tiles: Vec<i64>,
-        /// Output GeoTIFF.
+        /// Output file, in the format of its extension: .tif (float32 GeoTIFF), .png (16-bit
+        /// grey) or .raw (16-bit little-endian), each of those two with a JSON sidecar stating
+        /// the metres of 0 and 65535 and the spacing, or .glb (binary glTF mesh with normals).
         #[arg(long)]
         out: PathBuf,
+        /// Resample to a square of 2ⁿ+1 samples per side (for Unity and Unreal terrains).
+        #[arg(long)]
+        pow2_plus_1: bool,
         /// Tile source.
         #[arg(long, value_enum, default_value_t = Source::Procedural)]
         source: Source,
@@ -106,7 +111,7 @@ enum Command {
         /// Output spacing (m per pixel): 16, 8, 4, 2 or 1, finer than the input.
         #[arg(long)]
         output_res: f64,
-        /// Output GeoTIFF.
+        /// Output file, in the format of its extension (as `terrain world --out`).
         #[arg(long)]
         out: PathBuf,
         /// Folder of the TEM weights (default: ./weights, else the crate's).
@@ -560,7 +565,7 @@ struct TrainArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::World { seed, tiles, out, source, weights } => world(seed, &tiles, &out, source, weights),
+        Command::World { seed, tiles, out, pow2_plus_1, source, weights } => world(seed, &tiles, &out, pow2_plus_1, source, weights),
         Command::Hillshade { input, spacing_m, side, out } => hillshade(&input, spacing_m, side as usize, &out),
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),

@@ -207,6 +207,38 @@ fn world_export_is_georeferenced() {
     assert_eq!(geo.epsg, None);
 }
 
+/// `terrain world` writes the format of the file's extension: a 16-bit PNG resampled to 129²
+/// (2ⁿ+1) with a sidecar whose scale gives the GeoTIFF's corner heights back (within 5 cm)
+/// and whose range lies within the GeoTIFF's, and a binary glTF with one vertex per sample;
+/// an unknown extension is a clear error.
+#[test]
+fn world_exports_png16_with_a_sidecar_and_glb() {
+    let (tif, png, glb) = (tmp("e.tif"), tmp("e.png"), tmp("e.glb"));
+    for (out, extra) in [(&tif, None), (&png, Some("--pow2-plus-1")), (&glb, None)] {
+        let mut args = vec!["world", "--seed", "3", "--tiles", "0", "0", "1", "1", "--out", out.to_str().unwrap()];
+        args.extend(extra);
+        let o = run(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let hf = read(&tif);
+    let (lo, hi) = hf.data.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let side: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tmp("e.png.json")).unwrap()).unwrap();
+    assert_eq!((side["width"].as_u64(), side["height"].as_u64()), (Some(129), Some(129)));
+    assert!((side["spacing_m"].as_f64().unwrap() - 32.0 * 127.0 / 128.0).abs() < 1e-9);
+    // Bilinear resampling stays within the heights it resamples.
+    let (min, max) = (side["min_m"].as_f64().unwrap(), side["max_m"].as_f64().unwrap());
+    assert!(lo as f64 - 1e-3 <= min && min < max && max <= hi as f64 + 1e-3, "{min} {max} within {lo} {hi}");
+    let scale = terrain::dem::PngScale { metres_per_unit: side["metres_per_unit"].as_f64().unwrap(), offset_m: side["min_m"].as_f64().unwrap() };
+    let back = Heightfield::read_png(std::io::Cursor::new(std::fs::read(&png).unwrap()), scale, 32.0).unwrap();
+    assert!((back.at(0, 0) - hf.at(0, 0)).abs() < 0.05 && (back.at(128, 128) - hf.at(127, 127)).abs() < 0.05);
+    let b = std::fs::read(&glb).unwrap();
+    let jlen = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let json: serde_json::Value = serde_json::from_slice(&b[20..20 + jlen]).unwrap();
+    assert_eq!((&b[0..4], json["accessors"][0]["count"].as_u64()), (&b"glTF"[..], Some(128 * 128)));
+    let o = run(&["world", "--seed", "3", "--tiles", "0", "0", "1", "1", "--out", tmp("e.jpg").to_str().unwrap()]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains(".glb (mesh)"));
+}
+
 /// `terrain enhance` on a world export with a no-data hole, its spacing read from the file (a
 /// conflicting `--input-res 16` is refused): same extent, 4× the samples per side at 8 m, the
 /// hole kept as no-data, every 4×4 block within 0.25 m of its input sample (closer than

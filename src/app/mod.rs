@@ -646,6 +646,13 @@ impl TerrainApp {
         crate::world::refine::run_blocking(&mut self.refine, tem, jobs, |t| world.contains(t))
     }
 
+    /// The 32 m heights of the largest square of whole tiles around the eye that the world
+    /// has made (at most the relevance radius), for export; `None` before the eye's tile.
+    pub fn export_view(&self) -> Option<crate::dem::Heightfield> {
+        let eye = self.camera.position_m;
+        crate::world::export::around(&self.world, eye.x, eye.z, self.settings.radius_tiles.floor() as u32)
+    }
+
     /// Puts the camera where it shows the whole sketch ([`sketch_overview`]).
     pub fn frame_sketch(&mut self) {
         let (p, yaw, pitch) = sketch_overview(self.settings.relief_m);

@@ -17,6 +17,7 @@ pub(crate) fn weights_dir(given: Option<PathBuf>) -> PathBuf {
 /// `--input-res` is refused), else `--input-res`.
 pub(crate) fn enhance(input: &std::path::Path, input_res: Option<f64>, output_res: f64, out: &std::path::Path, weights: Option<PathBuf>, batch: usize) -> Result<(), String> {
     use terrain::dem::{Heightfield, PngScale};
+    terrain::dem::formats::Format::of(out).map_err(|e| e.to_string())?;
     if let Some(r) = input_res {
         terrain::enhance::levels_for(r, output_res).map_err(|e| e.to_string())?;
     }
@@ -39,8 +40,7 @@ pub(crate) fn enhance(input: &std::path::Path, input_res: Option<f64>, output_re
         }
     })
     .map_err(|e| e.to_string())?;
-    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
-    result.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    result.export_path(out, false).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
     match result.geo {
         Some(g) => eprintln!("georeference kept: north-west corner ({}, {}) m, {}", g.origin_m[0], g.origin_m[1], g.epsg.map_or("a local frame".into(), |c| format!("EPSG {c}"))),
         None => eprintln!("no georeference written: the input has none in a projected CRS (a degree grid is converted to metres, its place on Earth is not kept)"),

@@ -17,8 +17,9 @@ pub(crate) fn tile_rect(t: &[i64]) -> Result<(i32, i32, u32, u32), String> {
     Ok((x0 as i32, y0 as i32, w as u32, h as u32))
 }
 
-pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, source: Source, weights: Option<PathBuf>) -> Result<(), String> {
+pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1: bool, source: Source, weights: Option<PathBuf>) -> Result<(), String> {
     let (x0, y0, w, h) = tile_rect(tiles)?;
+    terrain::dem::formats::Format::of(out).map_err(|e| e.to_string())?;
     let src: Box<dyn TileSource> = match source {
         Source::Procedural => Box::new(ProceduralSource::new(NoiseParams::default())),
         Source::Tcm => {
@@ -27,9 +28,12 @@ pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, source: Sou
         }
     };
     let hf = export::region(seed, src, x0, y0, w, h);
-    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
-    hf.write_tiff(std::io::BufWriter::new(file)).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
-    eprintln!("wrote {}: {}×{} samples at {} m", out.display(), hf.width, hf.height, hf.spacing_m);
+    let hf = if pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
+    let sidecar = hf.export_path(out, false).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    match sidecar {
+        Some(s) => eprintln!("wrote {} ({}×{} samples at {:.3} m; 0 = {:.2} m, 65535 = {:.2} m) and its .json", out.display(), s.width, s.height, s.spacing_m, s.min_m, s.max_m),
+        None => eprintln!("wrote {}: {}×{} samples at {} m", out.display(), hf.width, hf.height, hf.spacing_m),
+    }
     Ok(())
 }
 

@@ -2,6 +2,7 @@
 //! users have (GeoTIFF/TIFF, 16-bit PNG heightmaps, Mapbox terrain-RGB PNG), a TIFF writer, and
 //! the resampling the resolution ladder needs (area averaging down, bicubic ×2 up).
 
+pub mod formats;
 mod shade;
 
 use std::io::{BufRead, Read, Seek, SeekFrom, Write};

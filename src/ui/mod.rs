@@ -153,6 +153,8 @@ pub struct UiActions {
     pub mode: Option<CameraMode>,
     /// Close the message banner.
     pub dismiss_message: bool,
+    /// Download the terrain around the eye in this format.
+    pub export: Option<crate::dem::formats::Format>,
 }
 
 /// Overlay state that lives between frames.
@@ -263,6 +265,20 @@ impl Overlay {
                 }
                 ui.toggle_value(&mut self.show_settings, "Settings");
                 ui.toggle_value(&mut self.show_stats, "Statistics");
+            });
+            ui.horizontal(|ui| {
+                use crate::dem::formats::Format;
+                ui.label("Export");
+                for (format, name, what) in [
+                    (Format::Png16, "PNG", "16-bit heightmap + a .json of its metres and spacing"),
+                    (Format::Raw16, "RAW", "16-bit little-endian heightmap (Unity, Unreal) + a .json of its metres and spacing"),
+                    (Format::GeoTiff, "GeoTIFF", "float32 metres, for GIS"),
+                    (Format::Glb, "glTF", "a mesh with normals (Blender, Godot)"),
+                ] {
+                    if ui.small_button(name).on_hover_text(format!("the tiles around the eye at 32 m: {what}")).clicked() {
+                        act.export = Some(format);
+                    }
+                }
             });
             if self.show_settings
                 && let Some(s) = self.settings_ui(ui)

@@ -19,6 +19,8 @@ pub struct BrowserAsks {
     pub export_sketch: bool,
     /// Open a sketch PNG.
     pub import_sketch: bool,
+    /// Download the terrain around the eye in this format.
+    pub export: Option<crate::dem::formats::Format>,
 }
 
 /// The interface's state between frames.
@@ -56,7 +58,7 @@ impl PageUi {
         if act.dismiss_message {
             core.message = None;
         }
-        let mut asks = BrowserAsks { copy_link: act.copy_link, ..Default::default() };
+        let mut asks = BrowserAsks { copy_link: act.copy_link, export: act.export, ..Default::default() };
         if core.app.source() == SourceKind::Sketch {
             if let Some(v) = core.variants.take() {
                 self.panel.set_variants(ctx, v);

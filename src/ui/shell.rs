@@ -290,6 +290,34 @@ impl<P: Platform> PageShell<P> {
         self.platform.download("sketch.png", &png, "image/png")
     }
 
+    /// Downloads the terrain around the eye in `format` (a PNG's or RAW's sidecar too), named
+    /// after the world and seed; what cannot be made is said in the message.
+    pub fn export(&mut self, format: crate::dem::formats::Format) {
+        use crate::dem::formats::Format;
+        let Some(hf) = self.core.app.export_view() else {
+            self.core.message = Some("Nothing to export yet: the tile under the eye is still being made.".into());
+            return;
+        };
+        let (ext, mime) = match format {
+            Format::Png16 => ("png", "image/png"),
+            Format::Raw16 => ("raw", "application/octet-stream"),
+            Format::GeoTiff => ("tif", "image/tiff"),
+            Format::Glb => ("glb", "model/gltf-binary"),
+        };
+        let s = self.core.app.share_state();
+        let name = format!("terrain-{}-{}.{ext}", s.source.key(), s.seed);
+        let done = hf.export(format, &name).map_err(|e| e.to_string()).and_then(|out| {
+            self.platform.download(&name, &out.bytes, mime)?;
+            match out.sidecar {
+                Some(side) => self.platform.download(&format!("{name}.json"), serde_json::to_string_pretty(&side).unwrap_or_default().as_bytes(), "application/json"),
+                None => Ok(()),
+            }
+        });
+        if let Err(e) = done {
+            self.core.message = Some(format!("The terrain could not be exported: {e}"));
+        }
+    }
+
     /// Keeps the address bar's fragment current (`force`: now), so copying it shares the view.
     fn write_link(&mut self, now: f64, force: bool) {
         if let Some(frag) = self.core.link_to_write(now, force) {
@@ -398,6 +426,9 @@ impl<P: Platform> PageShell<P> {
         self.carry_out();
         if asks.copy_link {
             self.copy_link(&ctx, now);
+        }
+        if let Some(format) = asks.export {
+            self.export(format);
         }
         self.write_link(now, false);
         self.probes.borrow_mut().stats_json = self.ui.stats_json(&self.core, &self.env, &self.frame_work, self.device_restarts, self.link_too_long);

@@ -5,6 +5,7 @@ use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
 use super::*;
+use crate::dem::Heightfield;
 use crate::jobs::native::NativeRunner;
 use crate::jobs::protocol::{Answer, Envelope};
 
@@ -38,6 +39,7 @@ struct TestPlatform {
     fragment: RefCell<String>,
     fragments_written: Cell<u32>,
     downloads: RefCell<Vec<(String, usize)>>,
+    files: RefCell<Vec<Vec<u8>>>,
     warnings: RefCell<Vec<String>>,
 }
 
@@ -90,6 +92,7 @@ impl Platform for TestPlatform {
 
     fn download(&self, name: &str, bytes: &[u8], _mime: &str) -> Result<(), String> {
         self.downloads.borrow_mut().push((name.into(), bytes.len()));
+        self.files.borrow_mut().push(bytes.to_vec());
         Ok(())
     }
 
@@ -189,4 +192,32 @@ fn picked_files_become_sketches_or_clear_messages() {
     assert_eq!(pick(Err(Refused::TooBig(3.0 * 1024.0 * 1024.0))).unwrap_err(), "s.png is 3.0 MB; a sketch PNG (256×256 pixels) is at most 2 MB");
     assert!(pick(Ok(b"not a png".to_vec())).unwrap_err().starts_with("s.png: "));
     assert_eq!(pick(Err(Refused::Unreadable("gone".into()))).unwrap_err(), "s.png could not be read: gone");
+}
+
+/// Export from the page: the settled procedural view (radius 2) downloads as a 16-bit PNG of
+/// its 5 × 5 made tiles (640² samples at 32 m) and the PNG's sidecar, and as a binary glTF;
+/// before any tile is made it says so instead.
+#[test]
+fn the_view_exports_as_png16_with_its_sidecar_and_as_glb() {
+    use crate::dem::formats::Format;
+    let (mut shell, platform, _runners) = page("#v=2&seed=7&src=procedural&cam=2048,2500,2048,0.9,-0.3&r=2&lod=6");
+    shell.export(Format::Png16);
+    assert!(shell.core.message.take().unwrap_or_default().starts_with("Nothing to export yet"));
+    let ctx = egui::Context::default();
+    for _ in 0..200 {
+        frames(&mut shell, &platform, &ctx, 1);
+        if shell.core.app.stats().tiles_pending == 0 {
+            break;
+        }
+    }
+    shell.export(Format::Png16);
+    shell.export(Format::Glb);
+    let downloads = platform.downloads.borrow().clone();
+    let names: Vec<&str> = downloads.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["terrain-procedural-7.png", "terrain-procedural-7.png.json", "terrain-procedural-7.glb"], "{:?}", shell.core.message);
+    let png = Heightfield::read_png(std::io::Cursor::new(platform.files.borrow()[0].clone()), crate::dem::PngScale::default(), 32.0).unwrap();
+    assert_eq!((png.width, png.height), (5 * crate::grid::coord::TILE_SAMPLES, 5 * crate::grid::coord::TILE_SAMPLES));
+    let side: serde_json::Value = serde_json::from_slice(&platform.files.borrow()[1]).unwrap();
+    assert_eq!(side["spacing_m"], 32.0);
+    assert!(downloads[2].1 > 1_000_000, "a mesh of 640² vertices: {} bytes", downloads[2].1);
 }
