@@ -29,12 +29,21 @@ pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1
     };
     let hf = export::region(seed, src, x0, y0, w, h);
     let hf = if pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
-    let sidecar = hf.export_path(out, false).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
+    let sidecar = hf.export_path(out, false).map_err(|e| save_error(out, e))?;
     match sidecar {
         Some(s) => eprintln!("wrote {} ({}×{} samples at {:.3} m; 0 = {:.2} m, 65535 = {:.2} m) and its .json", out.display(), s.width, s.height, s.spacing_m, s.min_m, s.max_m),
         None => eprintln!("wrote {}: {}×{} samples at {} m", out.display(), hf.width, hf.height, hf.spacing_m),
     }
     Ok(())
+}
+
+/// What to say when `out` could not be saved: the file could not be created or written (I/O),
+/// or the grid cannot be written in its format.
+pub(crate) fn save_error(out: &std::path::Path, e: terrain::dem::DemError) -> String {
+    match e {
+        terrain::dem::DemError::Io(io) => format!("cannot create {}: {io}", out.display()),
+        e => format!("cannot write {}: {e}", out.display()),
+    }
 }
 
 #[cfg(feature = "train")]
