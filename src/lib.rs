@@ -32,3 +32,16 @@ pub mod world;
 
 #[cfg(target_arch = "wasm32")]
 mod web;
+
+/// Polls `f` to its end on this thread: the tests' executor (the native runners and native
+/// wgpu answer without waiting on anything else).
+#[cfg(test)]
+pub(crate) fn block_on<F: Future>(f: F) -> F::Output {
+    let mut f = std::pin::pin!(f);
+    let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+    loop {
+        if let std::task::Poll::Ready(v) = f.as_mut().poll(&mut cx) {
+            return v;
+        }
+    }
+}

@@ -94,19 +94,9 @@ impl<W: Port> Runners<W> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::block_on;
     use crate::grid::TileCoord;
     use crate::jobs::native::NativeRunner;
-
-    /// Polls `f` to its end (the native runners answer without waiting on anything else).
-    fn block_on<F: Future>(f: F) -> F::Output {
-        let mut f = std::pin::pin!(f);
-        let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
-        loop {
-            if let std::task::Poll::Ready(v) = f.as_mut().poll(&mut cx) {
-                return v;
-            }
-        }
-    }
 
     fn heights(d: Delivery) -> Vec<f32> {
         match d {

@@ -80,17 +80,7 @@ impl DeviceWatch {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Polls `f` to its end (native wgpu answers at once).
-    fn block_on<F: Future>(f: F) -> F::Output {
-        let mut f = std::pin::pin!(f);
-        let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
-        loop {
-            if let std::task::Poll::Ready(v) = f.as_mut().poll(&mut cx) {
-                return v;
-            }
-        }
-    }
+    use crate::block_on;
 
     /// A loss of the current device is taken once (one restart); a late report about an older
     /// device after a new one is current is never taken; nothing is lost before a device.
