@@ -17,17 +17,44 @@ pub(crate) fn tile_rect(t: &[i64]) -> Result<(i32, i32, u32, u32), String> {
     Ok((x0 as i32, y0 as i32, w as u32, h as u32))
 }
 
+/// `terrain world`: the tiles are made by the same runner and requests as the page's CPU
+/// worker (a [`NativeRunner`] thread), so the CLI, the tests and the page run one code path.
+///
+/// [`NativeRunner`]: terrain::jobs::native::NativeRunner
 pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1: bool, source: Source, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::grid::TileCoord;
+    use terrain::jobs::protocol::{Envelope, Reply, Request};
     let (x0, y0, w, h) = tile_rect(tiles)?;
     terrain::dem::formats::Format::of(out).map_err(|e| e.to_string())?;
-    let src: Box<dyn TileSource> = match source {
-        Source::Procedural => Box::new(ProceduralSource::new(NoiseParams::default())),
-        Source::Tcm => {
-            let models = terrain::world::learned::LearnedModels::load_dir(&weights_dir(weights))?;
-            Box::new(terrain::world::learned::LearnedSource::new(std::sync::Arc::new(models), terrain::models::cpu::default_threads()))
+    let runner = terrain::jobs::native::NativeRunner::spawn(terrain::models::cpu::default_threads());
+    let mut ask = |request| -> Result<Reply, String> {
+        let answer = runner.call(&Envelope { id: 1, epoch: 0, rest_per_work: 0.0, request }).map_err(|e| e.to_string())?;
+        match answer.reply {
+            Reply::Failed(why) => Err(why),
+            r => Ok(r),
         }
     };
-    let hf = export::region(seed, src, x0, y0, w, h);
+    let noise = match source {
+        Source::Procedural => Some(NoiseParams::default()),
+        Source::Tcm => {
+            use terrain::world::learned::{GROW_FILE, TCM_FILE};
+            let dir = weights_dir(weights);
+            let read = |f: &str| terrain::models::read_weight_file(&dir.join(f)).map_err(|e| e.to_string());
+            ask(Request::LoadWorld { tcm: read(TCM_FILE)?, grow: read(GROW_FILE)? })?;
+            None
+        }
+    };
+    let mut made = std::collections::HashMap::new();
+    for j in y0..y0 + h as i32 {
+        for i in x0..x0 + w as i32 {
+            let tile = TileCoord::new(i, j);
+            match ask(Request::Tile { seed, tile, noise })? {
+                Reply::Heights { heights, .. } => made.insert(tile, std::sync::Arc::new(terrain::world::Tile::new(tile, heights))),
+                other => return Err(format!("tile {i}, {j}: unexpected reply {other:?}")),
+            };
+        }
+    }
+    let hf = export::from_tiles(x0, y0, w, h, |c| made.get(&c).cloned()).ok_or("a tile was not made")?;
     let hf = if pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
     let sidecar = hf.export_path(out, false).map_err(|e| save_error(out, e))?;
     match sidecar {

@@ -13,7 +13,7 @@ use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TILE_SIZE_M, TileCoord};
 /// bit for bit whatever their extent or order.
 pub fn region(seed: u64, source: Box<dyn TileSource>, x0: i32, y0: i32, w: u32, h: u32) -> Heightfield {
     let mut world = WorldStream::new(seed, source, 1.0);
-    tiles(x0, y0, w, h, |c| Some(world.ensure(c))).expect("every tile made")
+    from_tiles(x0, y0, w, h, |c| Some(world.ensure(c))).expect("every tile made")
 }
 
 /// The largest square of whole tiles centred on the tile under (x, z) metres, at most
@@ -21,11 +21,12 @@ pub fn region(seed: u64, source: Box<dyn TileSource>, x0: i32, y0: i32, w: u32, 
 /// what the page exports of the view. `None` when not even that tile is made.
 pub fn around(world: &WorldStream, x_m: f64, z_m: f64, radius: u32) -> Option<Heightfield> {
     let c = TileCoord::containing(x_m, z_m);
-    (0..=radius as i32).rev().find_map(|k| tiles(c.i - k, c.j - k, 2 * k as u32 + 1, 2 * k as u32 + 1, |t| world.get(t).cloned()))
+    (0..=radius as i32).rev().find_map(|k| from_tiles(c.i - k, c.j - k, 2 * k as u32 + 1, 2 * k as u32 + 1, |t| world.get(t).cloned()))
 }
 
-/// Tiles [x0, x0 + w) × [y0, y0 + h) from `get`, as one heightfield; `None` if one is missing.
-fn tiles(x0: i32, y0: i32, w: u32, h: u32, mut get: impl FnMut(TileCoord) -> Option<std::sync::Arc<super::tile::Tile>>) -> Option<Heightfield> {
+/// Tiles [x0, x0 + w) × [y0, y0 + h) from `get`, as one heightfield like [`region`]'s; `None`
+/// if one is missing.
+pub fn from_tiles(x0: i32, y0: i32, w: u32, h: u32, mut get: impl FnMut(TileCoord) -> Option<std::sync::Arc<super::tile::Tile>>) -> Option<Heightfield> {
     let n = TILE_SAMPLES;
     let (width, height) = (w as usize * n, h as usize * n);
     let mut data = vec![0f32; width * height];
