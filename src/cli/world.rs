@@ -27,7 +27,7 @@ pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1
     let (x0, y0, w, h) = tile_rect(tiles)?;
     terrain::dem::formats::Format::of(out).map_err(|e| e.to_string())?;
     let runner = terrain::jobs::native::NativeRunner::spawn(terrain::models::cpu::default_threads());
-    let mut ask = |request| -> Result<Reply, String> {
+    let ask = |request| -> Result<Reply, String> {
         let answer = runner.call(&Envelope { id: 1, epoch: 0, rest_per_work: 0.0, request }).map_err(|e| e.to_string())?;
         match answer.reply {
             Reply::Failed(why) => Err(why),
