@@ -210,13 +210,7 @@ impl Heightfield {
     /// scaled by `png_scale`, or 8-bit RGB(A) as terrain-RGB). `spacing_m` overrides the file's
     /// pixel size; one of the two must be known.
     pub fn read_path(path: &Path, spacing_m: Option<f64>, png_scale: PngScale) -> Result<Self, DemError> {
-        let bytes = std::fs::read(path)?;
-        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-        let mut hf = match ext.as_str() {
-            "tif" | "tiff" => Self::read_tiff(std::io::Cursor::new(bytes), spacing_m.unwrap_or(f64::NAN))?,
-            "png" => Self::read_png(std::io::Cursor::new(bytes), png_scale, spacing_m.unwrap_or(f64::NAN))?,
-            other => return Err(DemError::Format(format!("unknown extension '.{other}' (expected .tif, .tiff or .png)"))),
-        };
+        let mut hf = Self::read_unchecked(path, png_scale)?;
         if let Some(s) = spacing_m {
             hf.spacing_m = s;
         }
@@ -231,17 +225,30 @@ impl Heightfield {
     /// than 1 % is refused (the message says both); a file without one (a PNG, a plain TIFF)
     /// needs `given`.
     pub fn read_user_path(path: &Path, given: Option<f64>, png_scale: PngScale) -> Result<Self, DemError> {
-        let hf = match Self::read_path(path, None, png_scale) {
-            Err(DemError::Invalid(e)) if e.ends_with(NO_PIXEL_SIZE) && given.is_some() => return Self::read_path(path, given, png_scale),
-            other => other?,
-        };
+        let mut hf = Self::read_unchecked(path, png_scale)?;
         match given {
-            Some(g) if (g - hf.spacing_m).abs() > 0.01 * hf.spacing_m => Err(DemError::Invalid(format!(
-                "{} says its pixels are {} m, but {g} m was given: leave the spacing out to use the file's own, or resample the file",
-                path.display(),
-                hf.spacing_m
-            ))),
-            _ => Ok(hf),
+            Some(g) if hf.spacing_m.is_nan() => hf.spacing_m = g,
+            None if hf.spacing_m.is_nan() => return Err(DemError::Invalid(format!("{}{NO_PIXEL_SIZE}", path.display()))),
+            Some(g) if (g - hf.spacing_m).abs() > 0.01 * hf.spacing_m => {
+                return Err(DemError::Invalid(format!(
+                    "{} says its pixels are {} m, but {g} m was given: leave the spacing out to use the file's own, or resample the file",
+                    path.display(),
+                    hf.spacing_m
+                )));
+            }
+            _ => {}
+        }
+        hf.validate()
+    }
+
+    /// The heightfield in the file at `path`, by its extension, with the file's own pixel size
+    /// or NaN where it has none; not validated.
+    fn read_unchecked(path: &Path, png_scale: PngScale) -> Result<Self, DemError> {
+        let bytes = std::io::Cursor::new(std::fs::read(path)?);
+        match path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase().as_str() {
+            "tif" | "tiff" => Self::read_tiff(bytes, f64::NAN),
+            "png" => Self::read_png(bytes, png_scale, f64::NAN),
+            other => Err(DemError::Format(format!("unknown extension '.{other}' (expected .tif, .tiff or .png)"))),
         }
     }
 
