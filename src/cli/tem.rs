@@ -40,7 +40,7 @@ pub(crate) fn enhance(input: &std::path::Path, input_res: Option<f64>, output_re
         }
     })
     .map_err(|e| e.to_string())?;
-    result.export_path(out, false).map_err(|e| save_error(out, e))?;
+    result.export_path(out).map_err(|e| save_error(out, e))?;
     match result.geo {
         Some(g) => eprintln!("georeference kept: north-west corner ({}, {}) m, {}", g.origin_m[0], g.origin_m[1], g.epsg.map_or("a local frame".into(), |c| format!("EPSG {c}"))),
         None => eprintln!("no georeference written: the input has none in a projected CRS (a degree grid is converted to metres, its place on Earth is not kept)"),

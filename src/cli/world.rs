@@ -56,7 +56,7 @@ pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1
     }
     let hf = export::from_tiles(x0, y0, w, h, |c| made.get(&c).cloned()).ok_or("a tile was not made")?;
     let hf = if pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
-    let sidecar = hf.export_path(out, false).map_err(|e| save_error(out, e))?;
+    let sidecar = hf.export_path(out).map_err(|e| save_error(out, e))?;
     match sidecar {
         Some(s) => eprintln!("wrote {} ({}×{} samples at {:.3} m; 0 = {:.2} m, 65535 = {:.2} m) and its .json", out.display(), s.width, s.height, s.spacing_m, s.min_m, s.max_m),
         None => eprintln!("wrote {}: {}×{} samples at {} m", out.display(), hf.width, hf.height, hf.spacing_m),

@@ -132,13 +132,11 @@ impl Heightfield {
     }
 
     /// Writes this grid to `path` in the format of its extension (a PNG's or RAW's sidecar
-    /// beside it as `PATH.json`); `pow2_plus_1` resamples to a 2ⁿ+1 square first. Returns the
-    /// sidecar, if any.
-    pub fn export_path(&self, path: &Path, pow2_plus_1: bool) -> Result<Option<Sidecar>, DemError> {
+    /// beside it as `PATH.json`). Returns the sidecar, if any.
+    pub fn export_path(&self, path: &Path) -> Result<Option<Sidecar>, DemError> {
         let format = Format::of(path)?;
-        let grid = if pow2_plus_1 { self.to_pow2_plus_1() } else { self.clone() };
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let out = grid.export(format, &name)?;
+        let out = self.export(format, &name)?;
         std::fs::write(path, &out.bytes)?;
         if let Some(s) = &out.sidecar {
             let mut json = serde_json::to_string_pretty(s).map_err(|e| DemError::Format(e.to_string()))?;
