@@ -75,6 +75,17 @@ fn no_swap(_: &str) -> Option<Result<Vec<u8>, String>> {
     None
 }
 
+/// A core at the default view whose models `shell` loaded, and the effects of its next round
+/// of work (started at page time `now_ms`), which the caller holds unanswered.
+fn with_work_held(shell: &mut Shell, now_ms: f64) -> (PageCore, Vec<Effect>) {
+    let mut core = PageCore::new(ShareState::default(), start(Ok(())));
+    shell.frames(&mut core, 1);
+    core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
+    core.start_work(now_ms);
+    let held = core.take_effects();
+    (core, held)
+}
+
 /// Started with a worker and no GPU, the core fetches both model sets, loads them into the
 /// runner, says where each runs ("CPU (no WebGPU compute)" for the TEM), and then makes the
 /// learned world's tiles there: bit-identical to the learned source called directly, and
@@ -141,12 +152,9 @@ fn a_broken_tcm_file_is_named_and_the_procedural_world_stands_in() {
 /// the worker stops; nothing stays in flight.
 #[test]
 fn a_dead_worker_fails_what_it_held_and_its_work_falls_back() {
-    let mut core = PageCore::new(ShareState::default(), start(Ok(())));
     let mut shell = Shell::new(&no_swap);
-    shell.frames(&mut core, 1);
-    core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
-    core.start_work(100.0);
-    let held: Vec<u32> = core.take_effects().into_iter().filter_map(|e| if let Effect::Post { envelope, .. } = e { Some(envelope.id) } else { None }).collect();
+    let (mut core, effects) = with_work_held(&mut shell, 100.0);
+    let held: Vec<u32> = effects.into_iter().filter_map(|e| if let Effect::Post { envelope, .. } = e { Some(envelope.id) } else { None }).collect();
     assert!(!held.is_empty());
     for id in held {
         core.deliver(Delivery::WorkerGone { id, why: "out of memory".into() });
@@ -244,12 +252,9 @@ fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_fra
 /// less one millisecond changes nothing.
 #[test]
 fn a_worker_that_does_not_answer_for_a_minute_is_taken_for_stalled_and_its_work_falls_back() {
-    let mut core = PageCore::new(ShareState::default(), start(Ok(())));
     let mut shell = Shell::new(&no_swap);
-    shell.frames(&mut core, 1);
-    core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
-    core.start_work(1000.0);
-    let held = core.take_effects().len();
+    let (mut core, effects) = with_work_held(&mut shell, 1000.0);
+    let held = effects.len();
     assert!(held > 0 && core.in_flight() == held, "{held} requests, {} in flight", core.in_flight());
     core.start_work(1000.0 + WORKER_TIMEOUT_MS - 1.0);
     assert!(core.worker().is_ok() && core.in_flight() == held);

@@ -116,10 +116,7 @@ pub fn distance(set: &[Drainage], reference: &[Drainage]) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn field(n: usize, f: impl Fn(f64, f64) -> f64) -> Vec<f32> {
-        (0..n * n).map(|p| f((p % n) as f64, (p / n) as f64) as f32).collect()
-    }
+    use crate::geomorph::tests::field;
 
     /// A plane tilted 1° along x is not flat, has no depressions at any scale, and water runs
     /// straight across it: the longest path is the window's width less one sample (63 × 32 m).

@@ -279,10 +279,11 @@ pub fn distance_by<T, const N: usize>(set: &[T], reference: &[T], values: impl F
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn field(n: usize, f: impl Fn(f64, f64) -> f64) -> Vec<f32> {
+    /// An `n`×`n` field of heights `f(x, y)` (samples), row-major.
+    pub(crate) fn field(n: usize, f: impl Fn(f64, f64) -> f64) -> Vec<f32> {
         (0..n * n).map(|p| f((p % n) as f64, (p / n) as f64) as f32).collect()
     }
 
