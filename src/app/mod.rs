@@ -228,7 +228,7 @@ impl TerrainApp {
     fn new_world_from(&mut self, epoch: u64) {
         // Every new world gets a new epoch (after `epoch`): results of jobs (tiles, TEM
         // batches) made for an older one are dropped.
-        let epoch = self.world.epoch().max(epoch.saturating_sub(1)) + 1;
+        let epoch = self.world.successor_epoch(epoch);
         self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere).at_epoch(epoch);
         self.nodes = NodeCache::new();
         let (last, at) = std::mem::take(&mut self.last_nodes);

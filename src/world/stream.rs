@@ -91,6 +91,12 @@ impl WorldStream {
         self.jobs.epoch()
     }
 
+    /// The epoch of a world that replaces this one: after this one's and at least `at_least`
+    /// ([`JobQueue::new_epoch_from`]); this world's jobs in flight become stale.
+    pub fn successor_epoch(&mut self, at_least: u64) -> u64 {
+        self.jobs.new_epoch_from(at_least)
+    }
+
     /// Counters of the tile jobs.
     pub fn job_stats(&self) -> JobStats {
         self.jobs.stats()
