@@ -161,7 +161,7 @@ fn repaint_once(ctx: &egui::Context) {
 
 impl<P: Platform> PageShell<P> {
     /// The page for `core` on `platform`, with its runners, opened at `share`.
-    pub fn new(core: PageCore, platform: Rc<P>, runners: Rc<Runners<P::Worker>>, share: ShareState, env: Environment) -> Self {
+    fn new(core: PageCore, platform: Rc<P>, runners: Rc<Runners<P::Worker>>, share: ShareState, env: Environment) -> Self {
         Self {
             core,
             platform,
@@ -304,8 +304,7 @@ impl<P: Platform> PageShell<P> {
             Format::GeoTiff => ("tif", "image/tiff"),
             Format::Glb => ("glb", "model/gltf-binary"),
         };
-        let s = self.core.app.share_state();
-        let name = format!("terrain-{}-{}.{ext}", s.source.key(), s.seed);
+        let name = format!("terrain-{}-{}.{ext}", self.core.app.source().key(), self.core.app.settings().seed);
         let done = hf.export(format, &name).map_err(|e| e.to_string()).and_then(|out| {
             self.platform.download(&name, &out.bytes, mime)?;
             match out.sidecar {
