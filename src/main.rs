@@ -14,7 +14,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
-use cli::{sketch::*, tem::*, world::*};
+use cli::{bench::*, sketch::*, tem::*, world::*};
 use terrain::world::{NoiseParams, ProceduralSource, TileSource, export};
 
 /// Most tiles `terrain world` writes at once (64 × 64 tiles: 8192² samples, 256 MiB).
@@ -181,12 +181,35 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Time TEM inference on the CPU: prints JSON with the median milliseconds per quad
-    /// (input 100² incl. margin → 200²).
+    /// Time the learned world's networks per phase batch (the TCM's 128 m tiles and the ×4
+    /// step to 32 m): one JSON line per model and batch size with milliseconds per batch call
+    /// and per tile, on the CPU kernels or (`--gpu`) burn's wgpu backend.
+    TileBench {
+        /// Tiles per call (repeat the flag; default 1, 4 and 16).
+        #[arg(long = "batch", value_parser = clap::value_parser!(u32).range(1..=256))]
+        batches: Vec<u32>,
+        /// Timed calls per batch size (after one warm-up call).
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+        repeats: u32,
+        /// CPU threads (default: every core; ignored with --gpu).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
+        threads: Option<u32>,
+        /// Run on burn's wgpu backend (the default Vulkan adapter) instead of the CPU kernels.
+        #[arg(long)]
+        gpu: bool,
+        /// Folder of the world's weights (tcm_128m.bpk, grow_32m.bpk).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+    },
+    /// Time TEM inference: prints JSON with the median milliseconds per quad (input 100² incl.
+    /// margin → 200²), on the CPU kernels or (`--gpu`) burn's wgpu backend.
     TemBench {
         /// Threads (default: every core).
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
         threads: Option<u32>,
+        /// Run on burn's wgpu backend (the default Vulkan adapter) instead of the CPU kernels.
+        #[arg(long)]
+        gpu: bool,
         /// Level of the ladder (0 = 32 → 16 m).
         #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..5))]
         level: u32,
@@ -574,7 +597,10 @@ fn main() -> ExitCode {
         Command::SketchBench { repeats, threads, weights } => sketch_bench(repeats as usize, threads, weights),
         Command::HalfWeights { input, out } => half_weights(&input, &out),
         Command::AverageWeights { input, out } => average_weights(&input, &out),
-        Command::TemBench { level, batch, repeats, threads, weights } => tem_bench(level as usize, batch as usize, repeats as usize, threads, weights),
+        Command::TemBench { level, batch, repeats, threads, gpu, weights } => tem_bench(level as usize, batch as usize, repeats as usize, threads, gpu, weights),
+        Command::TileBench { batches, repeats, threads, gpu, weights } => {
+            tile_bench(if batches.is_empty() { &[1, 4, 16] } else { &batches }, repeats as usize, threads, gpu, weights)
+        }
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
         Command::EvalSketch { pairs, weights, views } => eval_sketch(&pairs, weights, views.count as usize),

@@ -101,9 +101,9 @@ pub(crate) fn tem_export(weights: Option<PathBuf>, out: &std::path::Path) -> Res
     Ok(())
 }
 
-pub(crate) fn tem_bench(level: usize, batch: usize, repeats: usize, threads: Option<u32>, weights: Option<PathBuf>) -> Result<(), String> {
+pub(crate) fn tem_bench(level: usize, batch: usize, repeats: usize, threads: Option<u32>, gpu: bool, weights: Option<PathBuf>) -> Result<(), String> {
     use terrain::models::tem::{Exec, PROBE_SIDE, TemSet, probe_input};
-    let exec = threads.map_or_else(Exec::cpu, |t| Exec::Cpu { threads: t as usize });
+    let exec = if gpu { Exec::Burn(terrain::models::native_gpu()?) } else { threads.map_or_else(Exec::cpu, |t| Exec::Cpu { threads: t as usize }) };
     let tem = TemSet::load_dir(&weights_dir(weights), &exec)?;
     let input: Vec<f32> = (0..batch).flat_map(|_| probe_input(level)).collect();
     tem.enhance_blocking(level, input.clone(), batch, PROBE_SIDE)?;

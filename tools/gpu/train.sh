@@ -5,10 +5,12 @@
 #
 #   bash tools/gpu/train.sh MODEL MINUTES [extra arguments of the trainer]
 #     MODEL: sketch | vae | tcm | tem | bench (each trainer for MINUTES, examples/s only)
+#       | infer (inference timings, MINUTES ignored: tile-bench and tem-bench on the GPU and
+#       on the CPU kernels, JSON lines in the log)
 #   RESUME=DIR: go on from the checkpoint in DIR (a folder that came back from an earlier run,
 #     or a CPU run's checkpoint folder); BACKEND=cpu runs the same on the CPU; PACK=1 leaves
 #     the checkpoint folder as tar parts of ≤ 15 MiB (what the device tool brings back);
-#     STAGE_TIMEOUT=S stops a stage that runs past S seconds.
+#     STAGE_TIMEOUT=S stops a stage that runs past S seconds; STEPS, FINETUNE: see tem below.
 #
 # A dry run here (Mesa's lavapipe, seconds): OUT=/tmp/gpu-dry bash tools/gpu/train.sh bench 0.1
 set -uo pipefail
@@ -87,7 +89,21 @@ case "$model" in
   tem)
     init=()
     [ -n "${RESUME:-}" ] && init=(--init "$RESUME")
-    run tem train-tem --dem-dir "$data" --out "$out/tem" --steps 1000000 --checkpoint-every 0 "${init[@]}" "${common[@]}" "$@" ;;
+    # STEPS / FINETUNE: the chained and single-level step counts (the learning rate drops to a
+    # third for the last quarter of the chained steps and the fine-tuning).
+    run tem train-tem --dem-dir "$data" --out "$out/tem" --steps "${STEPS:-1000000}" --finetune "${FINETUNE:-0}" --checkpoint-every 0 "${init[@]}" "${common[@]}" "$@" ;;
+  infer)
+    # The world's networks per phase batch and the TEM's levels per batch, on this machine's
+    # GPU (burn wgpu) and its CPU kernels, one JSON line each.
+    rc=0
+    run tile-bench-gpu tile-bench --gpu --repeats 10 || rc=1
+    run tile-bench-cpu tile-bench --repeats 10 || rc=1
+    for level in 0 1 2 3 4; do
+      for b in 1 16; do
+        run "tem-bench-gpu-$level-$b" tem-bench --gpu --level "$level" --batch "$b" --repeats 10 || rc=1
+      done
+    done
+    exit "$rc" ;;
   bench)
     # Each trainer for MINUTES on small pools: the examples/s of its summary line (this
     # bench's lines only: the log gathers every run into the same $OUT).
@@ -101,6 +117,6 @@ case "$model" in
     tail -n +"$((before + 1))" "$log" | grep -h '"examples_per_s"' | sed 's/^/result: /'
     exit $rc ;;
   *)
-    echo "unknown model $model (sketch | vae | tcm | tem | bench)" >&2
+    echo "unknown model $model (sketch | vae | tcm | tem | bench | infer)" >&2
     exit 2 ;;
 esac

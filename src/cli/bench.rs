@@ -1,0 +1,126 @@
+//! `terrain tile-bench`: how long the learned world's two networks take per phase batch, on the
+//! project's CPU kernels or on burn's wgpu backend (Vulkan natively: a GPU's driver, or Mesa's
+//! lavapipe), so the CPU worker and a GPU can be compared on the same inputs.
+
+#[allow(unused_imports)]
+use crate::*;
+
+/// One model's timing at one batch size: milliseconds per batch call (median and best of the
+/// timed calls, after one untimed warm-up call that also compiles a GPU's kernels).
+fn time_calls(repeats: usize, mut call: impl FnMut() -> Result<(), String>) -> Result<(f64, f64, f64), String> {
+    let t = std::time::Instant::now();
+    call()?;
+    let first_ms = t.elapsed().as_secs_f64() * 1e3;
+    let mut ms = Vec::with_capacity(repeats);
+    for _ in 0..repeats {
+        let t = std::time::Instant::now();
+        call()?;
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    ms.sort_by(f64::total_cmp);
+    Ok((ms[ms.len() / 2], ms[0], first_ms))
+}
+
+/// A 3×3 neighbourhood of 128 m tiles (metres) with ridges of a few hundred metres, the TCM's
+/// input for phase `phase`'s known neighbours.
+fn tcm_input(phase: usize, k: usize) -> Vec<f32> {
+    use terrain::models::tcm::{TILE_PX, assemble_input, phase_mask};
+    let tiles: Vec<Vec<f32>> = (0..9)
+        .map(|t| {
+            (0..TILE_PX * TILE_PX)
+                .map(|p| {
+                    let (x, y) = ((t % 3 * TILE_PX + p % TILE_PX) as f32, (t / 3 * TILE_PX + p / TILE_PX) as f32);
+                    1500.0 + 300.0 * (x * 0.07 + k as f32).sin() * (y * 0.05).cos() + 80.0 * (x * 0.31 + y * 0.17).sin()
+                })
+                .collect()
+        })
+        .collect();
+    let mask = phase_mask(phase);
+    let known: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tiles[t].as_slice()));
+    let centres: [f32; 9] = std::array::from_fn(|t| tiles[t][TILE_PX * TILE_PX / 2]);
+    assemble_input(&known, &centres, &[1.27; 9], 42 + k as u64)
+}
+
+/// The ×4 step's inputs for one window (metres in, channel-first out).
+fn grow_input(k: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    use terrain::models::grow::{WINDOW, assemble};
+    let h: Vec<f32> = (0..WINDOW * WINDOW).map(|p| 900.0 + 250.0 * ((p % WINDOW) as f32 * 0.21 + k as f32).sin() * ((p / WINDOW) as f32 * 0.13).cos()).collect();
+    assemble(&h, 42, 64 * k as i64, -17)
+}
+
+/// `terrain tile-bench`: for each batch size, one JSON line per model with the median and
+/// best milliseconds per batch call and per tile, the first (warm-up) call's milliseconds,
+/// and where it ran. `gpu`: burn's wgpu backend on the default Vulkan adapter; else the CPU
+/// kernels on `threads` threads (default: every core).
+pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, gpu: bool, weights: Option<PathBuf>) -> Result<(), String> {
+    use burn::tensor::{Tensor, TensorData};
+    use terrain::models::grow::{Grow, GrowCpu, GrowScratch, WINDOW};
+    use terrain::models::tcm::{CONTEXT_PX, IN_CHANNELS, Tcm, TcmCpu, TcmScratch};
+    use terrain::world::learned::{GROW_FILE, TCM_FILE};
+    let dir = weights_dir(weights);
+    let read = |f: &str| std::fs::read(dir.join(f)).map_err(|e| format!("cannot read {}: {e}", dir.join(f).display()));
+    let (tcm_bytes, grow_bytes) = (read(TCM_FILE)?, read(GROW_FILE)?);
+    let threads = threads.map_or_else(terrain::models::cpu::default_threads, |t| t as usize);
+    let (gpu_models, place) = if gpu {
+        let device = terrain::models::native_gpu()?;
+        let tcm = terrain::models::load_burnpack(Tcm::new(&device), &tcm_bytes).map_err(|e| e.to_string())?;
+        let grow = terrain::models::load_burnpack(Grow::new(&device), &grow_bytes).map_err(|e| e.to_string())?;
+        (Some((device, tcm, grow)), adapter_names())
+    } else {
+        (None, format!("cpu kernels, {threads} threads"))
+    };
+    let (tcm_cpu, grow_cpu) = (TcmCpu::from_burnpack(&tcm_bytes).map_err(|e| e.to_string())?, GrowCpu::from_burnpack(&grow_bytes).map_err(|e| e.to_string())?);
+    for &b in batches {
+        let b = b as usize;
+        let tcm_in: Vec<Vec<f32>> = (0..b).map(|k| tcm_input(k % 4, k)).collect();
+        let grow_in: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = (0..b).map(grow_input).collect();
+        let (tcm_t, grow_t) = match &gpu_models {
+            Some((device, tcm, grow)) => {
+                let stack = |parts: Vec<&Vec<f32>>, c: usize, s: usize| {
+                    Tensor::<4>::from_data(TensorData::new(parts.into_iter().flatten().copied().collect::<Vec<f32>>(), [b, c, s, s]), device)
+                };
+                let tcm_t = time_calls(repeats, || {
+                    let y = tcm.forward(stack(tcm_in.iter().collect(), IN_CHANNELS, CONTEXT_PX));
+                    y.into_data().try_to_vec::<f32>().map(drop).map_err(|e| format!("{e:?}"))
+                })?;
+                let grow_t = time_calls(repeats, || {
+                    let (x, n64, n32) = (grow_in.iter().map(|g| &g.0).collect(), grow_in.iter().map(|g| &g.1).collect(), grow_in.iter().map(|g| &g.2).collect());
+                    let y = grow.forward(stack(x, 6, WINDOW), stack(n64, 1, 2 * WINDOW), stack(n32, 1, 4 * WINDOW));
+                    y.into_data().try_to_vec::<f32>().map(drop).map_err(|e| format!("{e:?}"))
+                })?;
+                (tcm_t, grow_t)
+            }
+            None => {
+                let (mut ts, mut gs) = (TcmScratch::default(), GrowScratch::default());
+                let tcm_t = time_calls(repeats, || {
+                    tcm_in.iter().for_each(|x| drop(std::hint::black_box(tcm_cpu.forward(x, &mut ts, threads))));
+                    Ok(())
+                })?;
+                let grow_t = time_calls(repeats, || {
+                    grow_in.iter().for_each(|(x, a, c)| drop(std::hint::black_box(grow_cpu.forward(x, a, c, WINDOW, &mut gs, threads))));
+                    Ok(())
+                })?;
+                (tcm_t, grow_t)
+            }
+        };
+        for (model, (median, best, first)) in [("tcm_128m", tcm_t), ("grow_32m", grow_t)] {
+            println!(
+                "{}",
+                serde_json::json!({ "model": model, "batch": b, "on": place, "repeats": repeats, "ms_per_batch": median, "min_ms_per_batch": best, "ms_per_tile": median / b as f64, "first_call_ms": first })
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Where `--gpu` runs: the Vulkan adapters' names and drivers (the default one among them).
+#[cfg(feature = "train")]
+fn adapter_names() -> String {
+    format!("burn wgpu: {}", terrain::train::vulkan_adapters().join("; "))
+}
+
+/// Where `--gpu` runs (without the `train` feature the adapters are not listed).
+#[cfg(not(feature = "train"))]
+fn adapter_names() -> String {
+    "burn wgpu (default Vulkan adapter)".into()
+}
