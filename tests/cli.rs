@@ -93,7 +93,7 @@ fn help_and_version_describe_the_tool() {
     let o = run(&["--help"]);
     assert!(o.status.success());
     let out = String::from_utf8_lossy(&o.stdout);
-    for sub in ["world", "enhance", "tem-probe", "tem-export", "tem-bench", "sketch-export", "sketch-bench", "train-tem", "eval-tem", "train-tcm", "eval-tcm"] {
+    for sub in ["world", "enhance", "tem-probe", "tem-export", "tem-bench", "tile-bench", "sketch-export", "sketch-bench", "train-tem", "eval-tem", "train-tcm", "eval-tcm"] {
         assert!(out.contains(sub), "--help lacks {sub}: {out}");
     }
     for (sub, flags) in [
@@ -101,7 +101,8 @@ fn help_and_version_describe_the_tool() {
         ("enhance", &["--input", "--input-res", "--output-res", "--out", "--weights", "--batch"][..]),
         ("tem-probe", &["--weights"][..]),
         ("tem-export", &["--weights", "--out"][..]),
-        ("tem-bench", &["--level", "--batch", "--repeats", "--weights"][..]),
+        ("tem-bench", &["--level", "--batch", "--repeats", "--gpu", "--weights"][..]),
+        ("tile-bench", &["--batch", "--repeats", "--threads", "--gpu", "--weights"][..]),
         ("sketch-export", &["--weights", "--out"][..]),
         ("sketch-bench", &["--threads", "--repeats", "--weights"][..]),
         ("train-tem", &["--dem-dir", "--steps", "--finetune", "--checkpoint-every", "--batch", "--chain", "--lr", "--seed", "--out"][..]),
@@ -192,6 +193,24 @@ fn sketch_export_and_bench_describe_the_generator() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(b["ms_per_sketch"].as_f64().unwrap() > 0.0 && b["threads"] == 1);
+}
+
+/// `terrain tile-bench` prints one line per network and batch size asked for (the TCM and the
+/// ×4 step at 1 and 3 tiles), each with a positive time per batch call that is its time per
+/// tile times the batch.
+#[test]
+fn tile_bench_times_both_networks_per_batch() {
+    let o = run(&["tile-bench", "--batch", "1", "--batch", "3", "--repeats", "1", "--threads", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let lines: Vec<serde_json::Value> = o.stdout.split(|&b| b == b'\n').filter(|l| !l.is_empty()).map(|l| serde_json::from_slice(l).unwrap()).collect();
+    let keys: Vec<(String, u64)> = lines.iter().map(|l| (l["model"].as_str().unwrap().to_string(), l["batch"].as_u64().unwrap())).collect();
+    let want: Vec<(String, u64)> = [("tcm_128m", 1), ("grow_32m", 1), ("tcm_128m", 3), ("grow_32m", 3)].iter().map(|(m, b)| (m.to_string(), *b)).collect();
+    assert_eq!(keys, want);
+    for l in &lines {
+        let (batch, tile) = (l["ms_per_batch"].as_f64().unwrap(), l["ms_per_tile"].as_f64().unwrap());
+        assert!(batch > 0.0 && (batch - tile * l["batch"].as_f64().unwrap()).abs() < 1e-9 * batch, "{l}");
+        assert_eq!(l["on"], "cpu kernels, 1 thread");
+    }
 }
 
 /// The exported GeoTIFF places its tiles in the world's metric frame: the tiepoint is the
