@@ -77,10 +77,21 @@ pub enum Delivery {
 /// What a request in flight is for.
 #[derive(Debug)]
 enum For {
-    File { set: ModelSet, index: usize },
-    Load { set: ModelSet, target: Target },
+    /// File `index` of `set`, on its `attempt`-th download (1 = the first).
+    File {
+        set: ModelSet,
+        index: usize,
+        attempt: usize,
+    },
+    Load {
+        set: ModelSet,
+        target: Target,
+    },
     Tile(Job<TileCoord>),
-    Tem { epoch: u64, keys: Vec<PatchKey> },
+    Tem {
+        epoch: u64,
+        keys: Vec<PatchKey>,
+    },
     Sketch(Job<u64>, Target),
     Variants(Job<SketchEdit>),
     Blend(Job<SketchEdit>),
@@ -112,6 +123,11 @@ pub struct PageStart {
 /// stalled. Its slowest requests (a learned tile beside a software rasteriser, a load, four
 /// variants) take a few seconds.
 pub const WORKER_TIMEOUT_MS: f64 = 60_000.0;
+
+/// How long a weight file's failed download waits before it is tried again (ms), per failed
+/// attempt: a dropped connection or a server's hiccup costs the user a second or three, not the
+/// learned world. After the last, the set fails and its fallback is said.
+pub const FETCH_RETRY_MS: [f64; 2] = [1_000.0, 3_000.0];
 
 /// Ids are unique in the whole page, across restarts of the core after a lost device, so a
 /// late reply for an old core never matches a new request.
@@ -158,6 +174,8 @@ pub struct PageCore {
     /// The page clock at the last [`PageCore::start_work`] (ms).
     now_ms: f64,
     files: HashMap<ModelSet, Vec<Option<Vec<u8>>>>,
+    /// Downloads to try again: (page clock when due, ms; set; file index; the attempt it will be).
+    refetch: Vec<(f64, ModelSet, usize, usize)>,
     tem: Backend,
     tem_target: Target,
     sketch_on_gpu: bool,
@@ -205,6 +223,7 @@ impl PageCore {
             sent: HashMap::new(),
             now_ms: 0.0,
             files: HashMap::new(),
+            refetch: Vec::new(),
             tem,
             tem_target,
             sketch_on_gpu: false,
@@ -270,10 +289,40 @@ impl PageCore {
         let files = set.files();
         *self.loads.get_mut(set) = Load::Fetching { done: 0, total: files.len() };
         self.files.insert(set, vec![None; files.len()]);
-        for (index, f) in files.into_iter().enumerate() {
-            let id = next_id();
-            self.waiting.insert(id, For::File { set, index });
-            self.effects.push(Effect::Fetch { id, url: format!("weights/{f}") });
+        for index in 0..files.len() {
+            self.fetch_file(set, index, 1);
+        }
+    }
+
+    fn fetch_file(&mut self, set: ModelSet, index: usize, attempt: usize) {
+        let id = next_id();
+        self.waiting.insert(id, For::File { set, index, attempt });
+        self.effects.push(Effect::Fetch { id, url: format!("weights/{}", set.files()[index]) });
+    }
+
+    /// A download of `set`'s file `index` failed on its `attempt`-th try: it is tried again
+    /// after [`FETCH_RETRY_MS`] (the console says so), or, after the last try, the set fails.
+    fn fetch_failed(&mut self, set: ModelSet, index: usize, attempt: usize, e: String) {
+        if self.loads.get(set).is_settled() {
+            return;
+        }
+        match FETCH_RETRY_MS.get(attempt - 1) {
+            Some(wait) => {
+                self.console.push(format!("{e}; trying again in {:.0} s", wait / 1000.0));
+                self.refetch.push((self.now_ms + wait, set, index, attempt + 1));
+            }
+            None => self.fail(set, &LoadError::Fetch(e)),
+        }
+    }
+
+    /// Downloads whose wait is over start again.
+    fn start_refetches(&mut self, now_ms: f64) {
+        let (due, later) = std::mem::take(&mut self.refetch).into_iter().partition(|r| r.0 <= now_ms);
+        self.refetch = later;
+        for (_, set, index, attempt) in due {
+            if !self.loads.get(set).is_settled() {
+                self.fetch_file(set, index, attempt);
+            }
         }
     }
 
@@ -364,8 +413,8 @@ impl PageCore {
         }
         match d {
             Delivery::Fetched { id, bytes } => match (self.waiting.remove(&id), bytes) {
-                (Some(For::File { set, index }), Ok(b)) => self.file_arrived(set, index, b),
-                (Some(For::File { set, .. }), Err(e)) if !self.loads.get(set).is_settled() => self.fail(set, &LoadError::Fetch(e)),
+                (Some(For::File { set, index, .. }), Ok(b)) => self.file_arrived(set, index, b),
+                (Some(For::File { set, index, attempt }), Err(e)) => self.fetch_failed(set, index, attempt, e),
                 _ => {}
             },
             Delivery::Answer(a) => {
@@ -524,6 +573,7 @@ impl PageCore {
     pub fn start_work(&mut self, now_ms: f64) {
         self.now_ms = now_ms;
         self.check_worker(now_ms);
+        self.start_refetches(now_ms);
         if self.app.stats().tiles_pending == 0 {
             self.complete_epoch = Some(self.app.epoch());
         }

@@ -24,12 +24,17 @@ struct Shell<'a> {
     runner: Runner,
     swap: &'a Swap,
     posted: Vec<(Target, &'static str)>,
+    /// The page clock of the next frame (ms) and how far it moves per frame.
+    clock_ms: f64,
+    frame_ms: f64,
+    /// The downloads asked for, by file name, in order.
+    fetched: Vec<String>,
 }
 
 impl<'a> Shell<'a> {
     /// A shell with a fresh runner, downloads changed by `swap`.
     fn new(swap: &'a Swap) -> Self {
-        Shell { runner: Runner::new(1), swap, posted: Vec::new() }
+        Shell { runner: Runner::new(1), swap, posted: Vec::new(), clock_ms: 0.0, frame_ms: 16.0, fetched: Vec::new() }
     }
 
     /// Carries out the core's effects, and those their deliveries cause, until none is left.
@@ -48,6 +53,7 @@ impl<'a> Shell<'a> {
             match e {
                 Effect::Fetch { id, url } => {
                     let name = url.trim_start_matches("weights/");
+                    self.fetched.push(name.to_string());
                     let bytes = (self.swap)(name).unwrap_or_else(|| std::fs::read(weights().join(name)).map_err(|e| format!("{url}: {e}")));
                     core.deliver(Delivery::Fetched { id, bytes });
                 }
@@ -61,11 +67,13 @@ impl<'a> Shell<'a> {
         }
     }
 
-    /// `frames` frames of 16 ms at the default view, carrying out each frame's effects.
+    /// `frames` frames of [`Shell::frame_ms`] at the default view, carrying out each frame's
+    /// effects.
     fn frames(&mut self, core: &mut PageCore, frames: usize) {
-        for f in 0..frames {
+        for _ in 0..frames {
             core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
-            core.start_work(f as f64 * 16.0);
+            core.start_work(self.clock_ms);
+            self.clock_ms += self.frame_ms;
             self.carry_out(core);
         }
     }
@@ -123,7 +131,10 @@ fn broken_and_missing_weight_files_fail_their_set_with_the_fallback_said() {
     };
     let mut core = PageCore::new(ShareState::default(), start(Ok(())));
     let mut shell = Shell::new(&swap);
-    shell.frames(&mut core, 2);
+    // A missing file is asked for three times (now, 1 s and 4 s later) before the set fails.
+    shell.frame_ms = 500.0;
+    shell.frames(&mut core, 10);
+    assert_eq!(shell.fetched.iter().filter(|f| *f == GROW_FILE).count(), 3, "{:?}", shell.fetched);
     let Load::Failed(tem) = &core.loads.tem else { panic!("{:?}", core.loads.tem) };
     assert!(tem.contains("tem_2_4m.bpk") && tem.starts_with("TEM weights are broken") && tem.ends_with("showing the 32 m world"), "{tem}");
     assert_eq!(
@@ -132,6 +143,35 @@ fn broken_and_missing_weight_files_fail_their_set_with_the_fallback_said() {
     );
     assert_eq!(core.app.source(), SourceKind::Procedural);
     assert_eq!(core.app.stats().refine_backend, "");
+}
+
+/// A download that fails twice and then arrives: the learned world loads (no message, the
+/// learned source shown), the console says each retry and its wait (1 s, then 3 s), and the
+/// file was asked for no more than 3 times; the second retry comes no sooner than 4 s after
+/// the first try.
+#[test]
+fn a_weight_download_that_fails_twice_is_tried_again_and_the_learned_world_loads() {
+    let failures = std::rc::Rc::new(std::cell::Cell::new(0));
+    let swap = move |name: &str| {
+        (name == TCM_FILE && failures.get() < 2).then(|| {
+            failures.set(failures.get() + 1);
+            Err(format!("weights/{TCM_FILE}: the connection was reset"))
+        })
+    };
+    let mut core = PageCore::new(ShareState::default(), start(Ok(())));
+    let mut shell = Shell::new(&swap);
+    shell.frame_ms = 250.0;
+    // 0 ms: the first try fails; 1,000 ms: the second; 4,000 ms: the third arrives.
+    shell.frames(&mut core, 16);
+    assert!(matches!(core.loads.world, Load::Fetching { .. }), "still waiting at 3,750 ms: {:?}", core.loads.world);
+    shell.frames(&mut core, 4);
+    assert!(core.loads.world.is_ready(), "{:?}", core.loads.world);
+    assert_eq!(core.app.source(), SourceKind::Learned);
+    assert_eq!(core.message, None);
+    assert_eq!(shell.fetched.iter().filter(|f| *f == TCM_FILE).count(), 3, "{:?}", shell.fetched);
+    let retries: Vec<&String> = core.console.iter().filter(|c| c.contains("trying again")).collect();
+    assert_eq!(retries.len(), 2, "{:?}", core.console);
+    assert!(retries[0].ends_with("the connection was reset; trying again in 1 s") && retries[1].ends_with("trying again in 3 s"), "{retries:?}");
 }
 
 /// A broken TCM file (bytes that are not weights) fails the learned world with the file named

@@ -515,6 +515,67 @@ test('a corrupt weight file is named in the overlay and the 32 m world goes on',
   await page.close();
 });
 
+// The learned world at the default camera, no autopilot: what the failure tests below break.
+const FAIL_VIEW = 'v=2&seed=7&src=tcm&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6';
+
+test('a weight download that fails once is tried again: the learned world loads with no message, the console says the retry, and the address keeps src=tcm', async () => {
+  const page = await browser.newPage({ viewport: { width: 960, height: 600 } });
+  const errors = [];
+  const consoleLines = [];
+  page.on('console', (m) => consoleLines.push(m.text()));
+  page.on('pageerror', (e) => errors.push(String(e)));
+  let tries = 0;
+  await page.route('**/weights/tcm_128m.bpk', (r) => (++tries === 1 ? r.abort('connectionreset') : r.continue()));
+  await page.goto(base + '#' + FAIL_VIEW);
+  const s = await waitFor(page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 10, 'the learned world after a retry', 300_000);
+  report.weights_retry = { tries, source: s.source, retry_note: consoleLines.find((l) => /trying again/.test(l)) };
+  assert.equal(tries, 2, 'the file was downloaded once more');
+  assert.ok(consoleLines.some((l) => /weights\/tcm_128m\.bpk.*trying again in 1 s/.test(l)), JSON.stringify(consoleLines));
+  assert.equal(s.message ?? null, null);
+  assert.match(await page.evaluate(() => location.hash), /src=tcm/);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
+test('a trap in the CPU worker is said in the page: the procedural world stands in, frames go on, and the address keeps src=tcm', async () => {
+  const { page, errors } = await open(FAIL_VIEW);
+  await waitFor(page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 10, 'the learned view', 300_000);
+  const [worker] = page.workers();
+  assert.ok(worker, 'no CPU worker');
+  // A request whose bytes are null: the module's entry point throws inside wasm while it holds
+  // its queue (as a trap would, leaving it borrowed), and the worker script reports it.
+  await worker.evaluate(() => self.onmessage(new MessageEvent('message', { data: { id: 999999, bytes: null } })));
+  const s = await waitFor(page, (s) => /not available: the CPU worker stopped \(the CPU worker failed/.test(s.message ?? ''), 'the trap said', 60_000);
+  const frames = s.stats.frames;
+  const after = await waitFor(page, (q) => q.stats.source === 'procedural' && q.stats.tiles_pending === 0 && q.stats.frames > frames + 10, 'the procedural stand-in drawn', 240_000);
+  report.worker_trap = { message: s.message };
+  assert.match(s.message, /Showing the procedural world\.$/);
+  assert.ok(after.stats.nodes_drawn > 0);
+  assert.match(await page.evaluate(() => location.hash), /src=tcm/);
+  assert.deepEqual(errors.filter((e) => !/CPU worker/.test(e)), []);
+  await page.close();
+});
+
+test('a CPU worker that stops answering is taken for stalled after 60 s: its work falls back with a message and frames go on', async () => {
+  const { page, errors } = await open(FAIL_VIEW);
+  await waitFor(page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 10, 'the learned view', 300_000);
+  const [worker] = page.workers();
+  assert.ok(worker, 'no CPU worker');
+  // The worker takes requests and never answers; a new tile is then asked for by a new seed.
+  await worker.evaluate(() => { self.onmessage = () => {}; });
+  const t0 = Date.now();
+  await page.evaluate(() => { location.hash = location.hash.replace('seed=7', 'seed=8'); });
+  const s = await waitFor(page, (s) => /not available: the CPU worker stopped \(it did not answer a request in 60 s\)/.test(s.message ?? ''), 'the stall said', 120_000);
+  const waited = (Date.now() - t0) / 1000;
+  const frames = s.stats.frames;
+  const after = await waitFor(page, (q) => q.stats.source === 'procedural' && q.stats.tiles_pending === 0 && q.stats.frames > frames + 10, 'the procedural stand-in drawn', 240_000);
+  report.worker_stall = { said_after_s: waited, message: s.message };
+  assert.ok(waited >= 55 && waited < 90, `said after ${waited} s`);
+  assert.ok(after.stats.nodes_drawn > 0);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
 test('a lost WebGPU device is replaced without a reload: same view, same tiles, drawing again', async () => {
   const { page, errors } = await open(VIEW);
   const s0 = await waitFor(page, (s) => s.stats.tiles_pending === 0 && s.stats.frames > 20, 'the view to settle');
@@ -740,13 +801,17 @@ test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, cle
   fs.writeFileSync(noisyFile, PNG.sync.write(noisy));
   const second = other.page;
   s = await stats(second);
-  // A file far larger than any sketch PNG is refused by its size, before it is read.
+  // A file far larger than any sketch PNG (50 MB) is refused by its size, before it is read:
+  // the page's wasm memory does not grow by it.
   const bigFile = path.join(out, 'big.png');
-  fs.writeFileSync(bigFile, Buffer.alloc(3 * 1024 * 1024, 7));
+  fs.writeFileSync(bigFile, Buffer.alloc(50 * 1024 * 1024, 7));
+  const memoryBefore = await second.evaluate(() => window.wasmBindings.terrain_wasm_memory_bytes());
   await click(second, s, 'import');
   await second.waitForSelector('#terrain_sketch_file', { state: 'attached', timeout: 30_000 });
   await second.setInputFiles('#terrain_sketch_file', bigFile);
-  s = await waitFor(second, (q) => /big\.png is 3\.0 MB; a sketch PNG \(256×256 pixels\) is at most 2 MB/.test(q.message ?? ''), 'the too-large file refused');
+  s = await waitFor(second, (q) => /big\.png is 50\.0 MB; a sketch PNG \(256×256 pixels\) is at most 2 MB/.test(q.message ?? ''), 'the too-large file refused');
+  const memoryGrowth = (await second.evaluate(() => window.wasmBindings.terrain_wasm_memory_bytes())) - memoryBefore;
+  assert.ok(memoryGrowth < 8 * 1024 * 1024, `wasm memory grew by ${memoryGrowth} bytes`);
   // The same input takes the next file.
   await click(second, s, 'import');
   await second.setInputFiles('#terrain_sketch_file', noisyFile);
