@@ -67,7 +67,7 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
         let grow = terrain::models::load_burnpack(Grow::new(&device), &grow_bytes).map_err(|e| e.to_string())?;
         (Some((device, tcm, grow)), adapter_names())
     } else {
-        (None, format!("cpu kernels, {threads} thread{}", if threads == 1 { "" } else { "s" }))
+        (None, format!("cpu kernels ({}), {threads} thread{}", terrain::models::cpu::Kernels::chosen().widest(), if threads == 1 { "" } else { "s" }))
     };
     let (tcm_cpu, grow_cpu) = (TcmCpu::from_burnpack(&tcm_bytes).map_err(|e| e.to_string())?, GrowCpu::from_burnpack(&grow_bytes).map_err(|e| e.to_string())?);
     for &b in batches {

@@ -49,7 +49,10 @@ pub(crate) fn sketch_bench(repeats: usize, threads: Option<u32>, weights: Option
         })
         .collect();
     ms.sort_by(f64::total_cmp);
-    println!("{}", serde_json::json!({ "threads": threads, "repeats": repeats, "ms_per_sketch": ms[ms.len() / 2], "min_ms_per_sketch": ms[0] }));
+    println!(
+        "{}",
+        serde_json::json!({ "threads": threads, "kernels": terrain::models::cpu::Kernels::chosen().widest(), "repeats": repeats, "ms_per_sketch": ms[ms.len() / 2], "min_ms_per_sketch": ms[0] })
+    );
     Ok(())
 }
 

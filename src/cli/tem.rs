@@ -114,7 +114,11 @@ pub(crate) fn tem_bench(level: usize, batch: usize, repeats: usize, threads: Opt
         })
         .collect::<Result<_, _>>()?;
     ms.sort_by(f64::total_cmp);
-    println!("{}", serde_json::json!({ "level": level, "batch": batch, "repeats": repeats, "backend": tem.backend(), "ms_per_quad": ms[ms.len() / 2], "min_ms_per_quad": ms[0] }));
+    let kernels = if gpu { "burn wgpu" } else { terrain::models::cpu::Kernels::chosen().widest() };
+    println!(
+        "{}",
+        serde_json::json!({ "level": level, "batch": batch, "repeats": repeats, "backend": tem.backend(), "kernels": kernels, "ms_per_quad": ms[ms.len() / 2], "min_ms_per_quad": ms[0] })
+    );
     Ok(())
 }
 

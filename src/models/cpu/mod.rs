@@ -5,8 +5,9 @@
 //! fresh buffer per layer, one operation at a time). Here each layer is one pass of a
 //! register-blocked kernel: a few output pixels × output channels are accumulated in
 //! registers over the 9 taps × input channels, with bias, ReLU or a skip connection applied
-//! as the block is stored; activation buffers are reused between calls. Kernels: AVX2 + FMA
-//! intrinsics natively (chosen at run time; [`BLOCK`] pixels × 32 channels), SIMD128
+//! as the block is stored; activation buffers are reused between calls. Kernels: AVX-512 or
+//! AVX2 + FMA intrinsics natively (chosen at run time, the widest the CPU has; AVX-512: 8
+//! pixels × 32 channels, AVX2: [`BLOCK`] pixels × 32 channels), SIMD128
 //! intrinsics in the page (4 pixels × 8 channels, any multiple of 8 channels), and portable
 //! Rust elsewhere. Every kernel accumulates in the same order; the fused multiply-adds of the
 //! AVX2 kernel round differently from the separate multiplies and adds of the others, so
@@ -259,11 +260,57 @@ pub enum Post<'a> {
 /// Applies `layer` to `src` into `dst` (reshaped to `src`'s size and the layer's output
 /// channels) using up to `threads` threads (rows are split between them; 1 = this thread).
 pub fn conv(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize) {
-    conv_impl(layer, src, dst, post, threads, false)
+    conv_impl(layer, src, dst, post, threads, Kernels::chosen())
 }
 
-/// [`conv`], optionally on the portable kernels even where AVX2 + FMA exist (tests run both).
-fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize, portable: bool) {
+/// Which kernels a convolution may use: the best this CPU has, or (tests, benchmarks) a
+/// narrower set even where wider ones exist.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernels {
+    /// AVX-512 where present, else AVX2 + FMA where present, else portable (natively; the page
+    /// has its SIMD128 kernel).
+    Best,
+    /// AVX2 + FMA where present, else portable: never AVX-512.
+    Avx2,
+    /// The portable kernels only.
+    Portable,
+}
+
+impl Kernels {
+    /// What [`conv`] uses: [`Kernels::Best`], or [`Kernels::Avx2`] when the environment
+    /// variable `TERRAIN_CPU_KERNELS` is `avx2` (read once; for comparing the two in
+    /// benchmarks).
+    pub fn chosen() -> Self {
+        #[cfg(not(target_arch = "wasm32"))]
+        {
+            static CHOSEN: std::sync::OnceLock<Kernels> = std::sync::OnceLock::new();
+            *CHOSEN.get_or_init(|| if std::env::var("TERRAIN_CPU_KERNELS").is_ok_and(|v| v == "avx2") { Kernels::Avx2 } else { Kernels::Best })
+        }
+        #[cfg(target_arch = "wasm32")]
+        Kernels::Best
+    }
+
+    /// The name of the widest kernels these allow on this CPU ("avx512", "avx2+fma",
+    /// "simd128" or "portable"), for benchmarks' output.
+    pub fn widest(self) -> &'static str {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if self == Kernels::Best && has_avx512() {
+                return "avx512";
+            }
+            if self != Kernels::Portable && has_avx2_fma() {
+                return "avx2+fma";
+            }
+        }
+        #[cfg(all(target_arch = "wasm32", target_feature = "simd128"))]
+        return "simd128";
+        #[allow(unreachable_code)]
+        "portable"
+    }
+}
+
+/// [`conv`] on the given set of kernels (tests run each).
+fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize, kernels: Kernels) {
     assert_eq!(src.c, layer.cin, "input channels");
     if let Post::Add(s) = post {
         assert!(s.h == src.h && s.w == src.w && s.c == layer.cout, "skip shape");
@@ -275,12 +322,12 @@ fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize
     let rows = &mut dst.data[row_len..row_len * (h + 1)];
     let threads = threads.clamp(1, h.max(1));
     if threads == 1 {
-        conv_rows(layer, src, rows, 0, h, w, post, portable);
+        conv_rows(layer, src, rows, 0, h, w, post, kernels);
         return;
     }
     #[cfg(target_arch = "wasm32")]
     {
-        conv_rows(layer, src, rows, 0, h, w, post, portable);
+        conv_rows(layer, src, rows, 0, h, w, post, kernels);
     }
     #[cfg(not(target_arch = "wasm32"))]
     {
@@ -288,7 +335,7 @@ fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize
         // starting threads per layer cost ~70 µs a layer and half the second core's gain.
         use rayon::prelude::*;
         let per = h.div_ceil(threads);
-        rows.par_chunks_mut(per * row_len).enumerate().for_each(|(k, chunk)| conv_rows(layer, src, chunk, k * per, chunk.len() / row_len, w, post, portable));
+        rows.par_chunks_mut(per * row_len).enumerate().for_each(|(k, chunk)| conv_rows(layer, src, chunk, k * per, chunk.len() / row_len, w, post, kernels));
     }
 }
 
@@ -298,11 +345,19 @@ fn has_avx2_fma() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
+/// Whether this CPU runs the AVX-512 kernel.
+#[cfg(target_arch = "x86_64")]
+fn has_avx512() -> bool {
+    std::arch::is_x86_feature_detected!("avx512f")
+}
+
 /// Output rows `y0..y0 + n` (`out` holds exactly those padded rows).
 #[allow(clippy::too_many_arguments)]
-fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post, portable: bool) {
+fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post, kernels: Kernels) {
     #[cfg(not(target_arch = "x86_64"))]
-    let _ = portable; // only x86 has a choice of kernels
+    let _ = kernels; // only x86 has a choice of kernels
+    #[cfg(target_arch = "x86_64")]
+    let portable = kernels == Kernels::Portable;
     #[cfg(all(target_arch = "wasm32", target_feature = "simd128"))]
     if layer.cout.is_multiple_of(simd128::CH) {
         simd128::rows(layer, src, out, y0, n, w, post);
@@ -317,6 +372,12 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
         }
         rows_dot(layer, src, out, y0, n, w, post);
     } else if layer.cout.is_multiple_of(ROWS8_CH) {
+        #[cfg(target_arch = "x86_64")]
+        if kernels == Kernels::Best && has_avx512() {
+            // SAFETY: the CPU has AVX-512F (checked just above).
+            unsafe { x86_512::rows(layer, src, out, y0, n, w, post) };
+            return;
+        }
         #[cfg(target_arch = "x86_64")]
         if !portable && has_avx2_fma() {
             // SAFETY: the CPU has AVX2 and FMA (checked just above).
@@ -341,6 +402,12 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
 /// scalar).
 #[cfg(target_arch = "x86_64")]
 mod x86;
+
+/// Any multiple of 8 output channels with AVX-512F where the CPU has it: 8 pixels × 32
+/// channels per block in 16 of its 32 vector registers, the same sums in the same order as
+/// the AVX2 kernels.
+#[cfg(target_arch = "x86_64")]
+mod x86_512;
 
 /// The page's kernel with SIMD128 intrinsics for any multiple of 8 output channels: blocks of
 /// [`simd128::PX`] pixels × 8 channels, 8 vector accumulators, which stay in a browser's 16
