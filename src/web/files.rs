@@ -8,7 +8,7 @@ use wasm_bindgen::prelude::*;
 use crate::ui::shell::{FileSlot, Picked, Refused};
 
 fn js(e: JsValue) -> String {
-    format!("{e:?}")
+    e.dyn_ref::<js_sys::Error>().map_or_else(|| format!("{e:?}"), |e| e.message().into())
 }
 
 /// Offers `bytes` as a file download named `name`.
@@ -82,10 +82,10 @@ pub async fn fetch(url: &str) -> Result<Vec<u8>, String> {
     use wasm_bindgen_futures::JsFuture;
     let window = web_sys::window().ok_or("no window")?;
     let resp: web_sys::Response =
-        JsFuture::from(window.fetch_with_str(url)).await.map_err(|e| format!("{url}: {e:?}"))?.dyn_into().map_err(|_| format!("{url}: not a response"))?;
+        JsFuture::from(window.fetch_with_str(url)).await.map_err(|e| format!("{url}: {}", js(e)))?.dyn_into().map_err(|_| format!("{url}: not a response"))?;
     if !resp.ok() {
         return Err(format!("{url}: HTTP {}", resp.status()));
     }
-    let buf = JsFuture::from(resp.array_buffer().map_err(|e| format!("{url}: {e:?}"))?).await.map_err(|e| format!("{url}: {e:?}"))?;
+    let buf = JsFuture::from(resp.array_buffer().map_err(|e| format!("{url}: {}", js(e)))?).await.map_err(|e| format!("{url}: {}", js(e)))?;
     Ok(js_sys::Uint8Array::new(&buf).to_vec())
 }
