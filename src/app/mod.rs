@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
+pub mod coarse;
 pub mod loads;
 pub mod page;
 pub mod runners;
@@ -75,6 +76,7 @@ pub struct TerrainApp {
     /// CPU worker) instead of here, within each frame's time budget.
     procedural_elsewhere: bool,
     nodes: NodeCache,
+    coarse_nodes: coarse::CoarseNodes,
     refine: PatchStore,
     refine_backend: Option<String>,
     /// The camera.
@@ -138,6 +140,7 @@ impl TerrainApp {
             learned,
             procedural_elsewhere: false,
             nodes: NodeCache::new(),
+            coarse_nodes: Default::default(),
             refine: PatchStore::new(0, 0),
             refine_backend: None,
             camera: Camera::default(),
@@ -231,6 +234,7 @@ impl TerrainApp {
         let epoch = self.world.successor_epoch(epoch);
         self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere).at_epoch(epoch);
         self.nodes = NodeCache::new();
+        self.coarse_nodes.clear();
         let (last, at) = std::mem::take(&mut self.last_nodes);
         self.stand_in = (!last.is_empty()).then_some((last, at));
         self.refine = PatchStore::new(0, epoch);
@@ -496,9 +500,10 @@ impl TerrainApp {
         let view = self.camera.lod_view(aspect, size_px[1].max(1) as f32, lod_px, max_depth);
         let mut budget = NODE_BUILD_BUDGET;
         let refine = if refining { Some(&mut self.refine) } else { None };
-        let nodes = self.nodes.select(&tiles, &self.world, refine, &view, &mut budget);
+        let mut nodes = self.nodes.select(&tiles, &self.world, refine, &view, &mut budget);
+        let shown = self.add_coarse(&mut nodes, &tiles, &view);
         self.fit_node_budget(nodes.len());
-        let nodes = self.or_stand_in(nodes, &tiles);
+        let nodes = self.or_stand_in(nodes, &shown);
         self.stats.lod_px_effective = lod_px;
         self.stats.node_budget = self.node_budget;
         self.stats.world_ms = (t1 - t0).as_secs_f64() * 1e3;

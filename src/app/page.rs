@@ -88,6 +88,7 @@ enum For {
         target: Target,
     },
     Tile(Job<TileCoord>),
+    Coarse(Job<TileCoord>),
     Tem {
         epoch: u64,
         keys: Vec<PatchKey>,
@@ -483,6 +484,10 @@ impl PageCore {
                 self.app.tile_done(&job, heights, ms);
             }
             (For::Tile(job), Reply::Stale) => self.app.tile_failed(&job),
+            (For::Coarse(job), Reply::Heights { heights, .. }) => {
+                self.app.coarse_done(&job, heights);
+            }
+            (For::Coarse(job), _) => self.app.coarse_failed(&job),
             (For::Tile(job), r) => {
                 self.app.tile_failed(&job);
                 let e = failed(&r).unwrap_or_default();
@@ -606,6 +611,10 @@ impl PageCore {
         self.app.set_procedural_elsewhere(true);
         let seed = self.app.settings().seed;
         let noise = (self.app.source() == SourceKind::Procedural).then(|| self.app.settings().noise);
+        // Coarse first: the stand-ins of the learned tiles near the eye go out before the tiles.
+        for job in self.app.coarse_jobs() {
+            self.post(Target::Worker, job.epoch, Request::Coarse { seed, tile: job.key }, For::Coarse(job));
+        }
         for job in self.app.tile_jobs() {
             self.post(Target::Worker, job.epoch, Request::Tile { seed, tile: job.key, noise }, For::Tile(job));
         }

@@ -344,3 +344,35 @@ fn a_link_followed_in_the_same_tab_with_other_weights_gets_the_note() {
     let written = core.link_to_write(5000.0, true).unwrap_or_default();
     assert!(written.contains("seed=9") && written.contains("src=tcm"), "{written}");
 }
+
+/// Coarse first: the learned world's 128 m stand-ins are asked for before its tiles, drawn
+/// while no tile around the eye can be drawn yet (each is the tile's root node, bit for bit
+/// the runner's 128 m network tile on its vertices), and once every wanted tile is made only
+/// tiles that still cannot be drawn (a neighbour outside the wanted ring) keep one: fewer
+/// than at first.
+#[test]
+fn the_learned_world_draws_coarse_stand_ins_before_its_tiles_and_only_undrawable_ones_after() {
+    let share = ShareState { radius_tiles: 1.0, position_m: [2048.0, 3000.0, 2048.0], pitch: -1.2, ..ShareState::default() };
+    let mut core = PageCore::new(share, start(Ok(())));
+    let mut shell = Shell::new(&no_swap);
+    shell.frames(&mut core, 3);
+    let first = |kind: &str| shell.posted.iter().position(|(_, k)| *k == kind).unwrap_or(usize::MAX);
+    assert!(first("coarse") < first("tile"), "{:?}", shell.posted);
+    let s = core.app.stats().clone();
+    assert!(s.coarse_drawn > 0 && s.coarse_drawn == s.nodes_drawn, "{s:?}");
+    let eye = crate::grid::TileCoord::new(0, 0);
+    let models = std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap());
+    let want = LearnedSource::new(models, 1).coarse_tile(core.app.settings().seed, eye);
+    let node = crate::world::quadtree::NodeData::from_coarse(eye, &core.app.world).expect("the eye's stand-in");
+    let n = crate::world::stream::COARSE_SAMPLES;
+    assert!((0..n * n).all(|p| node.at((p % n) as i32, (p / n) as i32) == want[p]));
+    let early = s.coarse_drawn;
+    shell.frames(&mut core, 200);
+    let s = core.app.stats().clone();
+    assert_eq!(s.tiles_pending, 0, "{s:?}");
+    assert!(s.coarse_drawn < early && s.nodes_drawn > s.coarse_drawn, "{s:?}");
+    let (world, [x, _, z]) = (&core.app.world, s.eye_m);
+    let drawable = world.drawable(x, z);
+    let left = world.coarse_stand_ins(x, z, &drawable);
+    assert!(left.iter().all(|(c, _)| !c.window3x3().iter().all(|n| world.contains(*n))), "{:?}", left.iter().map(|l| l.0).collect::<Vec<_>>());
+}

@@ -22,6 +22,8 @@ pub struct AppStats {
     pub ms_per_tile: f64,
     /// Quadtree nodes drawn in the last frame.
     pub nodes_drawn: usize,
+    /// Of those, coarse stand-ins (the 128 m network tiles of learned tiles not made yet).
+    pub coarse_drawn: usize,
     /// Quadtree nodes cached.
     pub nodes_cached: usize,
     /// Deepest quadtree depth drawn in the last frame.

@@ -76,13 +76,22 @@ pub enum Request {
         /// The weight of `a`, 0 ..= 1.
         alpha: f32,
     },
+    /// The 128 m network tile `tile` of learned world `seed` ([`crate::models::tcm::TILE_PX`]²
+    /// heights, metres, joined to its schedule's neighbours): cheap, so the view draws it while
+    /// the 32 m tile is made.
+    Coarse {
+        /// The world's seed.
+        seed: u64,
+        /// Which tile.
+        tile: TileCoord,
+    },
 }
 
 impl Request {
     /// Whether the request belongs to a world (a tile, a TEM batch): its epoch is checked, and
     /// it is dropped unmade once a newer world's request has arrived.
     pub fn of_world(&self) -> bool {
-        matches!(self, Request::Tile { .. } | Request::Enhance { .. })
+        matches!(self, Request::Tile { .. } | Request::Enhance { .. } | Request::Coarse { .. })
     }
 
     /// A short name for messages ("tile", "enhance", …).
@@ -96,6 +105,7 @@ impl Request {
             Request::Sketch { .. } => "sketch",
             Request::Variants { .. } => "variants",
             Request::Blend { .. } => "blend",
+            Request::Coarse { .. } => "coarse",
         }
     }
 }

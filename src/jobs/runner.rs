@@ -202,6 +202,10 @@ impl Runner {
             Request::Tile { seed, tile, noise: Some(noise) } => {
                 Ok(Reply::Heights { heights: ProceduralSource::new(noise).generate(seed, tile, &Neighbourhood::default()).heights, ms: 0.0 })
             }
+            Request::Coarse { seed, tile } => {
+                let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
+                Ok(Reply::Heights { heights: world.coarse_tile(seed, tile).to_vec(), ms: 0.0 })
+            }
             Request::Sketch { sketch: s } => {
                 let s = sketch_of(&s)?;
                 let m = self.sketch.as_ref().ok_or(NO_SKETCH)?;
@@ -348,7 +352,8 @@ mod tests {
     }
 
     /// Every request kind, as bytes through the native runner thread, gives bit-identical
-    /// results to calling the models directly: TEM, learned and procedural tiles, a sketch's
+    /// results to calling the models directly: TEM, a learned coarse stand-in (the 128 m
+    /// network tile), learned and procedural tiles, a sketch's
     /// terrain, 2 variants (2 sketches, 2·256² heights) and a blend; the loads answer the
     /// weights' hashes.
     #[test]
@@ -383,7 +388,11 @@ mod tests {
         assert_eq!(got, want);
 
         let c = TileCoord::new(1, -1);
-        let want = LearnedSource::new(Arc::new(models), 1).generate(42, c, &Neighbourhood::default()).heights;
+        let learned = LearnedSource::new(Arc::new(models), 1);
+        let want = learned.coarse_tile(42, c.offset(1, 0)).to_vec();
+        assert_eq!(want.len(), crate::world::stream::COARSE_SAMPLES.pow(2));
+        assert_eq!(heights(r.call(&env(16, 0, Request::Coarse { seed: 42, tile: c.offset(1, 0) })).unwrap()), want);
+        let want = learned.generate(42, c, &Neighbourhood::default()).heights;
         assert_eq!(heights(r.call(&env(11, 0, Request::Tile { seed: 42, tile: c, noise: None })).unwrap()), want);
         let noise = NoiseParams::default();
         let want = ProceduralSource::new(noise).generate(7, c, &Neighbourhood::default()).heights;

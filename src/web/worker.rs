@@ -119,14 +119,12 @@ pub fn terrain_worker_message(bytes: Uint8Array) {
     }
 }
 
-/// Makes the queued tasks a piece at a time, resting as each asks (other requests are
-/// answered meanwhile).
+/// Makes the queued tasks a piece at a time, resting as each asks, and at least yielding
+/// between pieces: other requests (a coarse stand-in, a stroke) are answered meanwhile.
 async fn make_tasks() {
     while let Some((answer, rest_ms)) = QUEUE.with(|q| q.borrow_mut().next_piece()) {
         post(answer);
-        if rest_ms > 0.0 {
-            gloo_timers::future::TimeoutFuture::new(rest_ms.round() as u32).await;
-        }
+        gloo_timers::future::TimeoutFuture::new(rest_ms.round() as u32).await;
     }
 }
 

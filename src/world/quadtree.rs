@@ -141,6 +141,35 @@ impl NodeData {
         Some(NodeData::new(id, heights, skirt + 1.0))
     }
 
+    /// The root node of tile `tile` from its coarse stand-in ([`WorldStream::coarse`]: the
+    /// 128 m network tile, whose sample k lies on vertex k of a root node), the edges and the
+    /// apron from the neighbours' stand-ins or tiles where there are some (else the tile's own
+    /// edge). Its skirts hang 30 m plus its height range: a temporary picture, drawn until the
+    /// tile and its neighbours are made. `None` without a stand-in.
+    pub fn from_coarse(tile: TileCoord, world: &WorldStream) -> Option<NodeData> {
+        use crate::world::stream::COARSE_SAMPLES;
+        let own = world.coarse(tile)?;
+        let n = COARSE_SAMPLES as i64;
+        let per_sample = TILE_SAMPLES as i64 / n;
+        let height = |c: i64, r: i64| -> f32 {
+            let (gc, gr) = (tile.i as i64 * n + c, tile.j as i64 * n + r);
+            let t = TileCoord::new(gc.div_euclid(n) as i32, gr.div_euclid(n) as i32);
+            if let Some(h) = world.coarse(t) {
+                return h[(gr.rem_euclid(n) * n + gc.rem_euclid(n)) as usize];
+            }
+            world.sample(gc * per_sample, gr * per_sample).unwrap_or_else(|| own[(r.clamp(0, n - 1) * n + c.clamp(0, n - 1)) as usize])
+        };
+        let mut heights = Vec::with_capacity(NODE_APRON_GRID * NODE_APRON_GRID);
+        for r in -1..=(NODE_QUADS as i64 + 1) {
+            for c in -1..=(NODE_QUADS as i64 + 1) {
+                heights.push(height(c, r));
+            }
+        }
+        let mut d = NodeData::new(NodeId::root(tile), heights, 0.0);
+        d.skirt_m = 30.0 + (d.max_m - d.min_m);
+        Some(d)
+    }
+
     /// Wraps an apron height array (metres) as node `id` with skirts of `skirt_m` metres.
     pub fn new(id: NodeId, heights: Vec<f32>, skirt_m: f32) -> NodeData {
         assert_eq!(heights.len(), NODE_APRON_GRID * NODE_APRON_GRID);

@@ -17,6 +17,13 @@ use crate::queue::{Job, JobQueue, JobStats, Outcome};
 /// time; a second waits in its queue so it never idles between replies).
 pub const TILE_JOBS_IN_FLIGHT: usize = 2;
 
+/// Coarse stand-ins ([`WorldStream::start_coarse_jobs`]) asked for at once: each is one 128 m
+/// network tile (with its schedule's dependencies the first time), tens of milliseconds.
+pub const COARSE_JOBS_IN_FLIGHT: usize = 4;
+
+/// Samples along a side of a coarse stand-in: the learned world's 128 m network tile.
+pub const COARSE_SAMPLES: usize = crate::models::tcm::TILE_PX;
+
 /// Counters of the streamer, shown in the overlay and read by the tests.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StreamStats {
@@ -58,6 +65,10 @@ pub struct WorldStream {
     stats: StreamStats,
     /// Tiles being made elsewhere, tagged with the world's epoch.
     jobs: JobQueue<TileCoord>,
+    /// Coarse stand-ins ([`COARSE_SAMPLES`]² heights at 128 m) of tiles not drawable yet, and
+    /// their jobs (the same epoch as `jobs`).
+    coarse: HashMap<TileCoord, Arc<Vec<f32>>>,
+    coarse_jobs: JobQueue<TileCoord>,
 }
 
 impl WorldStream {
@@ -77,12 +88,14 @@ impl WorldStream {
     fn with_maker(seed: u64, source: Maker, radius_tiles: f64) -> Self {
         let radius_tiles = radius_tiles.clamp(1.0, 32.0);
         let jobs = JobQueue::new(TILE_JOBS_IN_FLIGHT);
-        Self { seed, source, tiles: HashMap::new(), radius_tiles, capacity: capacity_for(radius_tiles), stats: StreamStats::default(), jobs }
+        let coarse_jobs = JobQueue::new(COARSE_JOBS_IN_FLIGHT);
+        Self { seed, source, tiles: HashMap::new(), radius_tiles, capacity: capacity_for(radius_tiles), stats: StreamStats::default(), jobs, coarse: HashMap::new(), coarse_jobs }
     }
 
     /// The same world as world `epoch` of its viewer (jobs of other epochs are stale).
     pub fn at_epoch(mut self, epoch: u64) -> Self {
         self.jobs = JobQueue::at_epoch(TILE_JOBS_IN_FLIGHT, epoch);
+        self.coarse_jobs = JobQueue::at_epoch(COARSE_JOBS_IN_FLIGHT, epoch);
         self
     }
 
@@ -94,7 +107,58 @@ impl WorldStream {
     /// The epoch of a world that replaces this one: after this one's and at least `at_least`
     /// ([`JobQueue::new_epoch_from`]); this world's jobs in flight become stale.
     pub fn successor_epoch(&mut self, at_least: u64) -> u64 {
-        self.jobs.new_epoch_from(at_least)
+        let epoch = self.jobs.new_epoch_from(at_least);
+        self.coarse_jobs = JobQueue::at_epoch(COARSE_JOBS_IN_FLIGHT, epoch);
+        epoch
+    }
+
+    /// Starts jobs for coarse stand-ins of the nearest tiles around (x, z) metres within the
+    /// radius that cannot be drawn yet and have none (nor one in flight), within
+    /// [`COARSE_JOBS_IN_FLIGHT`]; each comes back through [`finish_coarse`](Self::finish_coarse)
+    /// or [`fail_coarse`](Self::fail_coarse). Only for a world whose tiles are made elsewhere
+    /// from 128 m network tiles (the learned world): a tile takes hundreds of milliseconds there,
+    /// its 128 m tile tens.
+    pub fn start_coarse_jobs(&mut self, x_m: f64, z_m: f64) -> Vec<Job<TileCoord>> {
+        let drawable = self.drawable(x_m, z_m);
+        let radius = self.radius_tiles;
+        let missing: Vec<TileCoord> =
+            self.wanted(x_m, z_m).into_iter().filter(|c| c.distance_tiles(x_m, z_m) <= radius && !drawable.contains(c) && !self.coarse.contains_key(c)).collect();
+        self.coarse_jobs.start(missing)
+    }
+
+    /// A coarse stand-in came back ([`COARSE_SAMPLES`]² heights, metres): kept if it belongs to
+    /// this world, is still in flight, and is whole and finite. Returns whether it was kept.
+    pub fn finish_coarse(&mut self, job: &Job<TileCoord>, heights: Vec<f32>) -> bool {
+        if heights.len() != COARSE_SAMPLES * COARSE_SAMPLES || heights.iter().any(|h| !h.is_finite()) {
+            self.coarse_jobs.fail(job);
+            return false;
+        }
+        if self.coarse_jobs.finish(job) == Outcome::Stale {
+            return false;
+        }
+        self.coarse.insert(job.key, Arc::new(heights));
+        true
+    }
+
+    /// A coarse stand-in could not be made: it may be asked for again.
+    pub fn fail_coarse(&mut self, job: &Job<TileCoord>) {
+        self.coarse_jobs.fail(job);
+    }
+
+    /// The coarse stand-ins to draw around (x, z) metres: tiles within the radius that cannot
+    /// be drawn yet ([`drawable`](Self::drawable) is `drawable`) but have a stand-in, nearest
+    /// first.
+    pub fn coarse_stand_ins(&self, x_m: f64, z_m: f64, drawable: &[TileCoord]) -> Vec<(TileCoord, Arc<Vec<f32>>)> {
+        self.wanted(x_m, z_m)
+            .into_iter()
+            .filter(|c| c.distance_tiles(x_m, z_m) <= self.radius_tiles && !drawable.contains(c))
+            .filter_map(|c| self.coarse.get(&c).map(|h| (c, h.clone())))
+            .collect()
+    }
+
+    /// The coarse stand-in of tile `c`, if there is one.
+    pub fn coarse(&self, c: TileCoord) -> Option<&Arc<Vec<f32>>> {
+        self.coarse.get(&c)
     }
 
     /// Counters of the tile jobs.
@@ -277,6 +341,11 @@ impl WorldStream {
     }
 
     fn evict(&mut self, x_m: f64, z_m: f64) {
+        // Stand-ins are only wanted while their tile cannot be drawn.
+        if !self.coarse.is_empty() {
+            let (radius, tiles) = (self.radius_tiles + 1.0, &self.tiles);
+            self.coarse.retain(|c, _| c.distance_tiles(x_m, z_m) <= radius && !c.window3x3().iter().all(|n| tiles.contains_key(n)));
+        }
         if self.tiles.len() <= self.capacity {
             return;
         }

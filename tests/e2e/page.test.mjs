@@ -119,9 +119,15 @@ function imageSpread(buf, x0 = 0) {
 // The procedural world (the tests of streaming, links and the TEM do not wait for learned tiles).
 const VIEW = 'v=2&seed=7&src=procedural&cam=3000,2500,9000,0.9,-0.3&r=3&lod=6';
 
-test('the default world is the learned one and renders terrain, with no console errors', async () => {
+test('the default world is the learned one and renders terrain (its coarse stand-ins first), with no console errors', async () => {
   const t0 = Date.now();
   const { page, errors } = await open();
+  // Coarse first: the learned tiles' 128 m stand-ins are drawn before the tiles are made.
+  const c = await waitFor(page, (s) => s.stats.nodes_drawn > 0, 'the first terrain', 300_000, 100);
+  report.first_terrain_s = (Date.now() - t0) / 1000;
+  report.first_terrain = { coarse_drawn: c.stats.coarse_drawn, nodes_drawn: c.stats.nodes_drawn, tiles_generated: c.stats.tiles_generated };
+  await page.screenshot({ path: path.join(out, 'first_terrain.png') });
+  assert.ok(c.stats.coarse_drawn > 0, `the first terrain drawn had no coarse stand-in: ${JSON.stringify(c.stats)}`);
   const s = await waitFor(page, (s) => s.stats.frames > 20 && s.stats.nodes_drawn > 0 && s.stats.tiles_pending === 0, 'the first world to stream in', 300_000);
   report.first_complete_view_s = (Date.now() - t0) / 1000;
   report.default_world = { source: s.source, tiles: s.stats.tiles_generated, ms_per_tile: s.stats.ms_per_tile, tile_jobs: s.stats.tile_jobs, link: s.link };
