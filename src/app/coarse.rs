@@ -2,41 +2,52 @@
 //! milliseconds each in the page), the view draws the tile's 128 m network tile, which takes
 //! tens. The stand-ins come from the worker like tiles do ([`TerrainApp::coarse_jobs`]), live
 //! in the world ([`crate::world::stream::WorldStream`]) until their tile can be drawn, and are
-//! drawn as root nodes ([`NodeData::from_coarse`]).
+//! drawn as root nodes ([`NodeData::from_coarse`]). The same 128 m tiles beyond the detailed
+//! ones, out to [`crate::world::stream::FAR_FIELD_M`], are the far field: terrain to the
+//! horizon, drawn with every 4th vertex.
 
 use std::collections::HashMap;
 use std::sync::Arc;
 
 use super::{LearnedStatus, SourceKind, TerrainApp};
 use crate::grid::TileCoord;
+use crate::grid::coord::TILE_SIZE_M;
 use crate::queue::Job;
 use crate::world::quadtree::{LodView, NodeData};
-use crate::world::stream::WorldStream;
+use crate::world::stream::{FAR_FIELD_M, WorldStream};
 
-/// Root nodes built from stand-ins, with the count of the 3×3 tiles around whose data they
-/// were built from (rebuilt when it changes: the edges then meet a neighbour).
+/// Root nodes built from stand-ins and far-field tiles, with the count of the 3×3 tiles
+/// around whose data they were built from (rebuilt when it changes: the edges then meet a
+/// neighbour) and their stride.
 #[derive(Default)]
 pub struct CoarseNodes {
-    built: HashMap<TileCoord, (usize, Arc<NodeData>)>,
+    built: HashMap<TileCoord, (usize, u8, Arc<NodeData>)>,
 }
+
+/// The far field's draw stride: every 4th vertex (512 m apart), beyond the detailed tiles.
+const FAR_STRIDE: u8 = 4;
 
 impl CoarseNodes {
     /// The stand-in nodes to draw for `view` around the tiles that cannot be drawn yet
     /// (`drawable` can), in the frustum, nearest first; nodes of tiles no longer standing in
     /// are forgotten.
+    ///
+    /// Then the far field's ([`WorldStream::far_stand_ins`]), drawn with every 4th vertex.
     pub fn select(&mut self, world: &WorldStream, drawable: &[TileCoord], view: &LodView) -> Vec<Arc<NodeData>> {
         let eye = view.eye_m;
-        let stand_ins = world.coarse_stand_ins(eye.x, eye.z, drawable);
-        self.built.retain(|c, _| stand_ins.iter().any(|(s, _)| s == c));
+        let near = world.coarse_stand_ins(eye.x, eye.z, drawable).into_iter().map(|(c, _)| (c, 1));
+        let far = world.far_stand_ins(eye.x, eye.z).into_iter().map(|(c, _)| (c, FAR_STRIDE));
+        let wanted: Vec<(TileCoord, u8)> = near.chain(far).collect();
+        self.built.retain(|c, _| wanted.iter().any(|(w, _)| w == c));
         let mut out = Vec::new();
-        for (c, _) in stand_ins {
+        for (c, stride) in wanted {
             let known = c.window3x3().iter().filter(|n| world.coarse(**n).is_some() || world.contains(**n)).count();
-            let fresh = self.built.get(&c).is_some_and(|(k, _)| *k == known);
+            let fresh = self.built.get(&c).is_some_and(|(k, s, _)| *k == known && *s == stride);
             if !fresh {
-                let Some(d) = NodeData::from_coarse(c, world) else { continue };
-                self.built.insert(c, (known, Arc::new(d)));
+                let Some(d) = NodeData::from_coarse(c, world, stride) else { continue };
+                self.built.insert(c, (known, stride, Arc::new(d)));
             }
-            let d = &self.built[&c].1;
+            let d = &self.built[&c].2;
             let (min, max) = d.bounds_m();
             if view.frustum.intersects_box((min - eye).as_vec3(), (max - eye).as_vec3()) {
                 out.push(d.clone());
@@ -73,10 +84,22 @@ impl TerrainApp {
     /// returns the tiles the view shows, whole or standing in.
     pub(super) fn add_coarse(&mut self, nodes: &mut Vec<Arc<NodeData>>, tiles: &[TileCoord], view: &LodView) -> Vec<TileCoord> {
         let coarse = self.coarse_nodes.select(&self.world, tiles, view);
-        self.stats.coarse_drawn = coarse.len();
+        self.stats.far_drawn = coarse.iter().filter(|d| d.stride == FAR_STRIDE).count();
+        let eye = view.eye_m;
+        self.stats.far_pending = self.world.far_ring(eye.x, eye.z).into_iter().filter(|c| self.world.coarse(*c).is_none()).count();
+        self.stats.coarse_drawn = coarse.len() - self.stats.far_drawn;
         let shown = tiles.iter().copied().chain(coarse.iter().map(|d| d.id.tile)).collect();
         nodes.extend(coarse);
         shown
+    }
+
+    /// How far the view reaches (metres; the far plane, where the fog is whole): the detailed
+    /// tiles' radius, or for the learned world (whose far field reaches farther) the far field
+    /// plus the eye's height, so it is seen from high above too.
+    pub(super) fn view_far_m(&self) -> f32 {
+        let detailed = (self.settings.radius_tiles + 0.5) * TILE_SIZE_M;
+        let far = matches!(self.learned, LearnedStatus::Ready { .. }) && self.source() == SourceKind::Learned;
+        (if far { detailed.max(FAR_FIELD_M + 0.5 * TILE_SIZE_M + self.camera.position_m.y.max(0.0)) } else { detailed }) as f32
     }
 
     /// A stand-in could not be made: it may be asked for again.

@@ -251,7 +251,6 @@ impl TerrainApp {
         self.camera.position_m = DVec3::from_array(s.position_m);
         self.camera.yaw = s.yaw;
         self.camera.pitch = s.pitch;
-        self.camera.far_m = ((s.radius_tiles + 0.5) * TILE_SIZE_M) as f32;
     }
 
     /// Applies settings (and the view) from `s`: a new seed or noise rebuilds the world, a new
@@ -493,6 +492,7 @@ impl TerrainApp {
         self.nodes.retain_tiles(|t| world.contains(t));
         self.refine.retain_tiles(|t| world.contains(t));
         let tiles = self.world.drawable(eye.x, eye.z);
+        self.camera.far_m = self.view_far_m();
         let aspect = size_px[0].max(1) as f32 / size_px[1].max(1) as f32;
         let refining = self.refine_backend.is_some();
         let max_depth = if refining { BASE_DATA_DEPTH + LEVELS as u8 } else { BASE_DATA_DEPTH };

@@ -363,7 +363,7 @@ fn the_learned_world_draws_coarse_stand_ins_before_its_tiles_and_only_undrawable
     let eye = crate::grid::TileCoord::new(0, 0);
     let models = std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap());
     let want = LearnedSource::new(models, 1).coarse_tile(core.app.settings().seed, eye);
-    let node = crate::world::quadtree::NodeData::from_coarse(eye, &core.app.world).expect("the eye's stand-in");
+    let node = crate::world::quadtree::NodeData::from_coarse(eye, &core.app.world, 1).expect("the eye's stand-in");
     let n = crate::world::stream::COARSE_SAMPLES;
     assert!((0..n * n).all(|p| node.at((p % n) as i32, (p / n) as i32) == want[p]));
     let early = s.coarse_drawn;
@@ -375,4 +375,28 @@ fn the_learned_world_draws_coarse_stand_ins_before_its_tiles_and_only_undrawable
     let drawable = world.drawable(x, z);
     let left = world.coarse_stand_ins(x, z, &drawable);
     assert!(left.iter().all(|(c, _)| !c.window3x3().iter().all(|n| world.contains(*n))), "{:?}", left.iter().map(|l| l.0).collect::<Vec<_>>());
+}
+
+/// Terrain to the horizon: once the learned view's tiles are made, the far field's 128 m
+/// tiles are asked for and arrive, all of them out to 60 km (the farthest at least
+/// 14 tiles from the eye), and drawn with every 4th vertex in the frustum beyond the detailed
+/// tiles; the view reaches 61 km (its far plane) instead of the radius.
+#[test]
+fn the_learned_world_draws_a_far_field_out_to_60_km_once_its_tiles_are_made() {
+    use crate::world::stream::FAR_FIELD_M;
+    let share = ShareState { radius_tiles: 1.0, position_m: [2048.0, 3000.0, 2048.0], pitch: -0.1, ..ShareState::default() };
+    let mut core = PageCore::new(share, start(Ok(())));
+    let mut shell = Shell::new(&no_swap);
+    shell.frames(&mut core, 400);
+    let s = core.app.stats().clone();
+    assert_eq!(s.tiles_pending, 0, "{s:?}");
+    let (world, [x, _, z]) = (&core.app.world, s.eye_m);
+    let ring = world.far_ring(x, z);
+    let have = world.far_stand_ins(x, z);
+    assert_eq!(have.len(), ring.len(), "every far tile arrived");
+    let farthest = have.iter().map(|(c, _)| c.distance_tiles(x, z)).fold(0.0, f64::max);
+    assert!((14.0..=FAR_FIELD_M / crate::world::TILE_SIZE_M).contains(&farthest), "{farthest}");
+    assert!(have.iter().all(|(c, _)| c.distance_tiles(x, z) > 1.0));
+    assert!(s.far_drawn > 20 && s.far_drawn < ring.len(), "culled to the frustum: {s:?}");
+    assert!(core.app.camera.far_m >= FAR_FIELD_M as f32);
 }

@@ -24,6 +24,10 @@ pub struct AppStats {
     pub nodes_drawn: usize,
     /// Of those, coarse stand-ins (the 128 m network tiles of learned tiles not made yet).
     pub coarse_drawn: usize,
+    /// Of those, the far field's (128 m network tiles beyond the detailed ones).
+    pub far_drawn: usize,
+    /// The far field's tiles around the eye that have not arrived yet.
+    pub far_pending: usize,
     /// Quadtree nodes cached.
     pub nodes_cached: usize,
     /// Deepest quadtree depth drawn in the last frame.

@@ -9,9 +9,9 @@ use wgpu::util::DeviceExt;
 
 use super::MESH_BYTES;
 use super::camera::Camera;
-use super::mesh::{NODE_VERTICES, Vertex, node_indices, node_vertices};
+use super::mesh::{NODE_VERTICES, Vertex, node_indices_strided, node_vertices};
 use super::resident::{ResidentMeshes, Slots};
-use crate::world::quadtree::NodeData;
+use crate::world::quadtree::{DRAW_STRIDES, NodeData};
 
 /// Colour format of the offscreen target (linear values, stored sRGB).
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
@@ -97,7 +97,8 @@ pub struct TerrainRenderer {
     terrain: wgpu::RenderPipeline,
     water: wgpu::RenderPipeline,
     indices: wgpu::Buffer,
-    index_count: u32,
+    /// The index ranges of each stride of [`DRAW_STRIDES`] in `indices`.
+    index_ranges: Vec<(u8, std::ops::Range<u32>)>,
     instances: wgpu::Buffer,
     instance_capacity: usize,
     /// Each resident node's slot in `slab`.
@@ -180,7 +181,13 @@ impl TerrainRenderer {
         let sky = pipeline("sky", SKY_WGSL, &[], false, wgpu::CompareFunction::Always, None);
         let terrain = pipeline("terrain", TERRAIN_WGSL, &[Some(vertex_layout), Some(instance_layout)], true, wgpu::CompareFunction::Greater, None);
         let water = pipeline("water", WATER_WGSL, &[], true, wgpu::CompareFunction::Greater, Some(wgpu::BlendState::ALPHA_BLENDING));
-        let idx = node_indices();
+        let mut idx = Vec::new();
+        let mut index_ranges = Vec::new();
+        for stride in DRAW_STRIDES {
+            let start = idx.len() as u32;
+            idx.extend(node_indices_strided(stride as usize));
+            index_ranges.push((stride, start..idx.len() as u32));
+        }
         let indices =
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("node indices"), contents: bytemuck::cast_slice(&idx), usage: wgpu::BufferUsages::INDEX });
         let instance_capacity = 256;
@@ -195,7 +202,7 @@ impl TerrainRenderer {
             terrain,
             water,
             indices,
-            index_count: idx.len() as u32,
+            index_ranges,
             instances,
             instance_capacity,
             meshes: ResidentMeshes::default(),
@@ -359,9 +366,10 @@ impl TerrainRenderer {
             pass.set_vertex_buffer(1, self.instances.slice(..));
             pass.set_vertex_buffer(0, self.slab.slice(..));
             for (k, n) in nodes.iter().enumerate() {
+                let range = self.index_ranges.iter().find(|(s, _)| *s == n.stride).map_or(self.index_ranges[0].1.clone(), |(_, r)| r.clone());
                 if let Some(&slot) = self.meshes.get(&n.id) {
-                    pass.draw_indexed(0..self.index_count, (slot as usize * NODE_VERTICES) as i32, k as u32..k as u32 + 1);
-                    stats.triangles += self.index_count as usize / 3;
+                    stats.triangles += range.len() / 3;
+                    pass.draw_indexed(range, (slot as usize * NODE_VERTICES) as i32, k as u32..k as u32 + 1);
                 }
             }
             pass.set_pipeline(&self.water);

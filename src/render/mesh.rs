@@ -56,13 +56,20 @@ fn edge_vertex(edge: usize, k: usize) -> usize {
 /// The triangle list shared by every node: two triangles per grid quad, then two per skirt
 /// segment joining each edge segment to the skirt vertices below it.
 pub fn node_indices() -> Vec<u16> {
-    let g = NODE_GRID;
-    let mut idx = Vec::with_capacity(NODE_QUADS * NODE_QUADS * 6 + 4 * NODE_QUADS * 6);
-    for r in 0..NODE_QUADS {
-        for c in 0..NODE_QUADS {
-            let (a, b, cc, d) = (r * g + c, r * g + c + 1, (r + 1) * g + c, (r + 1) * g + c + 1);
+    node_indices_strided(1)
+}
+
+/// [`node_indices`] over every `stride`-th vertex (a divisor of `NODE_QUADS`): the grid's
+/// quads `stride` vertices wide and the skirt segments between the same edge vertices.
+pub fn node_indices_strided(stride: usize) -> Vec<u16> {
+    assert!(stride >= 1 && NODE_QUADS.is_multiple_of(stride), "stride {stride}");
+    let (g, s, q) = (NODE_GRID, stride, NODE_QUADS / stride);
+    let mut idx = Vec::with_capacity(q * q * 6 + 4 * q * 6);
+    for r in (0..NODE_QUADS).step_by(s) {
+        for c in (0..NODE_QUADS).step_by(s) {
+            let (a, b, cc, d) = (r * g + c, r * g + c + s, (r + s) * g + c, (r + s) * g + c + s);
             // Alternate the diagonal so the triangulation has no directional bias.
-            if (r + c) % 2 == 0 {
+            if (r / s + c / s) % 2 == 0 {
                 idx.extend([a, cc, b, b, cc, d].map(|v| v as u16));
             } else {
                 idx.extend([a, cc, d, a, d, b].map(|v| v as u16));
@@ -71,9 +78,9 @@ pub fn node_indices() -> Vec<u16> {
     }
     let skirt0 = g * g;
     for edge in 0..4 {
-        for k in 0..NODE_QUADS {
-            let (t0, t1) = (edge_vertex(edge, k), edge_vertex(edge, k + 1));
-            let (s0, s1) = (skirt0 + edge * g + k, skirt0 + edge * g + k + 1);
+        for k in (0..NODE_QUADS).step_by(s) {
+            let (t0, t1) = (edge_vertex(edge, k), edge_vertex(edge, k + s));
+            let (s0, s1) = (skirt0 + edge * g + k, skirt0 + edge * g + k + s);
             idx.extend([t0, s0, t1, t1, s0, s1].map(|v| v as u16));
         }
     }
@@ -125,14 +132,29 @@ mod tests {
         assert_eq!(border_edges, 4 * NODE_QUADS);
     }
 
-    /// The surface triangles of the index buffer are 2 per quad, all wound the same way, and
-    /// their areas (projected on the ground) add up to the node's square exactly.
+    /// For every draw stride (1: every vertex; 4: the far field's every 4th), the surface
+    /// triangles of the index buffer are 2 per drawn quad, all wound the same way, and their
+    /// areas (projected on the ground) add up to the node's square exactly; the skirts of a
+    /// strided buffer join the same edge vertices as its surface (each edge segment is shared
+    /// by one surface and one skirt triangle).
     #[test]
     fn surface_triangles_tile_the_node_square() {
-        let idx = node_indices();
+        for stride in crate::world::quadtree::DRAW_STRIDES.map(usize::from) {
+            surface_tiles_the_square(stride);
+        }
+    }
+
+    fn surface_tiles_the_square(stride: usize) {
+        let idx = node_indices_strided(stride);
         let grid = (NODE_GRID * NODE_GRID) as u16;
+        let quads = NODE_QUADS / stride;
         let surface: Vec<&[u16]> = idx.chunks_exact(3).filter(|t| t.iter().all(|&i| i < grid)).collect();
-        assert_eq!(surface.len(), 2 * NODE_QUADS * NODE_QUADS);
+        assert_eq!(surface.len(), 2 * quads * quads);
+        let skirts = &idx[surface.len() * 3..];
+        let (sc, kc) = (edge_counts(&idx[..surface.len() * 3]), edge_counts(skirts));
+        let open: Vec<_> = sc.iter().filter(|(_, n)| **n == 1).map(|(e, _)| *e).collect();
+        assert_eq!(open.len(), 4 * quads, "stride {stride}: the border has 4 × {quads} segments");
+        assert!(open.iter().all(|e| kc.get(e) == Some(&1)), "stride {stride}: a border segment without its skirt");
         let xz = |i: u16| ((i as usize % NODE_GRID) as f64, (i as usize / NODE_GRID) as f64);
         let cross = |t: &[u16]| {
             let (a, b, c) = (xz(t[0]), xz(t[1]), xz(t[2]));
@@ -145,7 +167,7 @@ mod tests {
             assert!(c * sign > 0.0, "triangle {t:?} is wound the other way or degenerate");
             area += c.abs() / 2.0;
         }
-        assert_eq!(area, (NODE_QUADS * NODE_QUADS) as f64);
+        assert_eq!(area, (NODE_QUADS * NODE_QUADS) as f64, "stride {stride}");
     }
 
     #[test]

@@ -88,7 +88,13 @@ pub struct NodeData {
     /// Content version: unique to every node data built in this process (a clone keeps it),
     /// so caches keyed by (id, version) never take a rebuilt node for an older one.
     pub version: u64,
+    /// Vertices per drawn quad along each side ([`DRAW_STRIDES`]): 1 draws every vertex; the
+    /// far field's nodes draw every 4th (their vertices are far apart on screen).
+    pub stride: u8,
 }
+
+/// The grid strides a node may be drawn with ([`NodeData::stride`]).
+pub const DRAW_STRIDES: [u8; 2] = [1, 4];
 
 /// The next [`NodeData::version`].
 fn next_version() -> u64 {
@@ -145,8 +151,9 @@ impl NodeData {
     /// 128 m network tile, whose sample k lies on vertex k of a root node), the edges and the
     /// apron from the neighbours' stand-ins or tiles where there are some (else the tile's own
     /// edge). Its skirts hang 30 m plus its height range: a temporary picture, drawn until the
-    /// tile and its neighbours are made. `None` without a stand-in.
-    pub fn from_coarse(tile: TileCoord, world: &WorldStream) -> Option<NodeData> {
+    /// tile and its neighbours are made, or a far-field tile (drawn with `stride`). `None`
+    /// without a stand-in.
+    pub fn from_coarse(tile: TileCoord, world: &WorldStream, stride: u8) -> Option<NodeData> {
         use crate::world::stream::COARSE_SAMPLES;
         let own = world.coarse(tile)?;
         let n = COARSE_SAMPLES as i64;
@@ -167,6 +174,7 @@ impl NodeData {
         }
         let mut d = NodeData::new(NodeId::root(tile), heights, 0.0);
         d.skirt_m = 30.0 + (d.max_m - d.min_m);
+        d.stride = stride;
         Some(d)
     }
 
@@ -181,7 +189,7 @@ impl NodeData {
                 max_m = max_m.max(h);
             }
         }
-        NodeData { id, heights, min_m, max_m, skirt_m, version: next_version() }
+        NodeData { id, heights, min_m, max_m, skirt_m, version: next_version(), stride: 1 }
     }
 
     /// World-space bounding box (metres) including the skirts.

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use web_time::Instant;
 
 use super::tile::{Neighbourhood, Tile, TileSource};
-use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
+use crate::grid::coord::{BASE_SPACING_M, TILE_SAMPLES, TILE_SIZE_M, TileCoord};
 use crate::grid::schedule::dependencies;
 use crate::queue::{Job, JobQueue, JobStats, Outcome};
 
@@ -20,6 +20,10 @@ pub const TILE_JOBS_IN_FLIGHT: usize = 2;
 /// Coarse stand-ins ([`WorldStream::start_coarse_jobs`]) asked for at once: each is one 128 m
 /// network tile (with its schedule's dependencies the first time), tens of milliseconds.
 pub const COARSE_JOBS_IN_FLIGHT: usize = 4;
+
+/// How far the far field of coarse tiles reaches (metres from the eye): beyond the detailed
+/// tiles, the learned world is drawn from its 128 m network tiles out to here.
+pub const FAR_FIELD_M: f64 = 61_440.0;
 
 /// Samples along a side of a coarse stand-in: the learned world's 128 m network tile.
 pub const COARSE_SAMPLES: usize = crate::models::tcm::TILE_PX;
@@ -118,12 +122,38 @@ impl WorldStream {
     /// or [`fail_coarse`](Self::fail_coarse). Only for a world whose tiles are made elsewhere
     /// from 128 m network tiles (the learned world): a tile takes hundreds of milliseconds there,
     /// its 128 m tile tens.
+    ///
+    /// Once every wanted tile is made, the far field's are asked for too: the coarse tiles
+    /// beyond the radius out to [`FAR_FIELD_M`], nearest first.
     pub fn start_coarse_jobs(&mut self, x_m: f64, z_m: f64) -> Vec<Job<TileCoord>> {
         let drawable = self.drawable(x_m, z_m);
         let radius = self.radius_tiles;
-        let missing: Vec<TileCoord> =
+        let mut missing: Vec<TileCoord> =
             self.wanted(x_m, z_m).into_iter().filter(|c| c.distance_tiles(x_m, z_m) <= radius && !drawable.contains(c) && !self.coarse.contains_key(c)).collect();
+        if missing.is_empty() && self.missing(x_m, z_m).is_empty() {
+            missing = self.far_ring(x_m, z_m).into_iter().filter(|c| !self.coarse.contains_key(c)).collect();
+        }
         self.coarse_jobs.start(missing)
+    }
+
+    /// The far field's tiles around (x, z) metres: beyond the radius, within [`FAR_FIELD_M`]
+    /// (tile centres), nearest first.
+    pub fn far_ring(&self, x_m: f64, z_m: f64) -> Vec<TileCoord> {
+        let far = FAR_FIELD_M / TILE_SIZE_M;
+        let centre = TileCoord::containing(x_m, z_m);
+        let k = far.ceil() as i32 + 1;
+        let mut ring: Vec<(f64, TileCoord)> = (-k..=k)
+            .flat_map(|dj| (-k..=k).map(move |di| centre.offset(di, dj)))
+            .map(|c| (c.distance_tiles(x_m, z_m), c))
+            .filter(|(d, _)| *d > self.radius_tiles && *d <= far)
+            .collect();
+        ring.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        ring.into_iter().map(|(_, c)| c).collect()
+    }
+
+    /// The far field's coarse tiles that have arrived around (x, z) metres, nearest first.
+    pub fn far_stand_ins(&self, x_m: f64, z_m: f64) -> Vec<(TileCoord, Arc<Vec<f32>>)> {
+        self.far_ring(x_m, z_m).into_iter().filter_map(|c| self.coarse.get(&c).map(|h| (c, h.clone()))).collect()
     }
 
     /// A coarse stand-in came back ([`COARSE_SAMPLES`]² heights, metres): kept if it belongs to
@@ -342,9 +372,13 @@ impl WorldStream {
 
     fn evict(&mut self, x_m: f64, z_m: f64) {
         // Stand-ins are only wanted while their tile cannot be drawn.
+        // The far field's are kept out to a tile beyond its reach.
         if !self.coarse.is_empty() {
-            let (radius, tiles) = (self.radius_tiles + 1.0, &self.tiles);
-            self.coarse.retain(|c, _| c.distance_tiles(x_m, z_m) <= radius && !c.window3x3().iter().all(|n| tiles.contains_key(n)));
+            let (radius, far, tiles) = (self.radius_tiles, FAR_FIELD_M / TILE_SIZE_M + 1.0, &self.tiles);
+            self.coarse.retain(|c, _| {
+                let d = c.distance_tiles(x_m, z_m);
+                d <= far && (d > radius || !c.window3x3().iter().all(|n| tiles.contains_key(n)))
+            });
         }
         if self.tiles.len() <= self.capacity {
             return;
