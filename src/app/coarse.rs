@@ -27,6 +27,9 @@ pub struct CoarseNodes {
 /// The far field's draw stride: every 4th vertex (512 m apart), beyond the detailed tiles.
 const FAR_STRIDE: u8 = 4;
 
+/// The procedural world's far-field tiles made per frame (each a few hundred noise samples).
+pub const PROCEDURAL_FAR_PER_FRAME: usize = 8;
+
 impl CoarseNodes {
     /// The stand-in nodes to draw for `view` around the tiles that cannot be drawn yet
     /// (`drawable` can), in the frustum, nearest first; nodes of tiles no longer standing in
@@ -93,12 +96,29 @@ impl TerrainApp {
         shown
     }
 
+    /// Makes up to [`PROCEDURAL_FAR_PER_FRAME`] of the procedural world's far-field tiles here
+    /// (a few hundred noise samples each), once every wanted tile is made.
+    pub(super) fn make_procedural_far_field(&mut self) {
+        if self.source() != SourceKind::Procedural {
+            return;
+        }
+        let eye = self.camera.position_m;
+        if !self.world.missing(eye.x, eye.z).is_empty() {
+            return;
+        }
+        let (seed, noise) = (self.settings.seed, self.settings.noise);
+        let todo: Vec<TileCoord> = self.world.far_ring(eye.x, eye.z).into_iter().filter(|c| self.world.coarse(*c).is_none()).take(PROCEDURAL_FAR_PER_FRAME).collect();
+        for c in todo {
+            self.world.insert_coarse(c, crate::world::noise::coarse_tile(seed, &noise, c));
+        }
+    }
+
     /// How far the view reaches (metres; the far plane, where the fog is whole): the detailed
-    /// tiles' radius, or for the learned world (whose far field reaches farther) the far field
-    /// plus the eye's height, so it is seen from high above too.
+    /// tiles' radius, or for a world with a far field (learned, procedural) the far field plus
+    /// the eye's height, so it is seen from high above too.
     pub(super) fn view_far_m(&self) -> f32 {
         let detailed = (self.settings.radius_tiles + 0.5) * TILE_SIZE_M;
-        let far = matches!(self.learned, LearnedStatus::Ready { .. }) && self.source() == SourceKind::Learned;
+        let far = (matches!(self.learned, LearnedStatus::Ready { .. }) && self.source() == SourceKind::Learned) || self.source() == SourceKind::Procedural;
         (if far { detailed.max(FAR_FIELD_M + 0.5 * TILE_SIZE_M + self.camera.position_m.y.max(0.0)) } else { detailed }) as f32
     }
 

@@ -492,6 +492,7 @@ impl TerrainApp {
         self.nodes.retain_tiles(|t| world.contains(t));
         self.refine.retain_tiles(|t| world.contains(t));
         let tiles = self.world.drawable(eye.x, eye.z);
+        self.make_procedural_far_field();
         self.camera.far_m = self.view_far_m();
         let aspect = size_px[0].max(1) as f32 / size_px[1].max(1) as f32;
         let refining = self.refine_backend.is_some();

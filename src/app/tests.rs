@@ -439,3 +439,30 @@ fn a_new_seed_keeps_the_old_picture_until_the_new_world_has_its_near_tiles() {
     frame(&mut app);
     assert!(!app.stats().previous_world_shown, "a view elsewhere does not keep the old picture");
 }
+
+/// The procedural world has a far field too: once its tiles are made, the ring out to 61 km is
+/// made here (a few tiles a frame) and drawn; each far tile holds the tile's own samples at
+/// every 4th position (so it meets the detailed tiles exactly), and the view reaches 61 km.
+#[test]
+fn the_procedural_world_draws_a_far_field_of_its_own_samples() {
+    use crate::world::stream::{COARSE_SAMPLES, FAR_FIELD_M};
+    let mut app = TerrainApp::new(ShareState { pitch: -0.1, ..procedural(1.0) });
+    for _ in 0..400 {
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        let s = app.stats();
+        if s.tiles_pending == 0 && s.far_pending == 0 && s.far_drawn > 0 {
+            break;
+        }
+    }
+    let s = app.stats().clone();
+    assert!(s.tiles_pending == 0 && s.far_pending == 0 && s.far_drawn > 20, "{s:?}");
+    assert!(app.camera.far_m >= FAR_FIELD_M as f32);
+    let eye = app.camera.position_m;
+    let ring = app.world.far_ring(eye.x, eye.z);
+    let c = *ring.last().expect("a far ring");
+    assert!(c.distance_tiles(eye.x, eye.z) >= 14.0);
+    let full = ProceduralSource::new(app.settings().noise).generate(app.settings().seed, c, &crate::world::Neighbourhood::default());
+    let far = app.world.coarse(c).expect("the farthest far tile");
+    let n = COARSE_SAMPLES;
+    assert!((0..n * n).all(|k| far[k] == full.heights[(k / n) * 4 * crate::grid::TILE_SAMPLES + (k % n) * 4]));
+}

@@ -170,6 +170,16 @@ impl WorldStream {
         true
     }
 
+    /// Takes a coarse tile made here ([`COARSE_SAMPLES`]² heights, metres; the procedural
+    /// world's far field). Returns whether it was whole and finite, and so kept.
+    pub fn insert_coarse(&mut self, c: TileCoord, heights: Vec<f32>) -> bool {
+        let whole = heights.len() == COARSE_SAMPLES * COARSE_SAMPLES && heights.iter().all(|h| h.is_finite());
+        if whole {
+            self.coarse.insert(c, Arc::new(heights));
+        }
+        whole
+    }
+
     /// A coarse stand-in could not be made: it may be asked for again.
     pub fn fail_coarse(&mut self, job: &Job<TileCoord>) {
         self.coarse_jobs.fail(job);

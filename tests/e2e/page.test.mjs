@@ -176,12 +176,13 @@ function readTiffF32(buf) {
   return out;
 }
 
-test('terrain to the horizon: the learned world draws its far field out to 60 km, and seen from 20 km and 60 km up the view is terrain, not a void (screenshots)', async () => {
+test('terrain to the horizon: the learned and the procedural world draw a far field out to 60 km, and seen from 20 km and 60 km up the view is terrain, not a void (screenshots)', async () => {
   report.far_field = {};
-  for (const [name, cam] of [['20km', '2048,20000,2048,0.6,-0.7'], ['60km', '2048,60000,2048,0.6,-1.3']]) {
-    const { page, errors } = await open(`v=2&seed=7&src=tcm&cam=${cam}&r=3&lod=6`);
+  const cases = [['20km', 'tcm', 'learned', '2048,20000,2048,0.6,-0.7'], ['60km', 'tcm', 'learned', '2048,60000,2048,0.6,-1.3'], ['procedural_20km', 'procedural', 'procedural', '2048,20000,2048,0.6,-0.7']];
+  for (const [name, src, source, cam] of cases) {
+    const { page, errors } = await open(`v=2&seed=7&src=${src}&cam=${cam}&r=3&lod=6`);
     const t0 = Date.now();
-    const s = await waitFor(page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.far_drawn > 0 && s.stats.far_pending === 0 && s.stats.frames > 10, `the far field seen from ${name}`, 400_000);
+    const s = await waitFor(page, (s) => s.stats.source === source && s.stats.tiles_pending === 0 && s.stats.far_drawn > 0 && s.stats.far_pending === 0 && s.stats.frames > 10, `the far field seen from ${name}`, 400_000);
     const shot = await page.screenshot({ path: path.join(out, `far_field_${name}.png`) });
     const spread = imageSpread(shot, 380);
     report.far_field[name] = { complete_s: (Date.now() - t0) / 1000, far_drawn: s.stats.far_drawn, nodes_drawn: s.stats.nodes_drawn, coarse_cached_ms_per_tile: s.stats.ms_per_tile, frame_ms_median: s.stats.frame_ms_median, spread };
