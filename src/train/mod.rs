@@ -198,6 +198,7 @@ pub fn train_tem(
     let chain = cfg.chain_levels.clamp(1, LEVELS);
     let mut running = [f64::NAN; LEVELS];
     let start = web_time::Instant::now();
+    let (mut trained, mut skipped) = (0usize, 0usize);
     for step in 0..cfg.steps + cfg.finetune_steps {
         let finetune = step >= cfg.steps;
         let levels = if finetune { 1 } else { chain };
@@ -236,8 +237,13 @@ pub fn train_tem(
             }
         }
         if got == 0 {
-            return Err("could not cut any NaN-free training window".into());
+            // Only no-data where this step's level looked (a real DEM that is NaN outside a
+            // hull): the next step looks again, at its own level; a run that trains nothing fails.
+            eprintln!("step {step}: no NaN-free window at {spacing} m in {tries} tries; skipped");
+            skipped += 1;
+            continue;
         }
+        trained += 1;
         let mut x = tensor(inputs, got, WINDOW, device);
         let mut loss: Option<Tensor<1>> = None;
         let mut per_level = Vec::new();
@@ -276,6 +282,9 @@ pub fn train_tem(
         if !log(step, total, start.elapsed().as_secs_f64(), &models) {
             break;
         }
+    }
+    if trained == 0 && skipped > 0 {
+        return Err(format!("could not cut any NaN-free training window in {skipped} steps"));
     }
     Ok((models, running))
 }
@@ -582,6 +591,31 @@ mod tests {
         assert!(rel(gpu[1], cpu[1]) < 1e-4, "second step: {} vs {}", gpu[1], cpu[1]);
         assert!(rel(cpu[1], cpu[0]) > 0.01, "the steps did not change the loss: {cpu:?}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A real DEM that is no data everywhere (as the North Tyrol DEMs are outside their
+    /// hulls, at some level) no longer stops a run: with a good coarse DEM beside it, the
+    /// steps where the only candidate is the empty DEM are skipped and the others train (1
+    /// chained + some of the 5 fine-tuning steps); with the empty DEM alone, the run fails
+    /// with the reason.
+    #[test]
+    fn steps_with_no_clean_window_are_skipped_and_a_run_that_trains_nothing_fails() {
+        let (w, h) = (900, 400);
+        let field = |x: f32, y: f32| (x * 0.031).sin() * 40.0 + (y * 0.047 + x * 0.011).cos() * 25.0;
+        let good = Dem { id: "synthetic".into(), hf: Heightfield::new(w, h, 100.0, (0..w * h).map(|k| field((k % w) as f32, (k / w) as f32)).collect()) };
+        let empty = || Dem { id: "no data".into(), hf: Heightfield::new(700, 700, 1.0, vec![f32::NAN; 700 * 700]) };
+        let cfg = TrainConfig { steps: 1, finetune_steps: 5, batch: 1, chain_levels: 2, lr: 1e-3, seed: 5 };
+        let device = Device::flex().autodiff();
+        let mut logged = 0;
+        let run = train_tem(&[good, empty()], &cfg, &device, None, |_, _, _, _| {
+            logged += 1;
+            true
+        });
+        assert!(run.is_ok(), "{:?}", run.err());
+        assert!((2..6).contains(&logged), "{logged} steps trained");
+        let large_empty = Dem { id: "no data".into(), hf: Heightfield::new(1400, 1000, 5.0, vec![f32::NAN; 1400 * 1000]) };
+        let err = train_tem(&[large_empty], &TrainConfig { steps: 0, finetune_steps: 2, ..cfg }, &device, None, |_, _, _, _| true).map(|_| ()).unwrap_err();
+        assert_eq!(err, "could not cut any NaN-free training window in 2 steps");
     }
 
     /// A short real run of the whole training path on synthetic terrain: losses are finite,

@@ -366,10 +366,12 @@ test('keyboard flight moves the camera', async () => {
 
 test('a share link reproduces the same view and the same tiles', async () => {
   const a = await open(VIEW);
-  const sa = await waitFor(a.page, (s) => s.stats.tiles_pending === 0 && s.stats.frames > 30, 'view A to settle');
+  // Settled: every tile made and the far field complete.
+  const settled = (s) => s.stats.tiles_pending === 0 && s.stats.far_pending === 0 && s.stats.frames > 30;
+  const sa = await waitFor(a.page, settled, 'view A to settle');
   const link = sa.link;
   const b = await open(link);
-  const sb = await waitFor(b.page, (s) => s.stats.tiles_pending === 0 && s.stats.frames > 30, 'view B to settle');
+  const sb = await waitFor(b.page, settled, 'view B to settle');
   const sa2 = await stats(a.page);
   report.share = { link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum };
   // The link carries the camera to the centimetre.
