@@ -35,11 +35,12 @@ impl CoarseNodes {
     /// (`drawable` can), in the frustum, nearest first; nodes of tiles no longer standing in
     /// are forgotten.
     ///
-    /// Then the far field's ([`WorldStream::far_stand_ins`]), drawn with every 4th vertex.
-    pub fn select(&mut self, world: &WorldStream, drawable: &[TileCoord], view: &LodView) -> Vec<Arc<NodeData>> {
+    /// Then the far field's that have arrived (`far_ring`: [`WorldStream::far_ring`] around
+    /// the eye), drawn with every 4th vertex.
+    pub fn select(&mut self, world: &WorldStream, drawable: &[TileCoord], far_ring: &[TileCoord], view: &LodView) -> Vec<Arc<NodeData>> {
         let eye = view.eye_m;
         let near = world.coarse_stand_ins(eye.x, eye.z, drawable).into_iter().map(|(c, _)| (c, 1));
-        let far = world.far_stand_ins(eye.x, eye.z).into_iter().map(|(c, _)| (c, FAR_STRIDE));
+        let far = world.far_stand_ins(far_ring).into_iter().map(|(c, _)| (c, FAR_STRIDE));
         let wanted: Vec<(TileCoord, u8)> = near.chain(far).collect();
         self.built.retain(|c, _| wanted.iter().any(|(w, _)| w == c));
         let mut out = Vec::new();
@@ -71,7 +72,7 @@ impl TerrainApp {
     /// must come back through [`coarse_done`](Self::coarse_done) or
     /// [`coarse_failed`](Self::coarse_failed).
     pub fn coarse_jobs(&mut self) -> Vec<Job<TileCoord>> {
-        if self.source() != SourceKind::Learned || !matches!(self.learned, LearnedStatus::Ready { .. }) {
+        if !self.learned_shown_ready() {
             return Vec::new();
         }
         let eye = self.camera.position_m;
@@ -86,10 +87,11 @@ impl TerrainApp {
     /// Adds the stand-ins to draw for `view` to `nodes` (`tiles`: the tiles drawn whole) and
     /// returns the tiles the view shows, whole or standing in.
     pub(super) fn add_coarse(&mut self, nodes: &mut Vec<Arc<NodeData>>, tiles: &[TileCoord], view: &LodView) -> Vec<TileCoord> {
-        let coarse = self.coarse_nodes.select(&self.world, tiles, view);
+        // The far ring once a frame: it is a sort of a few hundred tiles.
+        let ring = self.world.far_ring(view.eye_m.x, view.eye_m.z);
+        let coarse = self.coarse_nodes.select(&self.world, tiles, &ring, view);
         self.stats.far_drawn = coarse.iter().filter(|d| d.stride == FAR_STRIDE).count();
-        let eye = view.eye_m;
-        self.stats.far_pending = self.world.far_ring(eye.x, eye.z).into_iter().filter(|c| self.world.coarse(*c).is_none()).count();
+        self.stats.far_pending = ring.iter().filter(|c| self.world.coarse(**c).is_none()).count();
         self.stats.coarse_drawn = coarse.len() - self.stats.far_drawn;
         let shown = tiles.iter().copied().chain(coarse.iter().map(|d| d.id.tile)).collect();
         nodes.extend(coarse);
@@ -118,8 +120,13 @@ impl TerrainApp {
     /// the eye's height, so it is seen from high above too.
     pub(super) fn view_far_m(&self) -> f32 {
         let detailed = (self.settings.radius_tiles + 0.5) * TILE_SIZE_M;
-        let far = (matches!(self.learned, LearnedStatus::Ready { .. }) && self.source() == SourceKind::Learned) || self.source() == SourceKind::Procedural;
+        let far = self.learned_shown_ready() || self.source() == SourceKind::Procedural;
         (if far { detailed.max(FAR_FIELD_M + 0.5 * TILE_SIZE_M + self.camera.position_m.y.max(0.0)) } else { detailed }) as f32
+    }
+
+    /// Whether the world shown is the learned one with its models ready.
+    pub(super) fn learned_shown_ready(&self) -> bool {
+        self.source() == SourceKind::Learned && matches!(self.learned, LearnedStatus::Ready { .. })
     }
 
     /// A stand-in could not be made: it may be asked for again.

@@ -334,7 +334,7 @@ impl TerrainApp {
     /// ready, or procedural and made elsewhere ([`set_procedural_elsewhere`](Self::set_procedural_elsewhere));
     /// the world's [`settings`](Self::settings) say which generator makes them.
     pub fn tile_jobs(&mut self) -> Vec<Job<TileCoord>> {
-        let learned_ready = self.source() == SourceKind::Learned && matches!(self.learned, LearnedStatus::Ready { .. });
+        let learned_ready = self.learned_shown_ready();
         let procedural = self.source() == SourceKind::Procedural && self.procedural_elsewhere;
         if !learned_ready && !procedural {
             return Vec::new();

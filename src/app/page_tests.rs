@@ -392,7 +392,7 @@ fn the_learned_world_draws_a_far_field_out_to_60_km_once_its_tiles_are_made() {
     assert_eq!(s.tiles_pending, 0, "{s:?}");
     let (world, [x, _, z]) = (&core.app.world, s.eye_m);
     let ring = world.far_ring(x, z);
-    let have = world.far_stand_ins(x, z);
+    let have = world.far_stand_ins(&ring);
     assert_eq!(have.len(), ring.len(), "every far tile arrived");
     let farthest = have.iter().map(|(c, _)| c.distance_tiles(x, z)).fold(0.0, f64::max);
     assert!((14.0..=FAR_FIELD_M / crate::world::TILE_SIZE_M).contains(&farthest), "{farthest}");

@@ -28,6 +28,11 @@ pub const FAR_FIELD_M: f64 = 61_440.0;
 /// Samples along a side of a coarse stand-in: the learned world's 128 m network tile.
 pub const COARSE_SAMPLES: usize = crate::models::tcm::TILE_PX;
 
+/// Whether `heights` are a whole coarse tile ([`COARSE_SAMPLES`]²) of finite heights.
+fn whole_coarse(heights: &[f32]) -> bool {
+    heights.len() == COARSE_SAMPLES * COARSE_SAMPLES && heights.iter().all(|h| h.is_finite())
+}
+
 /// Counters of the streamer, shown in the overlay and read by the tests.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StreamStats {
@@ -151,29 +156,26 @@ impl WorldStream {
         ring.into_iter().map(|(_, c)| c).collect()
     }
 
-    /// The far field's coarse tiles that have arrived around (x, z) metres, nearest first.
-    pub fn far_stand_ins(&self, x_m: f64, z_m: f64) -> Vec<(TileCoord, Arc<Vec<f32>>)> {
-        self.far_ring(x_m, z_m).into_iter().filter_map(|c| self.coarse.get(&c).map(|h| (c, h.clone()))).collect()
+    /// The coarse tiles of `ring` ([`far_ring`](Self::far_ring)) that have arrived, in its
+    /// order.
+    pub fn far_stand_ins(&self, ring: &[TileCoord]) -> Vec<(TileCoord, Arc<Vec<f32>>)> {
+        ring.iter().filter_map(|c| self.coarse.get(c).map(|h| (*c, h.clone()))).collect()
     }
 
     /// A coarse stand-in came back ([`COARSE_SAMPLES`]² heights, metres): kept if it belongs to
     /// this world, is still in flight, and is whole and finite. Returns whether it was kept.
     pub fn finish_coarse(&mut self, job: &Job<TileCoord>, heights: Vec<f32>) -> bool {
-        if heights.len() != COARSE_SAMPLES * COARSE_SAMPLES || heights.iter().any(|h| !h.is_finite()) {
+        if !whole_coarse(&heights) {
             self.coarse_jobs.fail(job);
             return false;
         }
-        if self.coarse_jobs.finish(job) == Outcome::Stale {
-            return false;
-        }
-        self.coarse.insert(job.key, Arc::new(heights));
-        true
+        self.coarse_jobs.finish(job) != Outcome::Stale && self.insert_coarse(job.key, heights)
     }
 
     /// Takes a coarse tile made here ([`COARSE_SAMPLES`]² heights, metres; the procedural
     /// world's far field). Returns whether it was whole and finite, and so kept.
     pub fn insert_coarse(&mut self, c: TileCoord, heights: Vec<f32>) -> bool {
-        let whole = heights.len() == COARSE_SAMPLES * COARSE_SAMPLES && heights.iter().all(|h| h.is_finite());
+        let whole = whole_coarse(&heights);
         if whole {
             self.coarse.insert(c, Arc::new(heights));
         }
