@@ -24,6 +24,23 @@ fn sky_colour(dir: vec3<f32>) -> vec3<f32> {
     return c;
 }
 
+// The water's colour seen along `rel` (camera-relative metres) on a level surface: the sky
+// reflected with a Fresnel term over a deep tone, small analytic ripples, the sun's glint.
+// Returns the colour and the Fresnel term (the water plane's opacity follows it).
+fn water_colour(rel: vec3<f32>) -> vec4<f32> {
+    let view = normalize(rel);
+    let p = (rel.xz + g.eye.xz) * 0.02;
+    let t = g.params.y;
+    let ripple = vec2<f32>(sin(p.x * 1.7 + t * 1.3) + sin(p.y * 2.3 - t), cos(p.y * 1.9 + t * 1.1) + cos(p.x * 2.9 - t * 0.7)) * 0.02;
+    let n = normalize(vec3<f32>(ripple.x, 1.0, ripple.y));
+    let r = reflect(view, n);
+    let fresnel = 0.04 + 0.96 * pow(1.0 - max(dot(-view, n), 0.0), 5.0);
+    let deep = vec3<f32>(0.03, 0.12, 0.20);
+    var c = mix(deep, sky_colour(r), fresnel);
+    c += vec3<f32>(1.0, 0.9, 0.7) * pow(max(dot(r, g.sun.xyz), 0.0), 400.0) * 3.0;
+    return vec4<f32>(c, fresnel);
+}
+
 fn apply_fog(c: vec3<f32>, rel: vec3<f32>) -> vec3<f32> {
     let d = length(rel);
     let t = clamp((d - g.fog.x) / max(g.fog.y - g.fog.x, 1.0), 0.0, 1.0);

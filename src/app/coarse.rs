@@ -27,8 +27,9 @@ pub struct CoarseNodes {
 /// The far field's draw stride: every 4th vertex (512 m apart), beyond the detailed tiles.
 const FAR_STRIDE: u8 = 4;
 
-/// The procedural world's far-field tiles made per frame (each a few hundred noise samples).
-pub const PROCEDURAL_FAR_PER_FRAME: usize = 8;
+/// Far-field tiles of a world made on the main thread (procedural, sketch) made per frame
+/// (each 32² samples of noise or of the sketch's surroundings).
+pub const LOCAL_FAR_PER_FRAME: usize = 8;
 
 impl CoarseNodes {
     /// The stand-in nodes to draw for `view` around the tiles that cannot be drawn yet
@@ -98,29 +99,43 @@ impl TerrainApp {
         shown
     }
 
-    /// Makes up to [`PROCEDURAL_FAR_PER_FRAME`] of the procedural world's far-field tiles here
-    /// (a few hundred noise samples each), once every wanted tile is made.
-    pub(super) fn make_procedural_far_field(&mut self) {
-        if self.source() != SourceKind::Procedural {
+    /// Makes up to [`LOCAL_FAR_PER_FRAME`] far-field tiles of a world made on the main thread
+    /// (the procedural world, also where its tiles come from the worker, and the sketch's),
+    /// once every wanted tile is made.
+    pub(super) fn make_local_far_field(&mut self) {
+        if !self.local_far_field() {
             return;
         }
         let eye = self.camera.position_m;
         if !self.world.missing(eye.x, eye.z).is_empty() {
             return;
         }
-        let (seed, noise) = (self.settings.seed, self.settings.noise);
-        let todo: Vec<TileCoord> = self.world.far_ring(eye.x, eye.z).into_iter().filter(|c| self.world.coarse(*c).is_none()).take(PROCEDURAL_FAR_PER_FRAME).collect();
+        let (seed, noise, procedural) = (self.settings.seed, self.settings.noise, self.source() == SourceKind::Procedural);
+        let todo: Vec<TileCoord> = self.world.far_ring(eye.x, eye.z).into_iter().filter(|c| self.world.coarse(*c).is_none()).take(LOCAL_FAR_PER_FRAME).collect();
         for c in todo {
-            self.world.insert_coarse(c, crate::world::noise::coarse_tile(seed, &noise, c));
+            let tile = if procedural { Some(crate::world::noise::coarse_tile(seed, &noise, c)) } else { self.world.far_tile_here(c) };
+            if let Some(t) = tile {
+                self.world.insert_coarse(c, t);
+            }
+        }
+    }
+
+    /// Whether the world shown makes its far field on the main thread: the procedural world,
+    /// and the sketch's once its terrain is here.
+    fn local_far_field(&self) -> bool {
+        match self.source() {
+            SourceKind::Procedural => true,
+            SourceKind::Sketch => self.world.made_here(),
+            SourceKind::Learned => false,
         }
     }
 
     /// How far the view reaches (metres; the far plane, where the fog is whole): the detailed
-    /// tiles' radius, or for a world with a far field (learned, procedural) the far field plus
-    /// the eye's height, so it is seen from high above too.
+    /// tiles' radius, or for a world with a far field (learned, procedural, sketch) the far
+    /// field plus the eye's height, so it is seen from high above too.
     pub(super) fn view_far_m(&self) -> f32 {
         let detailed = (self.settings.radius_tiles + 0.5) * TILE_SIZE_M;
-        let far = self.learned_shown_ready() || self.source() == SourceKind::Procedural;
+        let far = self.learned_shown_ready() || self.local_far_field();
         (if far { detailed.max(FAR_FIELD_M + 0.5 * TILE_SIZE_M + self.camera.position_m.y.max(0.0)) } else { detailed }) as f32
     }
 

@@ -123,6 +123,9 @@ pub fn sketch_overview(relief_m: f64) -> ([f64; 3], f32, f32) {
 /// Sketch → terrain jobs in flight at most.
 pub const SKETCH_JOBS_IN_FLIGHT: usize = 1;
 
+/// Height of the sea plane in the sketch world (metres): just below its plain at 0 m.
+pub const SKETCH_SEA_M: f32 = -2.0;
+
 impl TerrainApp {
     /// An app showing the world and view described by `s`.
     ///
@@ -278,6 +281,10 @@ impl TerrainApp {
         if s.source == SourceKind::Sketch && now.source != SourceKind::Sketch {
             // Entering the sketch world: look at the sketch from the south.
             (s.position_m, s.yaw, s.pitch) = sketch_overview(s.relief_m);
+        }
+        if s.source != now.source {
+            // Weights a link named belong to its world, not to the one chosen now.
+            s.weights = None;
         }
         self.apply(s);
     }
@@ -492,7 +499,7 @@ impl TerrainApp {
         self.nodes.retain_tiles(|t| world.contains(t));
         self.refine.retain_tiles(|t| world.contains(t));
         let tiles = self.world.drawable(eye.x, eye.z);
-        self.make_procedural_far_field();
+        self.make_local_far_field();
         self.camera.far_m = self.view_far_m();
         let aspect = size_px[0].max(1) as f32 / size_px[1].max(1) as f32;
         let refining = self.refine_backend.is_some();
@@ -540,7 +547,9 @@ impl TerrainApp {
             sun_dir: sun_direction(2.3, 0.45),
             fog_start_m: far * 0.35,
             fog_end_m: far,
-            water_level_m: 0.0,
+            // The sketch's plain lies at 0 m and is drawn as water by the terrain itself (level
+            // ground); the sea plane goes below it so the two do not fight.
+            water_level_m: if self.source() == SourceKind::Sketch { SKETCH_SEA_M } else { 0.0 },
             amplitude_m: match self.source() {
                 SourceKind::Learned => (crate::world::learned::MACRO_BASE_M + crate::world::learned::MACRO_AMPLITUDE_M) as f32,
                 SourceKind::Procedural => (n.amplitude_m + n.base_m).max(100.0),
@@ -552,15 +561,15 @@ impl TerrainApp {
         (nodes, params)
     }
 
-    /// `nodes` of the world shown, or the previous world's picture while this world has not
-    /// made the tiles within a tile of the eye and the eye stayed within a tile of where that
-    /// picture was taken ([`SourceKind`] or seed changed in place). `tiles` are this world's
-    /// drawable tiles.
+    /// `nodes` of the world shown, or the previous world's picture while this world has
+    /// neither made nor a coarse stand-in for each tile within a tile of the eye (in view or
+    /// not) and the eye stayed within a tile of where that picture was taken ([`SourceKind`]
+    /// or seed changed in place). `tiles` are this world's drawable tiles.
     fn or_stand_in(&mut self, nodes: Vec<Arc<NodeData>>, tiles: &[TileCoord]) -> Vec<Arc<NodeData>> {
         let eye = self.camera.position_m;
         let near_made = || {
             let near = self.world.wanted(eye.x, eye.z).into_iter().filter(|c| c.distance_tiles(eye.x, eye.z) <= 1.0f64.min(self.world.radius_tiles()));
-            near.into_iter().all(|c| tiles.contains(&c))
+            near.into_iter().all(|c| tiles.contains(&c) || self.world.coarse(c).is_some())
         };
         let keep = match &self.stand_in {
             Some((_, at)) => (eye - *at).length() < TILE_SIZE_M && !near_made(),

@@ -400,3 +400,31 @@ fn the_learned_world_draws_a_far_field_out_to_60_km_once_its_tiles_are_made() {
     assert!(s.far_drawn > 20 && s.far_drawn < ring.len(), "culled to the frustum: {s:?}");
     assert!(core.app.camera.far_m >= FAR_FIELD_M as f32);
 }
+
+/// A new seed keeps the old picture only until each tile within a tile of the eye has this
+/// world's coarse stand-in (those behind the eye, out of view, included): the old picture
+/// goes while some of those tiles are still being made.
+#[test]
+fn a_new_learned_seed_drops_the_old_picture_once_the_near_tiles_stand_in() {
+    let share = ShareState { radius_tiles: 2.0, position_m: [2048.0, 3000.0, 2048.0], pitch: -0.1, ..ShareState::default() };
+    let mut core = PageCore::new(share, start(Ok(())));
+    let mut shell = Shell::new(&no_swap);
+    shell.frames(&mut core, 300);
+    assert_eq!(core.app.stats().tiles_pending, 0);
+    core.app.apply(ShareState { seed: 2, ..core.app.share_state() });
+    let mut kept = 0;
+    for _ in 0..100 {
+        shell.frames(&mut core, 1);
+        if !core.app.stats().previous_world_shown {
+            break;
+        }
+        kept += 1;
+    }
+    let (world, eye) = (&core.app.world, core.app.camera.position_m);
+    let near: Vec<_> = world.wanted(eye.x, eye.z).into_iter().filter(|c| c.distance_tiles(eye.x, eye.z) <= 1.0).collect();
+    let made = near.iter().filter(|c| world.contains(**c)).count();
+    eprintln!("old picture kept {kept} frames; {made} of {} near tiles made when it went", near.len());
+    assert!(kept > 0 && !core.app.stats().previous_world_shown);
+    assert!(near.iter().all(|c| world.contains(*c) || world.coarse(*c).is_some()));
+    assert!(made < near.len(), "{made} of {} near tiles made when the old picture went", near.len());
+}

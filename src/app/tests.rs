@@ -466,3 +466,54 @@ fn the_procedural_world_draws_a_far_field_of_its_own_samples() {
     let n = COARSE_SAMPLES;
     assert!((0..n * n).all(|k| far[k] == full.heights[(k / n) * 4 * crate::grid::TILE_SAMPLES + (k % n) * 4]));
 }
+
+/// The sketch world has a far field too, so its plain runs to the horizon instead of ending
+/// at the detailed tiles' edge: once the sketch's terrain is here and its tiles are made, the
+/// ring out to 61 km is made here and drawn, the view reaches 61 km, and a far tile next to
+/// the sketch holds its tile's own samples at every 4th position.
+#[test]
+fn the_sketch_world_draws_a_far_field_of_its_own_samples() {
+    use crate::world::stream::{COARSE_SAMPLES, FAR_FIELD_M};
+    let mut app = sketch_app();
+    let (job, _) = app.sketch_jobs()[0].clone();
+    assert!(app.camera.far_m < FAR_FIELD_M as f32, "no far field before the sketch's terrain");
+    let bumps: Vec<f32> = (0..SKETCH_PX * SKETCH_PX).map(|p| 127.5 + 127.5 * ((p % SKETCH_PX) as f32 * 0.2).sin() * ((p / SKETCH_PX) as f32 * 0.1).cos()).collect();
+    assert!(app.sketch_done(&job, bumps, 5.0).unwrap());
+    for _ in 0..400 {
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        let s = app.stats();
+        if s.tiles_pending == 0 && s.far_pending == 0 && s.far_drawn > 0 {
+            break;
+        }
+    }
+    let s = app.stats().clone();
+    assert!(s.tiles_pending == 0 && s.far_pending == 0 && s.far_drawn > 20, "{s:?}");
+    assert!(app.camera.far_m >= FAR_FIELD_M as f32);
+    let eye = app.camera.position_m;
+    let ring = app.world.far_ring(eye.x, eye.z);
+    assert!(ring.last().expect("a far ring").distance_tiles(eye.x, eye.z) >= 14.0);
+    // A far tile beside the sketch (its ground still falls from the sketch's edge).
+    let c = *ring.iter().min_by_key(|c| c.i.abs() + c.j.abs()).expect("a far tile");
+    let full = app.world.get(c).map(|t| t.heights.clone()).unwrap_or_else(|| {
+        let src = crate::world::sketched::SketchSource::new(std::sync::Arc::new(app.sketch_terrain().unwrap().to_vec()), app.settings().relief_m);
+        src.generate(app.settings().seed, c, &crate::world::Neighbourhood::default()).heights
+    });
+    let far = app.world.coarse(c).expect("the nearest far tile");
+    let n = COARSE_SAMPLES;
+    assert!((0..n * n).all(|k| far[k] == full[(k / n) * 4 * crate::grid::TILE_SAMPLES + (k % n) * 4]));
+    eprintln!("far tile {c:?}: {} of {} samples above 0 m", far.iter().filter(|&&v| v > 0.0).count(), n * n);
+}
+
+/// Choosing another world in the settings drops the weights hash a link gave the world it
+/// opened: the sketch generator's weights are not compared with the learned world's (no
+/// "this link was made with other weights" note), while a sketch link made with other
+/// sketch weights still gets one.
+#[test]
+fn choosing_the_sketch_world_after_a_learned_link_gives_no_weights_note() {
+    let mut app = TerrainApp::new(ShareState { weights: Some("0ld".into()), ..ShareState::default() });
+    assert_eq!(app.set_learned(LearnedStatus::Ready { hash: "0ld".into() }), None);
+    app.apply_settings(ShareState { source: SourceKind::Sketch, ..app.share_state() });
+    assert_eq!(app.set_sketch_models(LearnedStatus::Ready { hash: "5ketch".into() }), None);
+    let mut linked = TerrainApp::new(ShareState { source: SourceKind::Sketch, weights: Some("0ld".into()), ..ShareState::default() });
+    assert!(linked.set_sketch_models(LearnedStatus::Ready { hash: "5ketch".into() }).is_some());
+}

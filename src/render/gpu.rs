@@ -387,3 +387,22 @@ pub fn sun_direction(azimuth: f32, elevation: f32) -> Vec3 {
     let (sa, ca) = azimuth.sin_cos();
     Vec3::new(sa * ce, se, -ca * ce)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every render shader, as the renderer builds it (the shared part first), parses and
+    /// passes naga's validation (the checks wgpu runs when it creates the module), and has
+    /// the entry points the pipelines name.
+    #[test]
+    fn each_render_shader_parses_and_validates_with_its_entry_points() {
+        for (name, src) in [("sky", SKY_WGSL), ("terrain", TERRAIN_WGSL), ("water", WATER_WGSL)] {
+            let code = format!("{COMMON_WGSL}\n{src}");
+            let module = naga::front::wgsl::parse_str(&code).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&code)));
+            naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty()).validate(&module).unwrap_or_else(|e| panic!("{name}: {e:?}"));
+            let entries: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
+            assert_eq!(entries, ["vs_main", "fs_main"], "{name}");
+        }
+    }
+}

@@ -136,6 +136,8 @@ pub fn stats_json(
         "sketch_models": format!("{:?}", app.sketch_models()), "sketch_backend": env.sketch_backend,
         "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "link_too_long": link_too_long,
         "copy_link_button": overlay.copy_link_rect.map(rect), "software_adapter": env.software_adapter,
+        "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
+        "overlay_buttons": overlay.buttons.iter().map(|(k, r)| (*k, rect(*r))).collect::<std::collections::BTreeMap<_, _>>(),
         "worker_rest_per_work": env.worker_rest_per_work,
         "sketch_buttons": panel.buttons.iter().map(|(k, r)| (k.clone(), rect(*r))).collect::<std::collections::BTreeMap<_, _>>(),
     })
@@ -172,12 +174,16 @@ pub struct Overlay {
     pub seed_rect: Option<egui::Rect>,
     /// The statistics are shown (off by default: the overlay is for people).
     pub show_stats: bool,
+    /// Where the overlay's toggles and the world choices were drawn last (points), for tests
+    /// that click them: `settings`, `statistics`, `world_tcm`, `world_procedural`,
+    /// `world_sketch` (the last three while the settings are open).
+    pub buttons: std::collections::BTreeMap<&'static str, egui::Rect>,
 }
 
 impl Overlay {
     /// An overlay editing `s`.
     pub fn new(s: ShareState) -> Self {
-        Self { draft: s.clone(), applied: s, show_settings: false, copy_link_rect: None, seed_rect: None, show_stats: false }
+        Self { draft: s.clone(), applied: s, show_settings: false, copy_link_rect: None, seed_rect: None, show_stats: false, buttons: Default::default() }
     }
 
     /// Replaces the draft with settings that came from elsewhere (e.g. a link opened in the
@@ -202,6 +208,7 @@ impl Overlay {
         link_copied: bool,
     ) -> UiActions {
         let mut act = UiActions::default();
+        self.buttons.clear();
         if let Some(msg) = message {
             egui::Window::new("Notice").anchor(egui::Align2::CENTER_TOP, [0.0, 8.0]).collapsible(false).resizable(false).title_bar(false).show(ctx, |ui| {
                 ui.horizontal(|ui| {
@@ -263,8 +270,10 @@ impl Overlay {
                 if link_copied {
                     ui.label("copied ✔");
                 }
-                ui.toggle_value(&mut self.show_settings, "Settings");
-                ui.toggle_value(&mut self.show_stats, "Statistics");
+                let settings = ui.toggle_value(&mut self.show_settings, "Settings");
+                let statistics = ui.toggle_value(&mut self.show_stats, "Statistics");
+                self.buttons.insert("settings", settings.rect);
+                self.buttons.insert("statistics", statistics.rect);
             });
             ui.horizontal(|ui| {
                 use crate::dem::formats::Format;
@@ -351,9 +360,10 @@ impl Overlay {
             ui.end_row();
             ui.label("World");
             ui.horizontal(|ui| {
-                ui.selectable_value(&mut d.source, SourceKind::Learned, SourceKind::Learned.label());
-                ui.selectable_value(&mut d.source, SourceKind::Procedural, SourceKind::Procedural.label());
-                ui.selectable_value(&mut d.source, SourceKind::Sketch, SourceKind::Sketch.label());
+                for (kind, name) in [(SourceKind::Learned, "world_tcm"), (SourceKind::Procedural, "world_procedural"), (SourceKind::Sketch, "world_sketch")] {
+                    let r = ui.selectable_value(&mut d.source, kind, kind.label());
+                    self.buttons.insert(name, r.rect);
+                }
             });
             ui.end_row();
             ui.label("Autopilot (m/s)");

@@ -192,6 +192,10 @@ impl TileSource for ProceduralSource {
         false
     }
 
+    fn far_tile(&self, seed: u64, coord: TileCoord) -> Option<Vec<f32>> {
+        Some(coarse_tile(seed, &self.params, coord))
+    }
+
     fn generate(&self, seed: u64, coord: TileCoord, _: &Neighbourhood<'_>) -> Tile {
         let n = TILE_SAMPLES as i64;
         let mut heights = Vec::with_capacity(TILE_SAMPLES * TILE_SAMPLES);

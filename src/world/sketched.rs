@@ -80,6 +80,12 @@ impl TileSource for SketchSource {
         false
     }
 
+    fn far_tile(&self, _seed: u64, coord: TileCoord) -> Option<Vec<f32>> {
+        let (n, step) = (TILE_SAMPLES as i64, 4i64);
+        let m = n / step;
+        Some((0..m * m).map(|k| self.height(coord.i as i64 * n + k % m * step, coord.j as i64 * n + k / m * step)).collect())
+    }
+
     fn generate(&self, _seed: u64, coord: TileCoord, _neighbours: &Neighbourhood<'_>) -> Tile {
         let (x0, z0) = (coord.i as i64 * TILE_SAMPLES as i64, coord.j as i64 * TILE_SAMPLES as i64);
         let heights = (0..TILE_SAMPLES * TILE_SAMPLES).map(|p| self.height(x0 + (p % TILE_SAMPLES) as i64, z0 + (p / TILE_SAMPLES) as i64)).collect();

@@ -21,6 +21,11 @@ pub const TILE_JOBS_IN_FLIGHT: usize = 2;
 /// network tile (with its schedule's dependencies the first time), tens of milliseconds.
 pub const COARSE_JOBS_IN_FLIGHT: usize = 4;
 
+/// Far-field jobs in flight at most while tiles within the radius are still being made: the
+/// horizon fills in beside them, one 128 m tile (tens of milliseconds) at a time, without
+/// holding them up.
+pub const FAR_JOBS_BESIDE_TILES: usize = 1;
+
 /// How far the far field of coarse tiles reaches (metres from the eye): beyond the detailed
 /// tiles, the learned world is drawn from its 128 m network tiles out to here.
 pub const FAR_FIELD_M: f64 = 61_440.0;
@@ -128,15 +133,20 @@ impl WorldStream {
     /// from 128 m network tiles (the learned world): a tile takes hundreds of milliseconds there,
     /// its 128 m tile tens.
     ///
-    /// Once every wanted tile is made, the far field's are asked for too: the coarse tiles
-    /// beyond the radius out to [`FAR_FIELD_M`], nearest first.
+    /// Once every tile within the radius is drawable or standing in, the far field's are
+    /// asked for too: the coarse tiles beyond the radius out to [`FAR_FIELD_M`], nearest
+    /// first; [`FAR_JOBS_BESIDE_TILES`] at a time while tiles within the radius are still
+    /// being made (their jobs come first), as many as the queue takes once they are all made.
     pub fn start_coarse_jobs(&mut self, x_m: f64, z_m: f64) -> Vec<Job<TileCoord>> {
         let drawable = self.drawable(x_m, z_m);
         let radius = self.radius_tiles;
         let mut missing: Vec<TileCoord> =
             self.wanted(x_m, z_m).into_iter().filter(|c| c.distance_tiles(x_m, z_m) <= radius && !drawable.contains(c) && !self.coarse.contains_key(c)).collect();
-        if missing.is_empty() && self.missing(x_m, z_m).is_empty() {
+        if missing.is_empty() {
             missing = self.far_ring(x_m, z_m).into_iter().filter(|c| !self.coarse.contains_key(c)).collect();
+            if !self.missing(x_m, z_m).is_empty() {
+                missing.truncate(FAR_JOBS_BESIDE_TILES.saturating_sub(self.coarse_jobs.stats().in_flight));
+            }
         }
         self.coarse_jobs.start(missing)
     }
@@ -180,6 +190,20 @@ impl WorldStream {
             self.coarse.insert(c, Arc::new(heights));
         }
         whole
+    }
+
+    /// Whether this world's tiles are made here (by a [`TileSource`] it holds).
+    pub fn made_here(&self) -> bool {
+        matches!(self.source, Maker::Here(_))
+    }
+
+    /// Far-field tile `c` made by this world's own source ([`TileSource::far_tile`]), if the
+    /// world is made here and its source makes them.
+    pub fn far_tile_here(&self, c: TileCoord) -> Option<Vec<f32>> {
+        match &self.source {
+            Maker::Here(source) => source.far_tile(self.seed, c),
+            Maker::Elsewhere(_) => None,
+        }
     }
 
     /// A coarse stand-in could not be made: it may be asked for again.
@@ -548,5 +572,41 @@ mod tests {
         let (a, b) = (exact, w.sample(4, 4).unwrap());
         assert!((mid - (a + b) / 2.0).abs() < 1e-3);
         assert!(w.height_at(-20.0, -20.0).is_some(), "negative coordinates read tile (-1,-1)");
+    }
+
+    /// Coarse first, then the horizon beside the tiles: a world made elsewhere asks for the
+    /// stand-ins within the radius first; once each has one, far-field tiles come one at a
+    /// time (nearest first, none while one is in flight) while tiles within the radius are
+    /// being made, and up to the queue's limit once they are all made.
+    #[test]
+    fn far_field_jobs_go_one_at_a_time_beside_the_tiles_and_all_at_once_after() {
+        let mut w = WorldStream::made_elsewhere(1, "elsewhere".into(), 1.0);
+        let (x, z) = (2048.0, 2048.0);
+        let near = w.start_coarse_jobs(x, z);
+        assert!(!near.is_empty() && near.iter().all(|j| j.key.distance_tiles(x, z) <= 1.0), "{near:?}");
+        let mut jobs = near;
+        let far = loop {
+            if jobs.iter().any(|j| j.key.distance_tiles(x, z) > 1.0) {
+                break jobs;
+            }
+            for j in &jobs {
+                assert!(w.finish_coarse(j, vec![1.0; COARSE_SAMPLES * COARSE_SAMPLES]));
+            }
+            jobs = w.start_coarse_jobs(x, z);
+        };
+        assert!(far.iter().all(|j| j.key.distance_tiles(x, z) > 1.0), "the far field only once each tile within the radius stands in");
+        let ring = w.far_ring(x, z);
+        assert!(!w.missing(x, z).is_empty(), "the tiles are not made yet");
+        let first_far = far.iter().find(|j| j.key.distance_tiles(x, z) > 1.0).expect("a far job beside the tiles");
+        assert_eq!(far.iter().filter(|j| j.key.distance_tiles(x, z) > 1.0).count(), FAR_JOBS_BESIDE_TILES);
+        assert!(ring[..FAR_JOBS_BESIDE_TILES + 1].contains(&first_far.key), "nearest first");
+        assert!(w.start_coarse_jobs(x, z).is_empty(), "none while one is in flight");
+        assert!(w.finish_coarse(first_far, vec![1.0; COARSE_SAMPLES * COARSE_SAMPLES]));
+        assert_eq!(w.start_coarse_jobs(x, z).len(), FAR_JOBS_BESIDE_TILES, "the next one");
+        for c in w.missing(x, z) {
+            w.insert(Tile::new(c, vec![0.0; TILE_SAMPLES * TILE_SAMPLES]), 1.0);
+        }
+        let after = w.start_coarse_jobs(x, z);
+        assert_eq!(after.len() + FAR_JOBS_BESIDE_TILES, COARSE_JOBS_IN_FLIGHT, "the queue's limit once the tiles are made");
     }
 }

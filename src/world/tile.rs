@@ -78,6 +78,14 @@ pub trait TileSource: Send + Sync {
 
     /// Generates tile `coord` of world `seed` from the neighbours the schedule names.
     fn generate(&self, seed: u64, coord: TileCoord, neighbours: &Neighbourhood<'_>) -> Tile;
+
+    /// Tile `coord`'s heights at every 4th sample (32² values, metres, row-major: the
+    /// tile's own values, so a far-field tile meets a detailed one exactly), where that is
+    /// cheap enough to make a few a frame on the page's main thread; `None` otherwise (the
+    /// learned world's come from its worker).
+    fn far_tile(&self, _seed: u64, _coord: TileCoord) -> Option<Vec<f32>> {
+        None
+    }
 }
 
 /// Which generator makes a world's tiles (a share link names it).

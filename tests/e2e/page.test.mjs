@@ -154,6 +154,67 @@ test('the default world is the learned one and renders terrain (its coarse stand
   await page.close();
 });
 
+test('first impressions: the page at +2 s, the statistics view, a new seed by editing the link (the old picture kept, then the new world) and the sketch world chosen in the settings, framed at once (timings and screenshots)', async () => {
+  const t0 = Date.now();
+  // The sketch world's screenshot at the size the sketch test uses (its panel beside the view).
+  const { page, errors } = await open('', '', { width: 1280, height: 900 });
+  await page.waitForTimeout(Math.max(0, 2000 - (Date.now() - t0)));
+  await page.screenshot({ path: path.join(out, 'startup_2s.png') });
+  const early = await stats(page);
+  report.startup_2s = { nodes_drawn: early?.stats?.nodes_drawn ?? 0, coarse_drawn: early?.stats?.coarse_drawn ?? 0 };
+  let s = await waitFor(page, (q) => q.stats.tiles_pending === 0 && q.stats.far_pending === 0 && q.stats.far_drawn > 0 && q.stats.frames > 20, 'the default view and its far field', 400_000);
+  report.startup_complete_with_far_field_s = (Date.now() - t0) / 1000;
+  // The numbers are one click away, and away again.
+  assert.equal(s.statistics_shown, false, 'the overlay opens without the statistics');
+  await page.mouse.click(...centre(s.overlay_buttons.statistics));
+  s = await waitFor(page, (q) => q.statistics_shown, 'the statistics view', 10_000, 100);
+  await page.waitForTimeout(300);
+  await page.screenshot({ path: path.join(out, 'statistics.png') });
+  await page.mouse.click(...centre(s.overlay_buttons.statistics));
+  s = await waitFor(page, (q) => !q.statistics_shown, 'the statistics hidden again', 10_000, 100);
+  await page.screenshot({ path: path.join(out, 'overlay.png') });
+  // A new seed typed into the address: every frame draws terrain (the old picture until the
+  // new world's nearest tiles are made), then the new world's own.
+  assert.match(s.link, /&seed=1&|^v=2&seed=1&/);
+  const t1 = Date.now();
+  await page.evaluate((f) => { location.hash = f; }, s.link.replace('seed=1&', 'seed=2&'));
+  let blank = 0;
+  let kept = 0;
+  let first = null;
+  while (Date.now() - t1 < 400_000) {
+    const q = await stats(page);
+    if (/seed=2&/.test(q.link)) {
+      if (q.stats.nodes_drawn === 0) blank++;
+      if (q.stats.previous_world_shown) kept++;
+      if (!first && !q.stats.previous_world_shown && q.stats.nodes_drawn > 0) first = (Date.now() - t1) / 1000;
+      if (first && q.stats.tiles_pending === 0 && q.stats.far_pending === 0 && q.stats.far_drawn > 0) break;
+    }
+    await page.waitForTimeout(100);
+  }
+  report.new_seed = { own_terrain_s: first, complete_s: (Date.now() - t1) / 1000, polls_with_old_picture: kept, polls_blank: blank };
+  await page.screenshot({ path: path.join(out, 'new_seed.png') });
+  assert.ok(first !== null, `the new seed's world was never drawn: ${JSON.stringify(report.new_seed)}`);
+  assert.equal(blank, 0, 'a frame after the new seed drew nothing');
+  // The sketch world, chosen in the settings: the camera frames the sketch at once.
+  s = await stats(page);
+  await page.mouse.click(...centre(s.overlay_buttons.settings));
+  s = await waitFor(page, (q) => q.settings_shown && q.overlay_buttons.world_sketch, 'the settings', 10_000, 100);
+  const t2 = Date.now();
+  await page.mouse.click(...centre(s.overlay_buttons.world_sketch));
+  s = await waitFor(page, (q) => q.stats.source === 'sketch' && q.stats.sketch_shown > 0 && q.stats.tiles_pending === 0, 'the sketch world', 300_000, 100);
+  report.sketch_world = { shown_s: (Date.now() - t2) / 1000, eye_m: s.stats.eye_m, far_drawn: s.stats.far_drawn };
+  const shot = await page.screenshot({ path: path.join(out, 'sketch_world.png') });
+  // sketch_overview: 5.2 km south of the sketch's centre, looking at it from above its relief.
+  const [ex, ey, ez] = s.stats.eye_m;
+  assert.ok(Math.abs(ex) < 500 && ez > 4000 && ez < 6500 && ey > 3000, `the camera does not frame the sketch: ${s.stats.eye_m}`);
+  assert.ok(imageSpread(shot, 380).sd > 8, 'the sketch world looks uniform');
+  s = await waitFor(page, (q) => q.stats.far_pending === 0 && q.stats.far_drawn > 0, 'the sketch world\'s far field', 120_000, 100);
+  report.sketch_world.far_drawn = s.stats.far_drawn;
+  await page.screenshot({ path: path.join(out, 'sketch_world_far_field.png') });
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
 /** The float32 heights of a TIFF as `terrain world` writes it (little-endian, strips). */
 function readTiffF32(buf) {
   assert.equal(buf.toString('latin1', 0, 2), 'II', 'a little-endian TIFF');
