@@ -44,7 +44,8 @@ fn terrain_albedo(h: f32, n: vec3<f32>, face_slope: f32) -> vec3<f32> {
     c = mix(c, rock, smoothstep(0.40, 0.60, rel_h));
     c = mix(c, rock, smoothstep(0.25, 0.45, slope));
     let snow_line = 0.62 + face_slope * 0.5;
-    c = mix(c, snow, smoothstep(snow_line, snow_line + 0.06, rel_h) * (1.0 - smoothstep(0.3, 0.45, face_slope)));
+    // A wide ramp, so neighbouring triangles of different slope do not show as snow facets.
+    c = mix(c, snow, smoothstep(snow_line, snow_line + 0.06, rel_h) * (1.0 - smoothstep(0.15, 0.5, face_slope)));
     return c;
 }
 
@@ -52,7 +53,8 @@ fn terrain_albedo(h: f32, n: vec3<f32>, face_slope: f32) -> vec3<f32> {
 fn fs_main(i: VertexOut) -> @location(0) vec4<f32> {
     let n = normalize(i.normal);
     let face = normalize(cross(dpdx(i.rel), dpdy(i.rel)));
-    var albedo = terrain_albedo(i.height, n, 1.0 - abs(face.y));
+    let face_slope = 1.0 - abs(face.y);
+    var albedo = terrain_albedo(i.height, n, face_slope);
     if (g.params.x > 0.5) {
         let tint = array<vec3<f32>, 4>(vec3<f32>(1.0, 0.3, 0.3), vec3<f32>(0.3, 1.0, 0.3), vec3<f32>(0.3, 0.5, 1.0), vec3<f32>(1.0, 1.0, 0.3));
         albedo = mix(albedo, tint[u32(i.depth) % 4u], 0.45);
@@ -61,9 +63,10 @@ fn fs_main(i: VertexOut) -> @location(0) vec4<f32> {
     let sky_light = mix(vec3<f32>(0.20, 0.18, 0.15), vec3<f32>(0.45, 0.55, 0.70), n.y * 0.5 + 0.5);
     let lit = albedo * (vec3<f32>(1.0, 0.95, 0.85) * sun * 1.1 + sky_light * 0.55);
     // Level ground is water: a lake the drainage left (level to 1 mm a sample) or the sketch's
-    // plain. Slopes under ~0.1° are water, over ~0.25° ground (1 − n.y ≈ slope² / 2), so the
-    // shore follows the interpolated normals smoothly.
-    let lake = 1.0 - smoothstep(2e-6, 1e-5, 1.0 - n.y);
+    // plain. Slopes under ~0.1° are water, over ~0.25° ground (1 − n.y ≈ slope² / 2), by the
+    // interpolated normal (a smooth shore) and by the triangle's own (a lone level vertex on
+    // a slope is no pond).
+    let lake = (1.0 - smoothstep(2e-6, 1e-5, 1.0 - n.y)) * (1.0 - smoothstep(2e-6, 1e-5, face_slope));
     let c = mix(lit, water_colour(i.rel).rgb, lake);
     return vec4<f32>(apply_fog(c, i.rel), 1.0);
 }
