@@ -577,3 +577,66 @@ mod tests {
         assert!(hi - lo > 1000.0, "range {lo} .. {hi}");
     }
 }
+
+#[cfg(test)]
+mod shipped_tests {
+    use super::*;
+    use crate::geomorph::drainage::measure;
+
+    /// Drainage figures of the 4×4 world tiles −1..=2 each way of `seed` (the four
+    /// second-stage blocks with corners at odd tiles): closed-depression fraction (any depth)
+    /// of each block alone, of the region (deeper than 1 m), the region's [`measure`], and its
+    /// median slope (degrees).
+    fn region_figures(src: &LearnedSource, seed: u64) -> ([f64; 4], f64, crate::geomorph::drainage::Drainage, f64) {
+        let (k, n) = (4usize, TILE_SAMPLES);
+        let m = k * n;
+        let first = TileCoord::new(-1, -1);
+        assert_eq!(second_block_corner(first), first);
+        let mut h = vec![0f32; m * m];
+        for t in 0..k * k {
+            let tile = src.generate(seed, first.offset(t as i32 % k as i32, t as i32 / k as i32), &Neighbourhood::default());
+            paste(&mut h, m, &tile.heights, n, (t % k) * n, (t / k) * n);
+        }
+        let blocks = std::array::from_fn(|b| drainage::depression_fraction(&cut(&h, m, 2 * n, b % 2 * 2 * n, b / 2 * 2 * n), 2 * n, 0.0));
+        let across = drainage::depression_fraction(&h, m, 1.0);
+        let mut slopes: Vec<f64> = (1..m - 1)
+            .flat_map(|y| (1..m - 1).map(move |x| (x, y)))
+            .map(|(x, y)| (((h[y * m + x + 1] - h[y * m + x - 1]) as f64).hypot((h[(y + 1) * m + x] - h[(y - 1) * m + x]) as f64) / 64.0).atan().to_degrees())
+            .collect();
+        slopes.sort_by(f64::total_cmp);
+        (blocks, across, measure(&h, m, crate::grid::BASE_SPACING_M), slopes[slopes.len() / 2])
+    }
+
+    /// Whether the figures are within the bounds the shipped TCM is held to.
+    fn within_bounds((blocks, across, d, median): &([f64; 4], f64, crate::geomorph::drainage::Drainage, f64)) -> bool {
+        blocks.iter().all(|&b| b == 0.0) && *across <= 0.15 && d.flat_fraction <= 0.20 && d.depression_fraction_96m <= 0.30 && d.depression_fraction_384m <= 0.30 && *median > 15.0
+    }
+
+    /// The shipped TCM's world drains as far as this world does today (issue 39 is to bring
+    /// it to real ranges: flat 0.24 %, closed depressions at 96 m 1.7 %, by `terrain
+    /// eval-tcm`). For seeds 1–3, 4×4 tiles (16 km) around the origin: each second-stage
+    /// block alone has no closed depression of any depth; across the blocks' borders at most
+    /// 15 % of the region lies in closed depressions deeper than 1 m (today 4–9 %: a block's
+    /// border sample may have no way out on the other side); at most 20 % is dead flat (slope
+    /// < 0.2°; today 11–15 %) and at most 30 % in closed depressions once area-averaged to
+    /// 96 m or 384 m (today 14–24 %); the median slope is over 15° (today 27°).
+    #[test]
+    fn a_shipped_tcm_region_drains_within_the_stated_bounds() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let src = LearnedSource::new(Arc::new(LearnedModels::load_dir(&dir).expect("the shipped weights")), crate::models::cpu::default_threads());
+        for seed in [1u64, 2, 3] {
+            let f = region_figures(&src, seed);
+            eprintln!("seed {seed}: {f:?}");
+            assert!(within_bounds(&f), "seed {seed}: {f:?}");
+        }
+    }
+
+    /// The bounds can fail: an untrained TCM's world (random weights) is outside them.
+    #[test]
+    fn an_untrained_tcm_region_is_outside_the_drainage_bounds() {
+        let src = LearnedSource::new(Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), GrowCpu::randomized(2, 0.05), "test")), 1);
+        let f = region_figures(&src, 1);
+        eprintln!("untrained: {f:?}");
+        assert!(!within_bounds(&f), "{f:?}");
+    }
+}
