@@ -440,13 +440,11 @@ fn a_new_seed_keeps_the_old_picture_until_the_new_world_has_its_near_tiles() {
     assert!(!app.stats().previous_world_shown, "a view elsewhere does not keep the old picture");
 }
 
-/// The procedural world has a far field too: once its tiles are made, the ring out to 61 km is
-/// made here (a few tiles a frame) and drawn; each far tile holds the tile's own samples at
-/// every 4th position (so it meets the detailed tiles exactly), and the view reaches 61 km.
-#[test]
-fn the_procedural_world_draws_a_far_field_of_its_own_samples() {
-    use crate::world::stream::{COARSE_SAMPLES, FAR_FIELD_M};
-    let mut app = TerrainApp::new(ShareState { pitch: -0.1, ..procedural(1.0) });
+/// Frames (at most 400) until every tile and far-field tile around the eye is made and some
+/// far tiles are drawn; asserts they were (more than 20 drawn) and that the view reaches the
+/// far field, and returns the far ring around the eye.
+fn frames_until_far_field(app: &mut TerrainApp) -> Vec<TileCoord> {
+    use crate::world::stream::FAR_FIELD_M;
     for _ in 0..400 {
         app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
         let s = app.stats();
@@ -458,7 +456,18 @@ fn the_procedural_world_draws_a_far_field_of_its_own_samples() {
     assert!(s.tiles_pending == 0 && s.far_pending == 0 && s.far_drawn > 20, "{s:?}");
     assert!(app.camera.far_m >= FAR_FIELD_M as f32);
     let eye = app.camera.position_m;
-    let ring = app.world.far_ring(eye.x, eye.z);
+    app.world.far_ring(eye.x, eye.z)
+}
+
+/// The procedural world has a far field too: once its tiles are made, the ring out to 61 km is
+/// made here (a few tiles a frame) and drawn; each far tile holds the tile's own samples at
+/// every 4th position (so it meets the detailed tiles exactly), and the view reaches 61 km.
+#[test]
+fn the_procedural_world_draws_a_far_field_of_its_own_samples() {
+    use crate::world::stream::COARSE_SAMPLES;
+    let mut app = TerrainApp::new(ShareState { pitch: -0.1, ..procedural(1.0) });
+    let ring = frames_until_far_field(&mut app);
+    let eye = app.camera.position_m;
     let c = *ring.last().expect("a far ring");
     assert!(c.distance_tiles(eye.x, eye.z) >= 14.0);
     let full = ProceduralSource::new(app.settings().noise).generate(app.settings().seed, c, &crate::world::Neighbourhood::default());
@@ -479,18 +488,8 @@ fn the_sketch_world_draws_a_far_field_of_its_own_samples() {
     assert!(app.camera.far_m < FAR_FIELD_M as f32, "no far field before the sketch's terrain");
     let bumps: Vec<f32> = (0..SKETCH_PX * SKETCH_PX).map(|p| 127.5 + 127.5 * ((p % SKETCH_PX) as f32 * 0.2).sin() * ((p / SKETCH_PX) as f32 * 0.1).cos()).collect();
     assert!(app.sketch_done(&job, bumps, 5.0).unwrap());
-    for _ in 0..400 {
-        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
-        let s = app.stats();
-        if s.tiles_pending == 0 && s.far_pending == 0 && s.far_drawn > 0 {
-            break;
-        }
-    }
-    let s = app.stats().clone();
-    assert!(s.tiles_pending == 0 && s.far_pending == 0 && s.far_drawn > 20, "{s:?}");
-    assert!(app.camera.far_m >= FAR_FIELD_M as f32);
+    let ring = frames_until_far_field(&mut app);
     let eye = app.camera.position_m;
-    let ring = app.world.far_ring(eye.x, eye.z);
     assert!(ring.last().expect("a far ring").distance_tiles(eye.x, eye.z) >= 14.0);
     // A far tile beside the sketch (its ground still falls from the sketch's edge).
     let c = *ring.iter().min_by_key(|c| c.i.abs() + c.j.abs()).expect("a far tile");
