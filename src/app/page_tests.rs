@@ -458,7 +458,7 @@ fn the_widest_link_with_learned_detail_fits_the_node_budget() {
     let most = |v: &[usize]| v.iter().copied().max().unwrap_or(0);
     eprintln!(
         "budget {budget} nodes ({} MiB of meshes); without it {} nodes drawn at most ({:.0} MiB), {} quads; with it {} at most in the last 50 frames, LOD {:.2} px, {} quads",
-        budget * 2 * crate::render::MESH_BYTES as usize >> 20,
+        (budget * 2 * crate::render::MESH_BYTES as usize) >> 20,
         most(&free),
         (most(&free) as u64 * crate::render::MESH_BYTES) as f64 / (1u64 << 20) as f64,
         s.quads_made,
