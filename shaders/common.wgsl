@@ -29,9 +29,19 @@ fn sky_colour(dir: vec3<f32>) -> vec3<f32> {
 // Returns the colour and the Fresnel term (the water plane's opacity follows it).
 fn water_colour(rel: vec3<f32>) -> vec4<f32> {
     let view = normalize(rel);
-    let p = (rel.xz + g.eye.xz) * 0.02;
+    // Four wave trains in unaligned directions and lengths (200 m down to 55 m), so the
+    // surface shows no grid; fading with distance, where they would only alias.
+    let w = rel.xz + g.eye.xz;
     let t = g.params.y;
-    let ripple = vec2<f32>(sin(p.x * 1.7 + t * 1.3) + sin(p.y * 2.3 - t), cos(p.y * 1.9 + t * 1.1) + cos(p.x * 2.9 - t * 0.7)) * 0.02;
+    let d1 = vec2<f32>(0.82, 0.57);
+    let d2 = vec2<f32>(-0.38, 0.92);
+    let d3 = vec2<f32>(0.96, -0.28);
+    let d4 = vec2<f32>(-0.71, -0.70);
+    var ripple = d1 * cos(dot(d1, w) * 0.031 + t * 0.7) * 0.8;
+    ripple += d2 * cos(dot(d2, w) * 0.047 - t * 0.9) * 0.6;
+    ripple += d3 * cos(dot(d3, w) * 0.071 + t * 1.2) * 0.45;
+    ripple += d4 * cos(dot(d4, w) * 0.113 - t * 1.5) * 0.3;
+    ripple *= 0.02 * clamp(1.0 - length(rel) / 4000.0, 0.2, 1.0);
     let n = normalize(vec3<f32>(ripple.x, 1.0, ripple.y));
     let r = reflect(view, n);
     let fresnel = 0.04 + 0.96 * pow(1.0 - max(dot(-view, n), 0.0), 5.0);
