@@ -85,12 +85,11 @@ impl TerrainApp {
         self.world.finish_coarse(job, heights)
     }
 
-    /// Adds the stand-ins to draw for `view` to `nodes` (`tiles`: the tiles drawn whole) and
-    /// returns the tiles the view shows, whole or standing in.
-    pub(super) fn add_coarse(&mut self, nodes: &mut Vec<Arc<NodeData>>, tiles: &[TileCoord], view: &LodView) -> Vec<TileCoord> {
-        // The far ring once a frame: it is a sort of a few hundred tiles.
-        let ring = self.world.far_ring(view.eye_m.x, view.eye_m.z);
-        let coarse = self.coarse_nodes.select(&self.world, tiles, &ring, view);
+    /// Adds the stand-ins to draw for `view` to `nodes` (`tiles`: the tiles drawn whole;
+    /// `ring`: [`WorldStream::far_ring`] around the eye) and returns the tiles the view shows,
+    /// whole or standing in.
+    pub(super) fn add_coarse(&mut self, nodes: &mut Vec<Arc<NodeData>>, tiles: &[TileCoord], ring: &[TileCoord], view: &LodView) -> Vec<TileCoord> {
+        let coarse = self.coarse_nodes.select(&self.world, tiles, ring, view);
         self.stats.far_drawn = coarse.iter().filter(|d| d.stride == FAR_STRIDE).count();
         self.stats.far_pending = ring.iter().filter(|c| self.world.coarse(**c).is_none()).count();
         self.stats.coarse_drawn = coarse.len() - self.stats.far_drawn;
@@ -99,10 +98,11 @@ impl TerrainApp {
         shown
     }
 
-    /// Makes up to [`LOCAL_FAR_PER_FRAME`] far-field tiles of a world made on the main thread
-    /// (the procedural world, also where its tiles come from the worker, and the sketch's),
-    /// once every wanted tile is made.
-    pub(super) fn make_local_far_field(&mut self) {
+    /// Makes up to [`LOCAL_FAR_PER_FRAME`] far-field tiles of `ring` ([`WorldStream::far_ring`]
+    /// around the eye) for a world made on the main thread, by its own source (the sketch's,
+    /// the procedural one's; the procedural world's noise directly where its tiles come from
+    /// the worker), once every wanted tile is made.
+    pub(super) fn make_local_far_field(&mut self, ring: &[TileCoord]) {
         if !self.local_far_field() {
             return;
         }
@@ -111,9 +111,9 @@ impl TerrainApp {
             return;
         }
         let (seed, noise, procedural) = (self.settings.seed, self.settings.noise, self.source() == SourceKind::Procedural);
-        let todo: Vec<TileCoord> = self.world.far_ring(eye.x, eye.z).into_iter().filter(|c| self.world.coarse(*c).is_none()).take(LOCAL_FAR_PER_FRAME).collect();
+        let todo: Vec<TileCoord> = ring.iter().copied().filter(|c| self.world.coarse(*c).is_none()).take(LOCAL_FAR_PER_FRAME).collect();
         for c in todo {
-            let tile = if procedural { Some(crate::world::noise::coarse_tile(seed, &noise, c)) } else { self.world.far_tile_here(c) };
+            let tile = self.world.far_tile_here(c).or_else(|| procedural.then(|| crate::world::noise::coarse_tile(seed, &noise, c)));
             if let Some(t) = tile {
                 self.world.insert_coarse(c, t);
             }

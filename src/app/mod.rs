@@ -499,7 +499,9 @@ impl TerrainApp {
         self.nodes.retain_tiles(|t| world.contains(t));
         self.refine.retain_tiles(|t| world.contains(t));
         let tiles = self.world.drawable(eye.x, eye.z);
-        self.make_local_far_field();
+        // The far ring once a frame: it is a sort of a few hundred tiles.
+        let ring = self.world.far_ring(eye.x, eye.z);
+        self.make_local_far_field(&ring);
         self.camera.far_m = self.view_far_m();
         let aspect = size_px[0].max(1) as f32 / size_px[1].max(1) as f32;
         let refining = self.refine_backend.is_some();
@@ -509,7 +511,7 @@ impl TerrainApp {
         let mut budget = NODE_BUILD_BUDGET;
         let refine = if refining { Some(&mut self.refine) } else { None };
         let mut nodes = self.nodes.select(&tiles, &self.world, refine, &view, &mut budget);
-        let shown = self.add_coarse(&mut nodes, &tiles, &view);
+        let shown = self.add_coarse(&mut nodes, &tiles, &ring, &view);
         self.fit_node_budget(nodes.len());
         let nodes = self.or_stand_in(nodes, &shown);
         self.stats.lod_px_effective = lod_px;

@@ -135,7 +135,7 @@ pub fn stats_json(
         "mode": format!("{:?}", app.controller.mode), "sketch_canvas": panel.canvas_rect.filter(|_| sketch).map(rect),
         "sketch_models": format!("{:?}", app.sketch_models()), "sketch_backend": env.sketch_backend,
         "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "link_too_long": link_too_long,
-        "copy_link_button": overlay.copy_link_rect.map(rect), "software_adapter": env.software_adapter,
+        "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter,
         "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
         "overlay_buttons": overlay.buttons.iter().map(|(k, r)| (*k, rect(*r))).collect::<std::collections::BTreeMap<_, _>>(),
         "worker_rest_per_work": env.worker_rest_per_work,
@@ -168,22 +168,18 @@ pub struct Overlay {
     applied: ShareState,
     /// Whether the settings section is open.
     pub show_settings: bool,
-    /// Where "Copy link" was drawn last frame (points), for tests that click it.
-    pub copy_link_rect: Option<egui::Rect>,
-    /// Where the settings' seed field is on screen, once shown (points).
-    pub seed_rect: Option<egui::Rect>,
     /// The statistics are shown (off by default: the overlay is for people).
     pub show_stats: bool,
-    /// Where the overlay's toggles and the world choices were drawn last (points), for tests
-    /// that click them: `settings`, `statistics`, `world_tcm`, `world_procedural`,
-    /// `world_sketch` (the last three while the settings are open).
+    /// Where the overlay's controls were drawn last frame (points), for tests that click
+    /// them: `copy_link`, `settings`, `statistics`, and while the settings are open `seed`,
+    /// `world_tcm`, `world_procedural`, `world_sketch`.
     pub buttons: std::collections::BTreeMap<&'static str, egui::Rect>,
 }
 
 impl Overlay {
     /// An overlay editing `s`.
     pub fn new(s: ShareState) -> Self {
-        Self { draft: s.clone(), applied: s, show_settings: false, copy_link_rect: None, seed_rect: None, show_stats: false, buttons: Default::default() }
+        Self { draft: s.clone(), applied: s, show_settings: false, show_stats: false, buttons: Default::default() }
     }
 
     /// Replaces the draft with settings that came from elsewhere (e.g. a link opened in the
@@ -263,7 +259,7 @@ impl Overlay {
             ui.add(egui::Slider::new(speed_mps, 5.0..=20_000.0).logarithmic(true).text("speed m/s"));
             ui.horizontal(|ui| {
                 let copy = ui.button("Copy link");
-                self.copy_link_rect = Some(copy.rect);
+                self.buttons.insert("copy_link", copy.rect);
                 if copy.clicked() {
                     act.copy_link = true;
                 }
@@ -350,7 +346,7 @@ impl Overlay {
             // A typed seed applies on Enter or when the field loses focus, not per keystroke
             // (every seed is a new world).
             let seed = ui.add(egui::DragValue::new(&mut d.seed).update_while_editing(false));
-            self.seed_rect = Some(seed.rect);
+            self.buttons.insert("seed", seed.rect);
             ui.end_row();
             ui.label("Radius (tiles)");
             ui.add(egui::Slider::new(&mut d.radius_tiles, crate::share::RADIUS_TILES));
@@ -435,7 +431,7 @@ mod tests {
         for _ in 0..3 {
             assert_eq!(overlay_frame(&ctx, &mut overlay, vec![]), None);
         }
-        let at = overlay.seed_rect.expect("the seed field is shown").center();
+        let at = overlay.buttons.get("seed").expect("the seed field is shown").center();
         let button = |pressed| egui::Event::PointerButton { pos: at, button: egui::PointerButton::Primary, pressed, modifiers: Default::default() };
         let mut applied = Vec::new();
         applied.extend(overlay_frame(&ctx, &mut overlay, vec![egui::Event::PointerMoved(at), button(true)]));

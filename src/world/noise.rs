@@ -153,17 +153,10 @@ pub fn height_at(seed: u64, p: &NoiseParams, x_m: f64, z_m: f64) -> f32 {
     (p.base_m as f64 + p.amplitude_m as f64 * value) as f32
 }
 
-/// Tile `coord`'s heights every 4th sample (`TILE_SAMPLES / 4` squared, metres): the same
-/// values as the tile's own samples there, for the far field.
+/// Tile `coord`'s far-field tile ([`super::stream::far_samples`]): the same values as the
+/// tile's own samples there.
 pub fn coarse_tile(seed: u64, p: &NoiseParams, coord: TileCoord) -> Vec<f32> {
-    let (n, step) = (TILE_SAMPLES as i64, 4i64);
-    let m = n / step;
-    (0..m * m)
-        .map(|k| {
-            let (u, v) = ((k % m) * step, (k / m) * step);
-            height_at(seed, p, (coord.i as i64 * n + u) as f64 * BASE_SPACING_M, (coord.j as i64 * n + v) as f64 * BASE_SPACING_M)
-        })
-        .collect()
+    super::stream::far_samples(coord, |gx, gz| height_at(seed, p, gx as f64 * BASE_SPACING_M, gz as f64 * BASE_SPACING_M))
 }
 
 /// The procedural tile source: fractal noise sampled at the tile's global sample positions.

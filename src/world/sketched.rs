@@ -81,9 +81,7 @@ impl TileSource for SketchSource {
     }
 
     fn far_tile(&self, _seed: u64, coord: TileCoord) -> Option<Vec<f32>> {
-        let (n, step) = (TILE_SAMPLES as i64, 4i64);
-        let m = n / step;
-        Some((0..m * m).map(|k| self.height(coord.i as i64 * n + k % m * step, coord.j as i64 * n + k / m * step)).collect())
+        Some(super::stream::far_samples(coord, |gx, gz| self.height(gx, gz)))
     }
 
     fn generate(&self, _seed: u64, coord: TileCoord, _neighbours: &Neighbourhood<'_>) -> Tile {

@@ -33,6 +33,15 @@ pub const FAR_FIELD_M: f64 = 61_440.0;
 /// Samples along a side of a coarse stand-in: the learned world's 128 m network tile.
 pub const COARSE_SAMPLES: usize = crate::models::tcm::TILE_PX;
 
+/// Tile `coord`'s far-field tile ([`COARSE_SAMPLES`]², row-major): `height` (metres) at the
+/// tile's every `TILE_SAMPLES / COARSE_SAMPLES`-th global sample (x, z), so it meets the
+/// tile's own samples exactly ([`TileSource::far_tile`]).
+pub fn far_samples(coord: TileCoord, height: impl Fn(i64, i64) -> f32) -> Vec<f32> {
+    let (n, m) = (TILE_SAMPLES as i64, COARSE_SAMPLES as i64);
+    let step = n / m;
+    (0..m * m).map(|k| height(coord.i as i64 * n + k % m * step, coord.j as i64 * n + k / m * step)).collect()
+}
+
 /// Whether `heights` are a whole coarse tile ([`COARSE_SAMPLES`]²) of finite heights.
 fn whole_coarse(heights: &[f32]) -> bool {
     heights.len() == COARSE_SAMPLES * COARSE_SAMPLES && heights.iter().all(|h| h.is_finite())
