@@ -224,11 +224,14 @@ impl Overlay {
             // repaints, which would draw the overlay between the paced frames of the 3-D view
             // (render::pacing) and delay the next one.
             let total = stats.tiles_pending + stats.tiles_cached.min(1000);
-            let text = if stats.tiles_pending > 0 { format!("making {} tiles of terrain", stats.tiles_pending) } else { "every tile in view made".to_string() };
+            // The previous world's note shares the bar's one row: a line that comes and goes
+            // would move every control below it under the user's pointer.
+            let text = match (stats.tiles_pending > 0, stats.previous_world_shown) {
+                (true, true) => format!("making {} tiles · previous world shown meanwhile", stats.tiles_pending),
+                (true, false) => format!("making {} tiles of terrain", stats.tiles_pending),
+                (false, _) => "every tile in view made".to_string(),
+            };
             ui.add(egui::ProgressBar::new(1.0 - stats.tiles_pending as f32 / total.max(1) as f32).text(text));
-            if stats.previous_world_shown {
-                ui.label("showing the previous world until the new one's nearest tiles are made");
-            }
             if let Some((done, total)) = env.tem_loading {
                 ui.add(egui::ProgressBar::new(done as f32 / total.max(1) as f32).text(format!("loading learned detail {done}/{total}")));
             } else if let Some(e) = &env.tem_error {
@@ -263,13 +266,14 @@ impl Overlay {
                 if copy.clicked() {
                     act.copy_link = true;
                 }
-                if link_copied {
-                    ui.label("copied ✔");
-                }
                 let settings = ui.toggle_value(&mut self.show_settings, "Settings");
                 let statistics = ui.toggle_value(&mut self.show_stats, "Statistics");
                 self.buttons.insert("settings", settings.rect);
                 self.buttons.insert("statistics", statistics.rect);
+                // Last in the row, so that it moves no button.
+                if link_copied {
+                    ui.label("copied ✔");
+                }
             });
             ui.horizontal(|ui| {
                 use crate::dem::formats::Format;
@@ -410,15 +414,50 @@ mod tests {
 
     /// Draws the overlay for one frame with `events`, returning the settings it applied.
     fn overlay_frame(ctx: &egui::Context, overlay: &mut Overlay, events: Vec<egui::Event>) -> Option<ShareState> {
+        overlay_frame_with(ctx, overlay, events, &AppStats::default(), false)
+    }
+
+    /// [`overlay_frame`] with the app's `stats` and whether a link was just copied.
+    fn overlay_frame_with(ctx: &egui::Context, overlay: &mut Overlay, events: Vec<egui::Event>, stats: &AppStats, link_copied: bool) -> Option<ShareState> {
         let input = egui::RawInput { screen_rect: Some(egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1280.0, 1600.0))), events, ..Default::default() };
         let (mut speed, mut lod, mut refine) = (100.0, false, true);
         let mut applied = None;
         let out = ctx.run_ui(input, |ui| {
-            applied = overlay.show(ui.ctx(), &AppStats::default(), &Environment::default(), CameraMode::Fly, &mut speed, &mut lod, &mut refine, None, false).settings;
+            applied = overlay.show(ui.ctx(), stats, &Environment::default(), CameraMode::Fly, &mut speed, &mut lod, &mut refine, None, link_copied).settings;
         });
         let mut delta = out.textures_delta;
         delta.clear();
         applied
+    }
+
+    /// The overlay's buttons stay where they are (to 0.5 pt) while tiles are being made, the
+    /// previous world is shown meanwhile, or "copied" is shown: a note that comes and goes
+    /// must not move a button from under the user's pointer.
+    #[test]
+    fn the_overlay_buttons_do_not_move_with_progress_notes() {
+        let ctx = egui::Context::default();
+        let mut overlay = Overlay::new(ShareState::default());
+        let calm = AppStats::default();
+        for _ in 0..3 {
+            overlay_frame_with(&ctx, &mut overlay, vec![], &calm, false);
+        }
+        let before = overlay.buttons.clone();
+        assert!(["copy_link", "settings", "statistics"].iter().all(|k| before.contains_key(k)), "{:?}", before.keys());
+        let busy = AppStats { tiles_pending: 12, previous_world_shown: true, ..Default::default() };
+        for (stats, copied) in [(&busy, false), (&busy, true), (&calm, true)] {
+            for _ in 0..3 {
+                overlay_frame_with(&ctx, &mut overlay, vec![], stats, copied);
+            }
+            for (name, rect) in &before {
+                let now = overlay.buttons[name];
+                assert!(
+                    (now.min - rect.min).length() < 0.5,
+                    "{name} moved from {rect:?} to {now:?} (pending {}, previous world {}, copied {copied})",
+                    stats.tiles_pending,
+                    stats.previous_world_shown
+                );
+            }
+        }
     }
 
     /// A seed typed digit by digit into the settings is applied once, on Enter: no world is
