@@ -61,6 +61,20 @@ pub struct SketchVae {
 }
 
 impl SketchVae {
+    /// A VAE on `device` with every weight uniform in ±`amplitude` from `seed` (the layers of
+    /// [`SketchVaeCpu::randomized`] before padding): a training run that starts the same
+    /// every time (burn's own initialisation is seeded from the system's entropy).
+    #[cfg(feature = "train")]
+    pub fn seeded(device: &Device, seed: u64, amplitude: f32) -> Self {
+        let mut m = Self::new(device);
+        let convs = cpu::random_convs(&conv_layers(), seed, amplitude);
+        let targets = m.enc.iter_mut().chain([&mut m.head, &mut m.from_code]).chain(m.dec.iter_mut()).chain([&mut m.out]);
+        for (src, c) in convs.iter().zip(targets) {
+            cpu::conv_into_burn(src, c);
+        }
+        m
+    }
+
     /// A freshly initialised VAE on `device`.
     pub fn new(device: &Device) -> Self {
         let enc = (0..6).map(|k| conv3(if k == 0 { INPUT_CHANNELS } else { ENC_WIDTHS[k - 1] }, ENC_WIDTHS[k], device)).collect();

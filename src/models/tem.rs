@@ -81,6 +81,22 @@ impl Tem {
         }
     }
 
+    /// A model on `device` with the weights of [`TemCpu::randomized`]`(seed, amplitude)`: a
+    /// training run that starts the same every time (burn's own initialisation is seeded
+    /// from the system's entropy).
+    #[cfg(feature = "train")]
+    pub fn seeded(device: &Device, seed: u64, amplitude: f32) -> Self {
+        let w = TemCpu::randomized(seed, amplitude);
+        let mut m = Self::new(device);
+        cpu::conv_into_burn(&w.head, &mut m.head);
+        for (src, c) in w.body.iter().zip(&mut m.body) {
+            cpu::conv_into_burn(src, c);
+        }
+        cpu::conv_into_burn(&w.merge, &mut m.merge);
+        cpu::conv_into_burn(&w.tail, &mut m.tail);
+        m
+    }
+
     /// Enhances a batch: `x` is [B, 1, h, w] heights in metres, `scale_m` the level's height
     /// scale ([`level_scale_m`]); the result is [B, 1, 2h, 2w] heights in metres at half the
     /// spacing. Pixels within [`RECEPTIVE_OUT_PX`] of the border see the padding.

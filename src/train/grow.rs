@@ -79,6 +79,25 @@ pub fn cell_position_gap(h: Tensor<4>) -> Tensor<1> {
     super::tcm::profile_gap(Tensor::cat(vec![px, py], 0))
 }
 
+/// The windows of one training step of the ×4 network ([`GrowRun::batch`]).
+#[derive(Clone, Debug)]
+pub struct GrowBatch {
+    /// Windows in the batch.
+    n: usize,
+    /// The 128 m inputs, [n, 6, WINDOW, WINDOW].
+    xs: Vec<f32>,
+    /// The 64 m input, [n, 1, 2·WINDOW, 2·WINDOW].
+    n64s: Vec<f32>,
+    /// The 32 m input, [n, 1, 4·WINDOW, 4·WINDOW].
+    n32s: Vec<f32>,
+    /// The true residual over the bicubic base, [n, 1, OUT_TILE, OUT_TILE] (units of
+    /// [`HEIGHT_SCALE_M`]).
+    targets: Vec<f32>,
+    /// The bicubic base less its mean, [n, 1, OUT_TILE, OUT_TILE] (units of
+    /// [`HEIGHT_SCALE_M`]).
+    bases: Vec<f32>,
+}
+
 /// A run of the ×4 network in progress.
 pub struct GrowRun {
     /// The network.
@@ -132,9 +151,16 @@ impl GrowRun {
         Ok(run)
     }
 
-    /// One optimiser step of both networks on a batch from `grids` (train split).
+    /// One optimiser step of both networks on a batch from `grids` (train split):
+    /// [`Self::batch`] then [`Self::fit`].
     pub fn step(&mut self, grids: &[Grid], seed: u64) -> Result<(), String> {
-        let t0 = web_time::Instant::now();
+        let batch = self.batch(grids, seed)?;
+        self.fit(&batch).map(|_| ())
+    }
+
+    /// The batch this step trains on: `self.batch` windows from `grids` (train split),
+    /// seeded by `seed` and the step count.
+    pub fn batch(&self, grids: &[Grid], seed: u64) -> Result<GrowBatch, String> {
         let mut rng = Rng(seed.wrapping_mul(0x2_0000_0003) ^ self.progress.step as u64 ^ 0x5151);
         let (mut xs, mut n64s, mut n32s, mut targets, mut bases) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let mut got = 0;
@@ -156,12 +182,19 @@ impl GrowRun {
         if got == 0 {
             return Err("no NaN-free 32 m training window in any DEM".into());
         }
-        let dev = &self.device;
-        let w = WINDOW;
-        let residual = self.g.forward(tensor(xs, [got, 6, w, w], dev), tensor(n64s, [got, 1, 2 * w, 2 * w], dev), tensor(n32s, [got, 1, 4 * w, 4 * w], dev));
+        Ok(GrowBatch { n: got, xs, n64s, n32s, targets, bases })
+    }
+
+    /// One optimiser step of both networks on `batch`. Returns the batch's L1 term before
+    /// the step (units of [`HEIGHT_SCALE_M`]).
+    pub fn fit(&mut self, batch: &GrowBatch) -> Result<f64, String> {
+        let t0 = web_time::Instant::now();
+        let (dev, w, got) = (&self.device, WINDOW, batch.n);
+        let b = batch.clone();
+        let residual = self.g.forward(tensor(b.xs, [got, 6, w, w], dev), tensor(b.n64s, [got, 1, 2 * w, 2 * w], dev), tensor(b.n32s, [got, 1, 4 * w, 4 * w], dev));
         let fake = residual.narrow(2, CORE_OFFSET, OUT_TILE).narrow(3, CORE_OFFSET, OUT_TILE);
-        let target = tensor(targets, [got, 1, OUT_TILE, OUT_TILE], dev);
-        let cond = tensor(bases, [got, 1, OUT_TILE, OUT_TILE], dev);
+        let target = tensor(b.targets, [got, 1, OUT_TILE, OUT_TILE], dev);
+        let cond = tensor(b.bases, [got, 1, OUT_TILE, OUT_TILE], dev);
         let mut disc_v = 0.0;
         let mut adv_v = 0.0;
         if self.adversarial > 0.0 {
@@ -183,7 +216,7 @@ impl GrowRun {
         let gp = GradientsParams::from_grads(loss.backward(), &self.g);
         self.g = self.og.step(self.lr, self.g.clone(), gp);
         self.progress.record(l1_v, adv_v, disc_v, t0.elapsed().as_secs_f64());
-        Ok(())
+        Ok(l1_v)
     }
 
     /// Saves the checkpoint in `dir`.

@@ -16,7 +16,7 @@ pub mod world_eval;
 
 use std::path::Path;
 
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::{Device, Tensor, TensorData};
 
@@ -192,7 +192,7 @@ pub fn train_tem(
         Some(m) => return Err(format!("the TEM has {LEVELS} levels, not {}", m.len())),
         None => (0..LEVELS).map(|_| Tem::new(device)).collect(),
     };
-    let mut optims: Vec<_> = (0..LEVELS).map(|_| AdamConfig::new().init()).collect();
+    let mut optims: Vec<ModuleOptimizer> = (0..LEVELS).map(|_| AdamConfig::new().init()).collect();
     let mut cache = WorkingCache::default();
     let mut rng = Rng(cfg.seed);
     let chain = cfg.chain_levels.clamp(1, LEVELS);
@@ -244,40 +244,12 @@ pub fn train_tem(
             continue;
         }
         trained += 1;
-        let mut x = tensor(inputs, got, WINDOW, device);
-        let mut loss: Option<Tensor<1>> = None;
-        let mut per_level = Vec::new();
-        for (j, truth) in truths.into_iter().enumerate() {
-            let level = first + j;
-            let raw = models[level].forward(x, level_scale_m(level));
-            let gt = tensor(truth, got, PATCH, device);
-            let l = (core(raw.clone()) - gt).abs().mean() / level_scale_m(level);
-            per_level.push(l.clone());
-            loss = Some(match loss {
-                Some(acc) => acc + l,
-                None => l,
-            });
-            // The next level reads its quadrant of this core with the margin around it.
-            if j + 1 < levels {
-                let q = quads[j];
-                x = raw.narrow(3, MARGIN + (q % 2) * QUAD, WINDOW).narrow(2, MARGIN + (q / 2) * QUAD, WINDOW);
-            } else {
-                x = raw;
-            }
-        }
-        drop(x);
-        let loss = loss.expect("at least one level");
-        let total = loss.clone().into_scalar::<f32>() as f64;
-        for (j, l) in per_level.into_iter().enumerate() {
-            let v = l.into_scalar::<f32>() as f64;
+        let batch = TemBatch { first, quads, n: got, inputs, truths };
+        let lr = if finetune || step >= cfg.steps * 3 / 4 { cfg.lr / 3.0 } else { cfg.lr };
+        let (total, per_level) = fit_tem(&mut models, &mut optims, &batch, lr, device);
+        for (j, v) in per_level.into_iter().enumerate() {
             let r = &mut running[first + j];
             *r = if r.is_nan() { v } else { 0.95 * *r + 0.05 * v };
-        }
-        let mut grads = loss.backward();
-        let lr = if finetune || step >= cfg.steps * 3 / 4 { cfg.lr / 3.0 } else { cfg.lr };
-        for j in first..first + levels {
-            let gp = GradientsParams::from_module(&mut grads, &models[j]);
-            models[j] = optims[j].step(lr, models[j].clone(), gp);
         }
         if !log(step, total, start.elapsed().as_secs_f64(), &models) {
             break;
@@ -287,6 +259,60 @@ pub fn train_tem(
         return Err(format!("could not cut any NaN-free training window in {skipped} steps"));
     }
     Ok((models, running))
+}
+
+/// The windows of one chained TEM step ([`train_tem`]): models `first`.. on `n` samples, each
+/// later model on quadrant `quads[j]` of the previous one's output.
+#[derive(Clone, Debug)]
+pub struct TemBatch {
+    /// The first model (level) of the chain.
+    pub first: usize,
+    /// The quadrant (0–3) each later level reads.
+    pub quads: Vec<usize>,
+    /// Samples in the batch.
+    pub n: usize,
+    /// The first level's inputs, [n, 1, WINDOW, WINDOW] (metres).
+    pub inputs: Vec<f32>,
+    /// Each level's true core, [n, 1, PATCH, PATCH] (metres).
+    pub truths: Vec<Vec<f32>>,
+}
+
+/// One optimiser step at learning rate `lr` of the chained models that `batch` trains (the
+/// sum of their L1 losses, heights in units of each level's scale, one backward pass).
+/// Returns that sum and each level's term, before the step.
+pub fn fit_tem(models: &mut [Tem], optims: &mut [ModuleOptimizer], batch: &TemBatch, lr: f64, device: &Device) -> (f64, Vec<f64>) {
+    let (first, levels, n) = (batch.first, batch.truths.len(), batch.n);
+    let mut x = tensor(batch.inputs.clone(), n, WINDOW, device);
+    let mut loss: Option<Tensor<1>> = None;
+    let mut per_level = Vec::new();
+    for (j, truth) in batch.truths.iter().enumerate() {
+        let level = first + j;
+        let raw = models[level].forward(x, level_scale_m(level));
+        let gt = tensor(truth.clone(), n, PATCH, device);
+        let l = (core(raw.clone()) - gt).abs().mean() / level_scale_m(level);
+        per_level.push(l.clone());
+        loss = Some(match loss {
+            Some(acc) => acc + l,
+            None => l,
+        });
+        // The next level reads its quadrant of this core with the margin around it.
+        if j + 1 < levels {
+            let q = batch.quads[j];
+            x = raw.narrow(3, MARGIN + (q % 2) * QUAD, WINDOW).narrow(2, MARGIN + (q / 2) * QUAD, WINDOW);
+        } else {
+            x = raw;
+        }
+    }
+    drop(x);
+    let loss = loss.expect("at least one level");
+    let total = loss.clone().into_scalar::<f32>() as f64;
+    let per_level = per_level.into_iter().map(|l| l.into_scalar::<f32>() as f64).collect();
+    let mut grads = loss.backward();
+    for j in first..first + levels {
+        let gp = GradientsParams::from_module(&mut grads, &models[j]);
+        models[j] = optims[j].step(lr, models[j].clone(), gp);
+    }
+    (total, per_level)
 }
 
 pub use crate::models::tem::weight_file;
@@ -651,6 +677,32 @@ mod tests {
         assert!(worst <= 1e-5, "the reloaded model differs from the trained one by up to {worst} m");
         let fresh: Vec<f32> = Tem::new(&plain).forward(input(), 20.0).into_data().try_to_vec::<f32>().unwrap();
         assert_ne!(a, fresh, "loaded weights must differ from a fresh initialisation");
+    }
+
+    /// The TEM trainer learns: on one fixed batch (two 2-level chain samples of a synthetic
+    /// DEM, a seeded start), twelve steps at learning rate 1e-3 lower the chain's L1 sum to
+    /// under 70 % of the first step's.
+    #[test]
+    fn twelve_steps_on_one_fixed_batch_lower_the_tem_loss_below_70_percent() {
+        let (w, h) = (900, 400);
+        let field = |x: f32, y: f32| (x * 0.031).sin() * 40.0 + (y * 0.047 + x * 0.011).cos() * 25.0 + ((x * 0.17).sin() * (y * 0.13).cos()) * 6.0;
+        let hf = Heightfield::new(w, h, 100.0, (0..w * h).map(|k| field((k % w) as f32, (k / w) as f32)).collect());
+        let device = Device::flex().autodiff();
+        let mut models: Vec<Tem> = (0..LEVELS).map(|k| Tem::seeded(&device, 10 + k as u64, 0.05)).collect();
+        let mut optims: Vec<ModuleOptimizer> = (0..LEVELS).map(|_| AdamConfig::new().init()).collect();
+        let (mut rng, quads) = (Rng(5), vec![1]);
+        let (mut inputs, mut truths) = (Vec::new(), vec![Vec::new(); 2]);
+        for _ in 0..2 {
+            let c = chain_sample(&hf, Split::Train, 2, &quads, &mut rng).expect("a window");
+            inputs.extend(c.input);
+            for (t, ct) in truths.iter_mut().zip(c.truth) {
+                t.extend(ct);
+            }
+        }
+        let batch = TemBatch { first: 0, quads, n: 2, inputs, truths };
+        let losses: Vec<f64> = (0..12).map(|_| fit_tem(&mut models, &mut optims, &batch, 1e-3, &device).0).collect();
+        eprintln!("fixed-batch TEM loss {losses:.5?}");
+        assert!(losses[11] < 0.7 * losses[0], "TEM loss {losses:?}");
     }
 
     /// The shipped TEM beats bicubic at every output spacing on DEMs it was never trained

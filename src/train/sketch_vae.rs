@@ -51,6 +51,19 @@ impl Default for VaeConfig {
     }
 }
 
+/// The sketches of one VAE training step ([`VaeRun::batch`]).
+#[derive(Clone, Debug)]
+pub struct VaeBatch {
+    /// The crops' input channels, [batch, INPUT_CHANNELS, crop, crop].
+    xs: Vec<f32>,
+    /// Their bands one-hot, [batch, BANDS, crop, crop].
+    onehot: Vec<f32>,
+    /// The codes' standard normal noise, [batch, LATENT_CHANNELS, code, code].
+    eps: Vec<f32>,
+    /// The sampler's state after the batch was drawn.
+    sampler: u64,
+}
+
 /// A VAE run in progress.
 pub struct VaeRun {
     /// The VAE.
@@ -90,9 +103,25 @@ impl VaeRun {
         Ok(Self { m, opt, cfg, progress, pool, device: device.clone() })
     }
 
-    /// One optimiser step on a batch of pool sketches.
+    /// One optimiser step on a batch of pool sketches ([`Self::batch`], [`Self::fit`]), then
+    /// a pool sketch replaced by a new one from `dems`.
     pub fn step(&mut self, dems: &[Dem]) -> Result<(), String> {
-        let t0 = web_time::Instant::now();
+        let batch = self.batch();
+        self.fit(&batch);
+        // The sampler goes on where the batch's left it (as before the batch was its own step).
+        let mut rng = Rng(batch.sampler);
+        for k in 0..REFRESH_PER_STEP {
+            if let Some(p) = random_pair(dems, Split::Train, &WindowChoice::ALL, &mut rng) {
+                let slot = ((self.progress.step - 1) * REFRESH_PER_STEP + k) % self.pool.len();
+                self.pool[slot] = p;
+            }
+        }
+        Ok(())
+    }
+
+    /// The batch this step trains on: [`VaeConfig::batch`] crops of pool sketches and the
+    /// codes' noise, seeded by the run's seed and step count.
+    pub fn batch(&self) -> VaeBatch {
         let mut rng = Rng(self.cfg.seed.wrapping_mul(0x1_0000_0001) ^ self.progress.step as u64);
         let (b, s, full) = (self.cfg.batch, self.cfg.crop, SKETCH_PX);
         let n = s * s;
@@ -110,14 +139,24 @@ impl VaeRun {
                 onehot[(i * BANDS + band) * n + q] = 1.0;
             }
         }
-        let dev = &self.device;
-        let x = Tensor::<4>::from_data(TensorData::new(xs, [b, INPUT_CHANNELS, s, s]), dev);
-        let onehot = Tensor::<4>::from_data(TensorData::new(onehot, [b, BANDS, s, s]), dev);
-        let strokes = x.clone().narrow(1, 1, 2);
-        let (mu, logvar) = self.m.encode(x);
         let code = s / (SKETCH_PX / CODE_PX);
         let eps: Vec<f32> = (0..b * LATENT_CHANNELS * code * code).map(|_| crate::models::tcm::gauss(rng.next_u64())).collect();
-        let eps = Tensor::<4>::from_data(TensorData::new(eps, [b, LATENT_CHANNELS, code, code]), dev);
+        VaeBatch { xs, onehot, eps, sampler: rng.0 }
+    }
+
+    /// One optimiser step on `batch`. Returns its reconstruction term before the step (nats
+    /// per pixel).
+    pub fn fit(&mut self, batch: &VaeBatch) -> f64 {
+        let t0 = web_time::Instant::now();
+        let (b, s) = (self.cfg.batch, self.cfg.crop);
+        let n = s * s;
+        let code = s / (SKETCH_PX / CODE_PX);
+        let dev = &self.device;
+        let x = Tensor::<4>::from_data(TensorData::new(batch.xs.clone(), [b, INPUT_CHANNELS, s, s]), dev);
+        let onehot = Tensor::<4>::from_data(TensorData::new(batch.onehot.clone(), [b, BANDS, s, s]), dev);
+        let strokes = x.clone().narrow(1, 1, 2);
+        let (mu, logvar) = self.m.encode(x);
+        let eps = Tensor::<4>::from_data(TensorData::new(batch.eps.clone(), [b, LATENT_CHANNELS, code, code]), dev);
         let z = mu.clone() + (logvar.clone() * 0.5).exp() * eps;
         let logits = self.m.decode(z);
         let band_ce = -(log_softmax(logits.clone().narrow(1, 0, BANDS), 1) * onehot).sum() / (b * n) as f32;
@@ -129,14 +168,8 @@ impl VaeRun {
         let loss = recon + kl * KL_WEIGHT;
         let gp = GradientsParams::from_grads(loss.backward(), &self.m);
         self.m = self.opt.step(self.cfg.lr, self.m.clone(), gp);
-        for k in 0..REFRESH_PER_STEP {
-            if let Some(p) = random_pair(dems, Split::Train, &WindowChoice::ALL, &mut rng) {
-                let slot = (self.progress.step * REFRESH_PER_STEP + k) % self.pool.len();
-                self.pool[slot] = p;
-            }
-        }
         self.progress.record(recon_v, kl_v, 0.0, t0.elapsed().as_secs_f64());
-        Ok(())
+        recon_v
     }
 
     /// The VAE on the CPU kernels.
@@ -224,6 +257,23 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    /// The VAE trainer learns: on one fixed batch (one 64 px crop and its noise, a seeded
+    /// start), twelve steps at learning rate 1e-3 lower its reconstruction term to under 70 %
+    /// of the first step's.
+    #[test]
+    fn twelve_steps_on_one_fixed_batch_lower_the_vae_reconstruction_below_70_percent() {
+        let f = |x: f32, y: f32| (x * 0.031).sin() * 140.0 + (y * 0.047 + x * 0.011).cos() * 95.0 + 900.0;
+        let (w, h) = (420, 200);
+        let dems = vec![Dem { id: "synthetic".into(), hf: Heightfield::new(w, h, 30.0, (0..w * h).map(|k| f((k % w) as f32, (k / w) as f32)).collect()) }];
+        let device = Device::flex().autodiff();
+        let mut run = VaeRun::start(VaeConfig { batch: 1, pool: 1, crop: 64, lr: 1e-3, ..Default::default() }, &dems, &device, None).unwrap();
+        run.m = SketchVae::seeded(&device, 4, 0.05);
+        let batch = run.batch();
+        let losses: Vec<f64> = (0..12).map(|_| run.fit(&batch)).collect();
+        eprintln!("fixed-batch VAE reconstruction {losses:.4?}");
+        assert!(losses[11] < 0.7 * losses[0], "VAE reconstruction {losses:?}");
+    }
+
     /// Two steps, a checkpoint, a resumed third step: finite losses, the step count carried
     /// over, the saved weights read by the CPU kernels, and a validation that scores them.
     #[test]
@@ -238,12 +288,19 @@ mod tests {
         run.step(&dems).unwrap();
         run.step(&dems).unwrap();
         run.save(&dir, None).unwrap();
+        let trained = run.cpu().unwrap();
         let mut run = VaeRun::start(cfg, &dems, &device, Some(&dir)).unwrap();
         assert_eq!(run.progress.step, 2);
         run.step(&dems).unwrap();
         let p = &run.progress;
         assert!(p.l1.is_finite() && p.l1 > 0.0 && p.adv.is_finite() && p.adv >= 0.0, "{p:?}");
         let vae = SketchVaeCpu::from_burnpack(&std::fs::read(dir.join(WEIGHT_FILE)).unwrap()).unwrap();
+        // The saved VAE is the trained one (after its two steps): the same code to the bit for
+        // a sketch, and not a fresh VAE's.
+        let sketch = Sketch::from_channels(&run.pool[0].input, SKETCH_PX);
+        let code = |v: &SketchVaeCpu| v.encode(&sketch, &mut VaeScratch::default(), 1);
+        assert_eq!(code(&vae), code(&trained), "the saved VAE is not the trained one");
+        assert_ne!(code(&vae), code(&VaeRun::start(VaeConfig::default(), &dems, &device, None).unwrap().cpu().unwrap()));
         let v = validate(&vae, &pairs(&dems, Split::Validation, 1, &WindowChoice::ALL, 3));
         assert_eq!(v.sketches, 1);
         assert!((0.0..=1.0).contains(&v.band_agreement), "{v:?}");

@@ -426,6 +426,20 @@ impl TcmProgress {
     }
 }
 
+/// The windows of one training step ([`TcmRun::batch`]).
+#[derive(Clone, Debug)]
+pub struct TcmBatch {
+    /// Network inputs, [n, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX] row-major.
+    inputs: Vec<f32>,
+    /// The real windows, [n, 1, CONTEXT_PX, CONTEXT_PX] (units of [`HEIGHT_SCALE_M`] about
+    /// the centre tile's jittered mean).
+    reals: Vec<f32>,
+    /// L1 weight of each centre sample ([`l1_weight_map`]), [n, TILE_PX²].
+    l1_weights: Vec<f32>,
+    /// Phase of each window.
+    phases: Vec<usize>,
+}
+
 /// A run in progress: both networks, their optimisers and the progress.
 pub struct TcmRun {
     /// The generator.
@@ -564,9 +578,15 @@ pub use crate::world::learned::TCM_FILE as GEN_FILE;
 
 impl TcmRun {
     /// One optimiser step of both networks on a batch cut from `grids` (train split, phases
-    /// drawn uniformly).
+    /// drawn uniformly): [`Self::batch`] then [`Self::fit`].
     pub fn step(&mut self, grids: &[Grid]) -> Result<(), String> {
-        let t0 = web_time::Instant::now();
+        let batch = self.batch(grids)?;
+        self.fit(&batch).map(|_| ())
+    }
+
+    /// The batch this step trains on: [`TcmConfig::batch`] windows cut from `grids` (train
+    /// split, phases drawn uniformly), seeded by the run's seed and step count.
+    pub fn batch(&self, grids: &[Grid]) -> Result<TcmBatch, String> {
         let mut rng = Rng(self.cfg.seed.wrapping_mul(0x1_0000_0001) ^ self.progress.step as u64);
         let b = self.cfg.batch;
         let (mut inputs, mut reals, mut l1_weights, mut phases) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -586,9 +606,18 @@ impl TcmRun {
         if n == 0 {
             return Err("no NaN-free training window in any DEM".into());
         }
+        Ok(TcmBatch { inputs, reals, l1_weights, phases })
+    }
+
+    /// One optimiser step of both networks on `batch`. Returns the batch's L1 term before
+    /// the step (units of [`HEIGHT_SCALE_M`]).
+    pub fn fit(&mut self, batch: &TcmBatch) -> Result<f64, String> {
+        let t0 = web_time::Instant::now();
+        let n = batch.phases.len();
+        let (phases, l1_weights) = (&batch.phases, batch.l1_weights.clone());
         let dev = &self.device;
-        let x = tensor(inputs, [n, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX], dev);
-        let real = tensor(reals, [n, 1, CONTEXT_PX, CONTEXT_PX], dev);
+        let x = tensor(batch.inputs.clone(), [n, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX], dev);
+        let real = tensor(batch.reals.clone(), [n, 1, CONTEXT_PX, CONTEXT_PX], dev);
         let cond = Tensor::cat(vec![x.clone().narrow(1, 4, 1), x.clone().narrow(1, 7, 1)], 1);
         let truth = centre(real.clone(), TILE_PX);
         let mut fake = self.g.forward(x);
@@ -613,7 +642,7 @@ impl TcmRun {
             loss = loss + log_relief_gap(with_centre(real.clone(), fake.clone()), real.clone()) * self.cfg.ruggedness;
         }
         if self.cfg.dome > 0.0 {
-            loss = loss + dome_gap(fake.clone(), centre(real.clone(), TILE_PX), &phases) * self.cfg.dome;
+            loss = loss + dome_gap(fake.clone(), centre(real.clone(), TILE_PX), phases) * self.cfg.dome;
         }
         if self.cfg.position > 0.0 {
             loss = loss + position_gap(fake.clone()) * self.cfg.position;
@@ -638,7 +667,7 @@ impl TcmRun {
         self.g = self.og.step(self.cfg.lr, self.g.clone(), gp);
         self.progress.depression = self.progress.running(self.progress.depression, depression_v);
         self.progress.record(l1_v, adv_v, disc_v, t0.elapsed().as_secs_f64());
-        Ok(())
+        Ok(l1_v)
     }
 
     /// Saves the checkpoint (generator, discriminator, optimisers, settings and progress) in
