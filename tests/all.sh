@@ -60,6 +60,7 @@ wgz=0; for f in dist/weights/*.bpk; do wgz=$(( wgz + $(gzip -9 -c "$f" | wc -c) 
 echo "page size: wasm+js $raw bytes raw, $gz bytes gzip; with all weights $(( gz + wgz )) bytes gzip"
 step "page build (waited for)"
 
-(cd tests/e2e && node --test --test-concurrency=1 page.test.mjs)
+# The page in Chromium, then the CLI's exports read by the Khronos glTF validator and trimesh.
+(cd tests/e2e && node --test --test-concurrency=1 page.test.mjs export.test.mjs)
 step "e2e"
 echo "timings: ${report}total $(( $(date +%s) - t0 )) s"

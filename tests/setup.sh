@@ -2,7 +2,7 @@
 # Installs what the page and the tests need on a fresh Debian machine; quick when all is there.
 #   bash tests/setup.sh serve   # Rust wasm target, wasm-bindgen-cli, trunk
 #   bash tests/setup.sh test    # the above + Chromium, Mesa's Vulkan (lavapipe), npm packages
-#   bash tests/setup.sh system  # only Chromium, Mesa's Vulkan and the npm packages
+#   bash tests/setup.sh system  # only Chromium, Mesa's Vulkan, the npm packages and trimesh (Python)
 #   bash tests/setup.sh tools   # only the wasm target, wasm-bindgen-cli and trunk
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -39,6 +39,12 @@ system() {
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium mesa-vulkan-drivers >/dev/null
   fi
   (cd tests/e2e && npm ci --no-audit --no-fund --loglevel=error)
+  # trimesh, a Python mesh reader, for the export test: its own environment, outside the repo.
+  local py="$HOME/.cache/terrain-py"
+  if ! "$py/bin/python" -c "import trimesh" 2>/dev/null; then
+    python3 -m venv "$py"
+    "$py/bin/pip" install -q --disable-pip-version-check trimesh==4.8.3 numpy==2.4.6
+  fi
 }
 
 case "$what" in

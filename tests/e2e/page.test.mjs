@@ -14,6 +14,7 @@ import { chromium } from 'playwright-core';
 import { PNG } from 'pngjs';
 import { execFileSync } from 'node:child_process';
 import zlib from 'node:zlib';
+import { readTiffF32 } from './tiff.mjs';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const dist = process.env.TERRAIN_DIST ?? path.resolve(here, '../../dist');
@@ -214,28 +215,6 @@ test('first impressions: the page at +2 s, the statistics view, a new seed by ed
   assert.deepEqual(errors, []);
   await page.close();
 });
-
-/** The float32 heights of a TIFF as `terrain world` writes it (little-endian, strips). */
-function readTiffF32(buf) {
-  assert.equal(buf.toString('latin1', 0, 2), 'II', 'a little-endian TIFF');
-  const ifd = buf.readUInt32LE(4);
-  const tags = {};
-  for (let k = 0; k < buf.readUInt16LE(ifd); k++) {
-    const e = ifd + 2 + 12 * k;
-    const [tag, type, count] = [buf.readUInt16LE(e), buf.readUInt16LE(e + 2), buf.readUInt32LE(e + 4)];
-    if (![256, 257, 258, 273, 279, 339].includes(tag)) continue;
-    const size = type === 3 ? 2 : 4;
-    const at = count * size > 4 ? buf.readUInt32LE(e + 8) : e + 8;
-    tags[tag] = Array.from({ length: count }, (_, i) => (size === 2 ? buf.readUInt16LE(at + 2 * i) : buf.readUInt32LE(at + 4 * i)));
-  }
-  const [w, h] = [tags[256][0], tags[257][0]];
-  assert.equal(tags[258][0], 32);
-  assert.equal(tags[339][0], 3, 'float samples');
-  const out = [];
-  tags[273].forEach((off, i) => { for (let b = 0; b < tags[279][i]; b += 4) out.push(buf.readFloatLE(off + b)); });
-  assert.equal(out.length, w * h);
-  return out;
-}
 
 test('terrain to the horizon: the learned and the procedural world draw a far field out to 60 km, and seen from 20 km and 60 km up the view is terrain, not a void (screenshots)', async () => {
   report.far_field = {};
