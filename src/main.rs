@@ -39,7 +39,7 @@ enum SketchModel {
 }
 
 /// Where tiles come from.
-#[derive(Clone, Copy, Debug, ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 enum Source {
     /// Seeded fBm noise (the page's procedural world).
     Procedural,
@@ -82,6 +82,12 @@ enum Command {
         /// crate's).
         #[arg(long)]
         weights: Option<PathBuf>,
+        /// Pin a DEM (32 m or finer) into the learned world (--source tcm): FILE@I,J puts its
+        /// north-west corner on tile (I, J), FILE@I,J,M also gives its spacing M in metres (for
+        /// a file without its own); it is area-averaged to 32 m, and its whole tiles are kept
+        /// exactly while the world grows around them. Repeatable.
+        #[arg(long, value_name = "FILE@I,J[,M]")]
+        pin: Vec<String>,
     },
     /// Hillshade DEMs side by side into one grey PNG, each area-averaged to one spacing and
     /// cut to the same square around its centre (e.g. a region of the world beside real ranges).
@@ -588,7 +594,7 @@ struct TrainArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::World { seed, tiles, out, pow2_plus_1, source, weights } => world(seed, &tiles, &out, pow2_plus_1, source, weights),
+        Command::World { seed, tiles, out, pow2_plus_1, source, weights, pin } => world(seed, &tiles, &out, pow2_plus_1, source, weights, &pin),
         Command::Hillshade { input, spacing_m, side, out } => hillshade(&input, spacing_m, side as usize, &out),
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),

@@ -21,10 +21,40 @@ pub(crate) fn tile_rect(t: &[i64]) -> Result<(i32, i32, u32, u32), String> {
 /// worker (a [`NativeRunner`] thread), so the CLI, the tests and the page run one code path.
 ///
 /// [`NativeRunner`]: terrain::jobs::native::NativeRunner
-pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1: bool, source: Source, weights: Option<PathBuf>) -> Result<(), String> {
+/// The pins of `--pin FILE@I,J` arguments ([`terrain::world::pins::Pins::add`]).
+pub(crate) fn read_pins(args: &[String]) -> Result<terrain::world::pins::Pins, String> {
+    let mut pins = terrain::world::pins::Pins::new();
+    for a in args {
+        let (file, at) = a.rsplit_once('@').ok_or_else(|| format!("--pin takes FILE@I,J[,SPACING_M], not '{a}'"))?;
+        let parts: Vec<&str> = at.split(',').map(str::trim).collect();
+        let bad = || format!("--pin {a}: after @ come the tile I,J (whole numbers) and, for a file without its own pixel size, its spacing in metres; not '{at}'");
+        let (i, j, spacing) = match parts[..] {
+            [i, j] => (i.parse::<i32>().map_err(|_| bad())?, j.parse::<i32>().map_err(|_| bad())?, None),
+            [i, j, s] => {
+                (i.parse::<i32>().map_err(|_| bad())?, j.parse::<i32>().map_err(|_| bad())?, Some(s.parse::<f64>().ok().filter(|s| s.is_finite() && *s > 0.0).ok_or_else(bad)?))
+            }
+            _ => return Err(bad()),
+        };
+        let limit = 1 << 30;
+        if i.abs() > limit || j.abs() > limit {
+            return Err(format!("--pin {a}: tile coordinates must stay within ±{limit}"));
+        }
+        let hf = terrain::dem::Heightfield::read_user_path(std::path::Path::new(file), spacing, terrain::dem::PngScale::default()).map_err(|e| format!("--pin {file}: {e}"))?;
+        let tiles = pins.add(&hf, terrain::grid::TileCoord::new(i, j)).map_err(|e| format!("--pin {file}: {e}"))?;
+        eprintln!("pinned {file}: {} tiles from ({i}, {j})", tiles.len());
+    }
+    Ok(pins)
+}
+
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1: bool, source: Source, weights: Option<PathBuf>, pin: &[String]) -> Result<(), String> {
     use terrain::grid::TileCoord;
     use terrain::jobs::protocol::{Envelope, Reply, Request};
     let (x0, y0, w, h) = tile_rect(tiles)?;
+    if !pin.is_empty() && source != Source::Tcm {
+        return Err("--pin grows the learned world around a DEM: add --source tcm".into());
+    }
+    let pins = read_pins(pin)?;
     terrain::dem::formats::Format::of(out).map_err(|e| e.to_string())?;
     let runner = terrain::jobs::native::NativeRunner::spawn(terrain::models::cpu::default_threads());
     let ask = |request| -> Result<Reply, String> {
@@ -41,6 +71,9 @@ pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1
             let dir = weights_dir(weights);
             let read = |f: &str| terrain::models::read_weight_file(&dir.join(f)).map_err(|e| e.to_string());
             ask(Request::LoadWorld { tcm: read(TCM_FILE)?, grow: read(GROW_FILE)? })?;
+            if !pins.is_empty() {
+                ask(Request::Pin { tiles: pins.iter().map(|(c, t)| (c, t.fine.to_vec())).collect() })?;
+            }
             None
         }
     };

@@ -324,7 +324,7 @@ mod tests {
     #[test]
     fn a_geotiff_export_reads_back_bit_for_bit_with_its_spacing_and_place() {
         let mut g = grid();
-        g.data[3] = 1234.567_9;
+        g.data[3] = 1_234.567_9;
         g.geo = Some(crate::dem::GeoRef { origin_m: [655_360.0, 5_242_880.0], epsg: Some(32632) });
         let bytes = g.export(Format::GeoTiff, "g.tif").unwrap().bytes;
         let back = Heightfield::read_tiff(Cursor::new(bytes), 1.0).unwrap();

@@ -76,6 +76,13 @@ pub enum Request {
         /// The weight of `a`, 0 ..= 1.
         alpha: f32,
     },
+    /// Pin these 32 m tiles ([`crate::grid::TILE_SAMPLES`]² heights each, metres) into the
+    /// learned world, replacing any pins before ([`crate::world::pins`]); the reply names them
+    /// by their hash.
+    Pin {
+        /// The pinned tiles and their heights.
+        tiles: Vec<(TileCoord, Vec<f32>)>,
+    },
     /// The 128 m network tile `tile` of learned world `seed` ([`crate::models::tcm::TILE_PX`]²
     /// heights, metres, joined to its schedule's neighbours): cheap, so the view draws it while
     /// the 32 m tile is made.
@@ -106,6 +113,7 @@ impl Request {
             Request::Variants { .. } => "variants",
             Request::Blend { .. } => "blend",
             Request::Coarse { .. } => "coarse",
+            Request::Pin { .. } => "pin",
         }
     }
 }

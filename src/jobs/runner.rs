@@ -202,6 +202,16 @@ impl Runner {
             Request::Tile { seed, tile, noise: Some(noise) } => {
                 Ok(Reply::Heights { heights: ProceduralSource::new(noise).generate(seed, tile, &Neighbourhood::default()).heights, ms: 0.0 })
             }
+            Request::Pin { tiles } => {
+                let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
+                let mut pins = crate::world::pins::Pins::new();
+                for (c, heights) in tiles {
+                    pins.insert(c, heights).map_err(|e| format!("tile {}, {}: {e}", c.i, c.j))?;
+                }
+                let hash = pins.hash();
+                self.world = Some(world.with_pins(pins));
+                Ok(Reply::Loaded { hash })
+            }
             Request::Coarse { seed, tile } => {
                 let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
                 Ok(Reply::Heights { heights: world.coarse_tile(seed, tile).to_vec(), ms: 0.0 })
@@ -394,6 +404,24 @@ mod tests {
         assert_eq!(heights(r.call(&env(16, 0, Request::Coarse { seed: 42, tile: c.offset(1, 0) })).unwrap()), want);
         let want = learned.generate(42, c, &Neighbourhood::default()).heights;
         assert_eq!(heights(r.call(&env(11, 0, Request::Tile { seed: 42, tile: c, noise: None })).unwrap()), want);
+        // Pinned tiles: the reply names the pins, and the pinned tile comes back as pinned.
+        let free_tile = want.clone();
+        let pin: Vec<f32> = (0..crate::grid::TILE_SAMPLES.pow(2)).map(|p| 700.0 + (p % 97) as f32).collect();
+        let mut pins = crate::world::pins::Pins::new();
+        pins.insert(c, pin.clone()).unwrap();
+        match r.call(&env(17, 0, Request::Pin { tiles: vec![(c, pin.clone())] })).unwrap().reply {
+            Reply::Loaded { hash } => assert_eq!(hash, pins.hash()),
+            other => panic!("pin: {other:?}"),
+        }
+        assert_eq!(heights(r.call(&env(18, 0, Request::Tile { seed: 42, tile: c, noise: None })).unwrap()), pin);
+        let beside = learned.with_pins(pins).generate(42, c.offset(1, 0), &Neighbourhood::default()).heights;
+        assert_eq!(heights(r.call(&env(19, 0, Request::Tile { seed: 42, tile: c.offset(1, 0), noise: None })).unwrap()), beside);
+        // No pins: the world without them again.
+        match r.call(&env(20, 0, Request::Pin { tiles: vec![] })).unwrap().reply {
+            Reply::Loaded { hash } => assert_eq!(hash, ""),
+            other => panic!("pins cleared: {other:?}"),
+        }
+        assert_eq!(heights(r.call(&env(21, 0, Request::Tile { seed: 42, tile: c, noise: None })).unwrap()), free_tile);
         let noise = NoiseParams::default();
         let want = ProceduralSource::new(noise).generate(7, c, &Neighbourhood::default()).heights;
         assert_eq!(heights(r.call(&env(12, 0, Request::Tile { seed: 7, tile: c, noise: Some(noise) })).unwrap()), want);

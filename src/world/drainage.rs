@@ -45,8 +45,9 @@ struct Flood {
 }
 
 impl Flood {
-    /// The walk with every border sample of `h` queued at its height.
-    fn from_border(h: &[f32], n: usize) -> Self {
+    /// The walk with every border sample of `h` queued at its height, then every `fixed`
+    /// sample (outlets too, in row-major order).
+    fn from_outlets(h: &[f32], n: usize, fixed: Option<&[bool]>) -> Self {
         let mut f = Self { n, done: vec![false; n * n], heap: BinaryHeap::new(), seq: 0 };
         for i in 0..n {
             for p in [i, (n - 1) * n + i, i * n, i * n + n - 1] {
@@ -54,6 +55,12 @@ impl Flood {
                     f.done[p] = true;
                     f.push(p, h[p]);
                 }
+            }
+        }
+        for p in fixed.into_iter().flat_map(|m| m.iter().enumerate().filter(|&(_, &k)| k).map(|(p, _)| p)) {
+            if !f.done[p] && !h[p].is_nan() {
+                f.done[p] = true;
+                f.push(p, h[p]);
             }
         }
         f
@@ -90,8 +97,14 @@ impl Flood {
 /// next representable height) above the sample it drains to; 0 makes level lakes. NaN samples
 /// are left as they are and do not drain. Returns the number of samples raised.
 pub fn fill_depressions(h: &mut [f32], n: usize, gradient_m: f32) -> usize {
+    fill_around(h, n, None, gradient_m)
+}
+
+/// [`fill_depressions`] with the `fixed` samples (`n`², true: fixed) kept as they are and
+/// draining like the border: outlets.
+fn fill_around(h: &mut [f32], n: usize, fixed: Option<&[bool]>, gradient_m: f32) -> usize {
     assert_eq!(h.len(), n * n, "a {n}×{n} field has {} samples, not {}", n * n, h.len());
-    let mut flood = Flood::from_border(h, n);
+    let mut flood = Flood::from_outlets(h, n, fixed);
     let mut raised = 0;
     while let Some(p) = flood.pop() {
         let z = h[p];
@@ -121,10 +134,20 @@ pub fn fill_depressions(h: &mut [f32], n: usize, gradient_m: f32) -> usize {
 /// changed; NaN samples are left as they are and do not drain. Returns (samples raised,
 /// samples lowered).
 pub fn breach_depressions(h: &mut [f32], n: usize, max_depth_m: f32, wall_m: f32, gradient_m: f32) -> (usize, usize) {
+    breach_depressions_around(h, n, None, max_depth_m, wall_m, gradient_m)
+}
+
+/// [`breach_depressions`] with the `fixed` samples (`n`², true: fixed; e.g. terrain a user
+/// pinned) kept exactly as they are and taken as outlets like the border: the rest drains to
+/// them or to the border, and no channel is cut into them.
+pub fn breach_depressions_around(h: &mut [f32], n: usize, fixed: Option<&[bool]>, max_depth_m: f32, wall_m: f32, gradient_m: f32) -> (usize, usize) {
     assert_eq!(h.len(), n * n, "a {n}×{n} field has {} samples, not {}", n * n, h.len());
+    if let Some(f) = fixed {
+        assert_eq!(f.len(), n * n, "a fixed mask of {} samples for a {n}×{n} field", f.len());
+    }
     let original = h.to_vec();
     let mut level = original.clone();
-    fill_depressions(&mut level, n, 0.0);
+    fill_around(&mut level, n, fixed, 0.0);
     let mut raised = 0;
     for (z, l) in h.iter_mut().zip(&level) {
         if *z < l - max_depth_m {
@@ -134,7 +157,7 @@ pub fn breach_depressions(h: &mut [f32], n: usize, max_depth_m: f32, wall_m: f32
     }
     const BORDER: usize = usize::MAX;
     let mut parent = vec![BORDER; n * n];
-    let mut flood = Flood::from_border(h, n);
+    let mut flood = Flood::from_outlets(h, n, fixed);
     let mut lowered = vec![false; n * n];
     let mut path = Vec::new();
     while let Some(p) = flood.pop() {
@@ -175,10 +198,10 @@ pub fn breach_depressions(h: &mut [f32], n: usize, max_depth_m: f32, wall_m: f32
         }
     }
     let cut: Vec<f32> = (0..n * n).map(|p| if lowered[p] { original[p] - h[p] } else { 0.0 }).collect();
-    let opened = open_channels(h, n, &cut, wall_m);
+    let opened = open_around(h, n, &cut, wall_m, fixed);
     if opened > 0 {
         // Capping the sides at the channel's depth can leave shallow pits beside it.
-        raised += fill_depressions(h, n, gradient_m);
+        raised += fill_around(h, n, fixed, gradient_m);
     }
     (raised, lowered.iter().filter(|&&l| l).count() + opened)
 }
@@ -189,10 +212,15 @@ pub fn breach_depressions(h: &mut [f32], n: usize, max_depth_m: f32, wall_m: f32
 /// c deep goes down to z + `wall_m`·d, but by at most c. The border and NaN samples are not
 /// changed. Returns the samples lowered; pits this may leave are for the caller to fill.
 pub fn open_channels(h: &mut [f32], n: usize, cut: &[f32], wall_m: f32) -> usize {
+    open_around(h, n, cut, wall_m, None)
+}
+
+/// [`open_channels`] leaving the `fixed` samples as they are too.
+fn open_around(h: &mut [f32], n: usize, cut: &[f32], wall_m: f32, fixed: Option<&[bool]>) -> usize {
     if !(wall_m.is_finite() && wall_m > 0.0) {
         return 0;
     }
-    let inner = |p: usize| !p.is_multiple_of(n) && p % n != n - 1 && p / n != 0 && p / n != n - 1;
+    let inner = |p: usize| !p.is_multiple_of(n) && p % n != n - 1 && p / n != 0 && p / n != n - 1 && !fixed.is_some_and(|f| f[p]);
     // Per sample: the lowest cone over it and the depth of the channel sample it comes from.
     let mut cone = vec![(f32::INFINITY, 0f32); n * n];
     let mut heap = BinaryHeap::new();
@@ -258,8 +286,14 @@ mod tests {
     /// Whether every sample of `h` has a strictly descending 4-connected path to the border
     /// (found by walking from the border upwards).
     fn drains(h: &[f32], n: usize) -> bool {
+        drains_to(h, n, &vec![false; n * n])
+    }
+
+    /// Whether every sample of `h` has a strictly descending 4-connected path to the border or
+    /// to an `outlet` sample.
+    fn drains_to(h: &[f32], n: usize, outlet: &[bool]) -> bool {
         let mut ok = vec![false; n * n];
-        let mut stack: Vec<usize> = (0..n * n).filter(|p| p % n == 0 || p % n == n - 1 || p / n == 0 || p / n == n - 1).collect();
+        let mut stack: Vec<usize> = (0..n * n).filter(|&p| p % n == 0 || p % n == n - 1 || p / n == 0 || p / n == n - 1 || outlet[p]).collect();
         stack.iter().for_each(|&p| ok[p] = true);
         while let Some(p) = stack.pop() {
             let (x, y) = (p % n, p / n);
@@ -295,6 +329,28 @@ mod tests {
             }
         }
         assert_eq!(depression_fraction(&h, n, 0.0), 0.0);
+    }
+
+    /// Breached around a fixed square (pinned terrain: a 200 m deep bowl in the middle of
+    /// white noise), the square is bit-identical and every other sample drains strictly to
+    /// the border or to the square; without the square fixed the bowl is changed.
+    #[test]
+    fn breached_noise_around_a_fixed_square_keeps_it_and_drains_to_it_or_the_border() {
+        let n = 64;
+        let mut h0 = noise(n, 13);
+        let fixed: Vec<bool> = (0..n * n).map(|p| (20..36).contains(&(p % n)) && (24..40).contains(&(p / n))).collect();
+        for p in (0..n * n).filter(|&p| fixed[p]) {
+            let (dx, dy) = ((p % n) as f32 - 27.5, (p / n) as f32 - 31.5);
+            h0[p] = 1900.0 + (dx * dx + dy * dy);
+        }
+        let mut h = h0.clone();
+        let (raised, lowered) = breach_depressions_around(&mut h, n, Some(&fixed), 20.0, 16.0, FLAT_GRADIENT_M);
+        assert!(raised + lowered > 100, "{raised} {lowered}");
+        assert!(drains_to(&h, n, &fixed));
+        assert!((0..n * n).filter(|&p| fixed[p]).all(|p| h[p].to_bits() == h0[p].to_bits()), "a fixed sample changed");
+        let mut free = h0.clone();
+        breach_depressions(&mut free, n, 20.0, 16.0, FLAT_GRADIENT_M);
+        assert!((0..n * n).any(|p| fixed[p] && free[p] != h0[p]), "the bowl drains when not fixed");
     }
 
     /// White noise (100 m range) breached with a 20 m depth limit: every sample drains

@@ -35,6 +35,7 @@ use std::sync::{Arc, Mutex};
 
 use super::drainage;
 use super::noise::perlin;
+use super::pins::Pins;
 use super::seam;
 use super::tile::{Neighbourhood, Tile, TileSource, cut, paste};
 use crate::grid::coord::{TILE_SAMPLES, TileCoord};
@@ -81,6 +82,10 @@ pub const BREACH_DEPTH_M: f32 = 50.0;
 /// 16 m per sample (27°) instead of a slot one sample wide. eval-tcm, 4 seeds, with
 /// [`BREACH_DEPTH_M`]: 0.258 / 0.258; 13 m: 0.280 / 0.265; 20 m: 0.289 / 0.271.
 pub const CHANNEL_WALL_M: f32 = 16.0;
+
+/// How far (32 m samples) the slope mismatch along a pinned tile's edge is smoothed before a
+/// grown tile beside it is bent to it ([`seam::join_edges_smoothed`]).
+pub const PIN_SLOPE_SMOOTH_PX: f32 = 12.0;
 
 /// Side (tiles) of the blocks whose closed depressions are drained together.
 pub const FILL_BLOCK_TILES: i32 = 2;
@@ -189,6 +194,7 @@ pub struct LearnedSource {
     raw: Mutex<BlockCache>,
     scratch: Mutex<(TcmScratch, GrowScratch)>,
     threads: usize,
+    pins: Pins,
 }
 
 impl LearnedSource {
@@ -202,7 +208,20 @@ impl LearnedSource {
             raw: Mutex::new(BlockCache::new(RAW_CACHE_TILES)),
             scratch: Mutex::default(),
             threads: threads.max(1),
+            pins: Pins::new(),
         }
+    }
+
+    /// The same networks with `pins` in the world (see [`super::pins`]) and empty caches: the
+    /// pinned tiles are theirs exactly, the world grows around them, and tiles beyond the
+    /// reach of their schedule dependencies and drainage blocks are as without pins.
+    pub fn with_pins(&self, pins: Pins) -> Self {
+        Self { pins, ..Self::new(self.models.clone(), self.threads) }
+    }
+
+    /// The world's pins.
+    pub fn pins(&self) -> &Pins {
+        &self.pins
     }
 
     /// The same source keeping at most `blocks` filled blocks per stage (tests of eviction).
@@ -215,10 +234,15 @@ impl LearnedSource {
     /// The 128 m tile `c` of world `seed` ([`TILE_PX`]², metres), made (with its schedule
     /// dependencies) if not cached.
     pub fn coarse_tile(&self, seed: u64, c: TileCoord) -> Arc<Vec<f32>> {
+        if let Some(pin) = self.pins.get(c) {
+            return pin.coarse.clone();
+        }
         if let Some(t) = self.coarse.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, c)) {
             return t.clone();
         }
-        let deps: HashMap<TileCoord, Arc<Vec<f32>>> = dependencies(c).map(|d| (d, self.coarse_tile(seed, d))).collect();
+        // The schedule's neighbours, and every pinned one: pins are given whatever their phase.
+        let pinned = around(c).into_iter().filter(|b| self.pins.contains(*b));
+        let deps: HashMap<TileCoord, Arc<Vec<f32>>> = dependencies(c).chain(pinned).map(|d| (d, self.coarse_tile(seed, d))).collect();
         let block = around(c);
         let tiles: [Option<&[f32]>; 9] = block.map(|b| deps.get(&b).map(|v| v.as_slice()));
         let centres: [f32; 9] = block.map(|b| macro_height(seed, b));
@@ -291,7 +315,7 @@ impl LearnedSource {
     /// A 128 m tile that tile `c` of world `seed` needs (itself or a schedule dependency,
     /// deepest first) and that is not cached yet, with all its own dependencies cached.
     fn missing_coarse(&self, seed: u64, c: TileCoord) -> Option<TileCoord> {
-        if self.coarse.lock().unwrap_or_else(|p| p.into_inner()).contains_key(&(seed, c)) {
+        if self.pins.contains(c) || self.coarse.lock().unwrap_or_else(|p| p.into_inner()).contains_key(&(seed, c)) {
             return None;
         }
         dependencies(c).find_map(|d| self.missing_coarse(seed, d)).or(Some(c))
@@ -325,21 +349,22 @@ impl LearnedSource {
     /// `seed`: the networks' tiles, closed depressions drained with the block's border fixed
     /// ([`TILE_SAMPLES`]·2 samples square, metres).
     fn filled_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
-        Self::fill_cached(&self.filled, seed, corner, |c| self.raw_tile(seed, c).to_vec())
+        self.fill_cached(&self.filled, seed, corner, |c| self.raw_tile(seed, c).to_vec())
     }
 
     /// The second-stage block (corner tile `corner`, [`second_block_corner`]) of world `seed`:
     /// the first stage's drained tiles, drained again over this block.
     fn drained_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
-        Self::fill_cached(&self.drained, seed, corner, |c| {
+        self.fill_cached(&self.drained, seed, corner, |c| {
             let first = fill_block_corner(c);
             quadrant(&self.filled_block(seed, first), c, first)
         })
     }
 
     /// The block of 2×2 tiles `tile(c)` with corner tile `corner`, its closed depressions drained
-    /// with its border fixed (real terrain drains), from `cache` or made and kept there.
-    fn fill_cached(cache: &Mutex<BlockCache>, seed: u64, corner: TileCoord, tile: impl Fn(TileCoord) -> Vec<f32>) -> Arc<Vec<f32>> {
+    /// with its border and its pinned tiles fixed (real terrain drains; the pins drain as the
+    /// user made them), from `cache` or made and kept there.
+    fn fill_cached(&self, cache: &Mutex<BlockCache>, seed: u64, corner: TileCoord, tile: impl Fn(TileCoord) -> Vec<f32>) -> Arc<Vec<f32>> {
         let key = (seed, corner);
         if let Some(b) = cache.lock().unwrap_or_else(|p| p.into_inner()).get(&key) {
             return b;
@@ -350,7 +375,17 @@ impl LearnedSource {
         for (t, c) in block_tiles(corner).enumerate() {
             paste(&mut h, m, &tile(c), n, (t % k) * n, (t / k) * n);
         }
-        drainage::breach_depressions(&mut h, m, BREACH_DEPTH_M, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
+        let pinned: Vec<usize> = block_tiles(corner).enumerate().filter(|(_, c)| self.pins.contains(*c)).map(|(t, _)| t).collect();
+        let fixed = (!pinned.is_empty()).then(|| {
+            let mut mask = vec![false; m * m];
+            for t in &pinned {
+                for v in 0..n {
+                    mask[((t / k) * n + v) * m + (t % k) * n..][..n].fill(true);
+                }
+            }
+            mask
+        });
+        drainage::breach_depressions_around(&mut h, m, fixed.as_deref(), BREACH_DEPTH_M, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
         let h = Arc::new(h);
         cache.lock().unwrap_or_else(|p| p.into_inner()).insert(key, h.clone());
         h
@@ -367,8 +402,21 @@ impl LearnedSource {
         t
     }
 
-    /// The 32 m tile `coord` of world `seed` as the networks make it, before the fill.
+    /// The 32 m tile `coord` of world `seed` as the networks make it, before the fill: a
+    /// pinned tile's own heights, or the ×4 step's tile joined to the edges of the pinned
+    /// tiles beside it ([`seam::join_edges`]).
     fn make_raw_tile(&self, seed: u64, coord: TileCoord) -> Vec<f32> {
+        if let Some(pin) = self.pins.get(coord) {
+            return pin.fine.to_vec();
+        }
+        let mut tile = self.grown_tile(seed, coord);
+        let sides = seam::SIDES.map(|(di, dj)| self.pins.get(coord.offset(di, dj)).map(|p| p.fine.as_slice()));
+        seam::join_edges_smoothed(&mut tile, TILE_SAMPLES, sides, PIN_SLOPE_SMOOTH_PX);
+        tile
+    }
+
+    /// The ×4 step's 32 m tile `coord` of world `seed` from the 128 m field around it.
+    fn grown_tile(&self, seed: u64, coord: TileCoord) -> Vec<f32> {
         // The 128 m field of the 3×3 tiles, then the window of the tile plus the margin.
         let n3 = tcm::CONTEXT_PX;
         let field = self.coarse_context(seed, coord);
@@ -629,6 +677,85 @@ mod shipped_tests {
             eprintln!("seed {seed}: {f:?}");
             assert!(within_bounds(&f), "seed {seed}: {f:?}");
         }
+    }
+
+    /// Per tile edge (128 samples) of the `m`×`m` field `h`: the mean |step| across it divided
+    /// by the mean |step| between the rows (or columns) 1–4 inside the two tiles on either
+    /// side; `vertical` edges lie between columns `e − 1` and `e`, rows `from..from + 128`.
+    fn edge_ratio(h: &[f32], m: usize, vertical: bool, e: usize, from: usize) -> f64 {
+        let n = TILE_SAMPLES;
+        let get = |a: usize, c: usize| if vertical { h[a * m + c] } else { h[c * m + a] } as f64;
+        let (mut across, mut inside) = (0.0, 0.0);
+        for a in from..from + n {
+            across += (get(a, e) - get(a, e - 1)).abs();
+            for k in 1..=4 {
+                inside += (get(a, e + k) - get(a, e + k - 1)).abs() + (get(a, e - k) - get(a, e - k - 1)).abs();
+            }
+        }
+        (across / n as f64) / (inside / (8 * n) as f64)
+    }
+
+    /// Real terrain pinned into the learned world: 2 × 2 tiles of Mount St Helens (the 10 m
+    /// DEM around the crater, area-averaged to 32 m) pinned at tiles (0, 0)–(1, 1) of seed
+    /// 1's world, and the 6 × 6 tiles −2..=3 made around them. The pinned tiles are the pin's
+    /// heights bit for bit; the seam figure of the pin's border (8 edges) has a mean ≤ 1.2,
+    /// printed beside that of the world's own tile edges in the region; a source that makes the
+    /// tiles in the reverse order gives the same tiles; and a tile far beyond the pins' reach
+    /// (10, 10) is the world's without pins.
+    #[test]
+    fn a_pinned_dem_is_kept_exactly_and_the_world_grows_around_it_without_a_seam() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let dem = crate::dem::Heightfield::read_path(&root.join("../shared/dem/glaciers_sthelens_10m.tif"), Some(10.0), crate::dem::PngScale::default()).unwrap();
+        let mut pins = Pins::new();
+        assert_eq!(pins.add(&dem.window(566, 972, 820, 820), TileCoord::new(0, 0)).unwrap().len(), 4);
+        let models = Arc::new(LearnedModels::load_dir(&root.join("weights")).expect("the shipped weights"));
+        let free = LearnedSource::new(models, crate::models::cpu::default_threads());
+        let pinned = free.with_pins(pins.clone());
+        let (k, n) = (6usize, TILE_SAMPLES);
+        let m = k * n;
+        let tiles: Vec<TileCoord> = (0..k * k).map(|t| TileCoord::new(t as i32 % k as i32 - 2, t as i32 / k as i32 - 2)).collect();
+        let mut h = vec![0f32; m * m];
+        for (t, &c) in tiles.iter().enumerate() {
+            let tile = pinned.generate(1, c, &Neighbourhood::default());
+            if let Some(pin) = pins.get(c) {
+                assert!(tile.heights.iter().zip(pin.fine.iter()).all(|(a, b)| a.to_bits() == b.to_bits()), "pinned tile {c:?} changed");
+            }
+            paste(&mut h, m, &tile.heights, n, (t % k) * n, (t / k) * n);
+        }
+        // The pin's border: tile columns 2..4, rows 2..4 of the region.
+        let (mut border, mut world) = (Vec::new(), Vec::new());
+        for vertical in [true, false] {
+            for e in 1..k {
+                for r in 0..k {
+                    let ratio = edge_ratio(&h, m, vertical, e * n, r * n);
+                    let on_pin_rows = (2..4).contains(&r);
+                    match e {
+                        2 | 4 if on_pin_rows => border.push(ratio),
+                        3 if on_pin_rows => {}
+                        _ => world.push(ratio),
+                    }
+                }
+            }
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        eprintln!(
+            "seam figure: pin border {:.3} (max {:.3}, {} edges), the world's own edges {:.3} ({} edges)",
+            mean(&border),
+            border.iter().cloned().fold(0.0, f64::max),
+            border.len(),
+            mean(&world),
+            world.len()
+        );
+        assert_eq!(border.len(), 8);
+        assert!(mean(&border) <= 1.2, "pin border seam figure {border:?}");
+        let reverse = free.with_pins(pins);
+        for &c in tiles.iter().rev().step_by(7) {
+            let t = (c.j + 2) as usize * k + (c.i + 2) as usize;
+            let a = reverse.generate(1, c, &Neighbourhood::default()).heights;
+            assert_eq!(a, cut(&h, m, n, (t % k) * n, (t / k) * n), "tile {c:?} depends on the visit order");
+        }
+        let far = TileCoord::new(10, 10);
+        assert_eq!(pinned.generate(1, far, &Neighbourhood::default()).heights, free.generate(1, far, &Neighbourhood::default()).heights);
     }
 
     /// The bounds can fail: an untrained TCM's world (random weights) is outside them.

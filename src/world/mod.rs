@@ -7,6 +7,7 @@ pub mod drainage;
 pub mod export;
 pub mod learned;
 pub mod noise;
+pub mod pins;
 pub mod quadtree;
 pub mod refine;
 pub mod seam;

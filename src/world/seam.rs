@@ -81,6 +81,14 @@ fn extend(n: usize, sides: &[(usize, Vec<f32>, Vec<f32>)]) -> Vec<f32> {
 /// input), bends its slope across them towards theirs, and spreads both corrections smoothly
 /// inside. Without neighbours nothing changes.
 pub fn join_edges(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4]) {
+    join_edges_smoothed(tile, n, neighbours, UNFOLD_SMOOTH_PX);
+}
+
+/// [`join_edges`] with the slope mismatch smoothed along each edge by a Gaussian of
+/// `smooth_px` samples before it is bent away: for finer tiles than the TCM's 128 m ones
+/// (a 32 m tile's edge beside a pinned DEM), whose sample-to-sample slopes are noisier and
+/// would otherwise be drawn out into streaks across the edge.
+pub fn join_edges_smoothed(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4], smooth_px: f32) {
     assert_eq!(tile.len(), n * n);
     assert!(n >= 4, "a tile of {n}² samples has no interior");
     if neighbours.iter().all(Option::is_none) {
@@ -92,7 +100,7 @@ pub fn join_edges(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4]) {
     // The neighbours do not change, so their continuations serve both stages.
     let sides: Vec<Continuation> = continuations(n, &neighbours).collect();
     join_heights(tile, n, &sides);
-    join_slopes(tile, n, &sides, &neighbours);
+    join_slopes(tile, n, &sides, &neighbours, smooth_px);
 }
 
 /// One joined side (index into [`SIDES`]) and, along its edge (k = 0..n), where the
@@ -153,11 +161,11 @@ fn join_heights(tile: &mut [f32], n: usize, sides: &[Continuation]) {
     }
 }
 
-/// `values` smoothed by a Gaussian of [`UNFOLD_SMOOTH_PX`] samples (weights renormalised
-/// where the kernel leaves the edge).
-fn smooth_along_edge(values: &[f32]) -> Vec<f32> {
-    let reach = (3.0 * UNFOLD_SMOOTH_PX).ceil() as i64;
-    let w: Vec<f32> = (-reach..=reach).map(|d| (-0.5 * (d as f32 / UNFOLD_SMOOTH_PX).powi(2)).exp()).collect();
+/// `values` smoothed by a Gaussian of `sigma` samples (weights renormalised where the kernel
+/// leaves the edge).
+fn smooth_along_edge(values: &[f32], sigma: f32) -> Vec<f32> {
+    let reach = (3.0 * sigma).ceil() as i64;
+    let w: Vec<f32> = (-reach..=reach).map(|d| (-0.5 * (d as f32 / sigma).powi(2)).exp()).collect();
     (0..values.len() as i64)
         .map(|k| {
             let (mut sum, mut weight) = (0.0, 0.0);
@@ -174,7 +182,7 @@ fn smooth_along_edge(values: &[f32]) -> Vec<f32> {
 
 /// Stage 2: the tile's first step inside each joined edge bent towards the neighbour's slope
 /// (the mismatch smoothed along the edge), by a field that is zero on the edges.
-fn join_slopes(tile: &mut [f32], n: usize, sides: &[Continuation], neighbours: &[Option<&[f32]>; 4]) {
+fn join_slopes(tile: &mut [f32], n: usize, sides: &[Continuation], neighbours: &[Option<&[f32]>; 4], smooth_px: f32) {
     let (mut x_sides, mut z_sides) = (Vec::new(), Vec::new());
     for &(side, _, ref slope) in sides {
         let mismatch: Vec<f32> = (0..n)
@@ -184,7 +192,7 @@ fn join_slopes(tile: &mut [f32], n: usize, sides: &[Continuation], neighbours: &
                 slope[k] - (tile[iv * n + iu] - tile[ov * n + ou])
             })
             .collect();
-        let mut step = smooth_along_edge(&mismatch);
+        let mut step = smooth_along_edge(&mismatch, smooth_px);
         // The perpendicular sides at this edge's k = 0 and k = n − 1 ends.
         let (low, high) = if side < 2 { (2, 3) } else { (0, 1) };
         for k in 0..CORNER_FADE_PX.min(n) {
