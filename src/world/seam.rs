@@ -81,14 +81,6 @@ fn extend(n: usize, sides: &[(usize, Vec<f32>, Vec<f32>)]) -> Vec<f32> {
 /// input), bends its slope across them towards theirs, and spreads both corrections smoothly
 /// inside. Without neighbours nothing changes.
 pub fn join_edges(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4]) {
-    join_edges_smoothed(tile, n, neighbours, UNFOLD_SMOOTH_PX);
-}
-
-/// [`join_edges`] with the slope mismatch smoothed along each edge by a Gaussian of
-/// `smooth_px` samples before it is bent away: for finer tiles than the TCM's 128 m ones
-/// (a 32 m tile's edge beside a pinned DEM), whose sample-to-sample slopes are noisier and
-/// would otherwise be drawn out into streaks across the edge.
-pub fn join_edges_smoothed(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4], smooth_px: f32) {
     assert_eq!(tile.len(), n * n);
     assert!(n >= 4, "a tile of {n}² samples has no interior");
     if neighbours.iter().all(Option::is_none) {
@@ -100,7 +92,29 @@ pub fn join_edges_smoothed(tile: &mut [f32], n: usize, neighbours: [Option<&[f32
     // The neighbours do not change, so their continuations serve both stages.
     let sides: Vec<Continuation> = continuations(n, &neighbours).collect();
     join_heights(tile, n, &sides);
-    join_slopes(tile, n, &sides, &neighbours, smooth_px);
+    join_slopes(tile, n, &sides, &neighbours);
+}
+
+/// Moves the edges of `tile` (`n`×`n`) onto the surfaces of its input `neighbours` as
+/// [`join_edges`]'s first stage does, while its other edges keep their heights: the correction
+/// is a membrane fixed on every edge (zero on those not joined), converged for tiles of up to
+/// 128² samples. For a tile whose other neighbours were made without the join (a grown 32 m
+/// tile beside a pinned one): [`join_edges`] moves the free edges too, and so opens steps
+/// towards those neighbours. No slope stage: bending the tile's first step towards a real
+/// DEM's sample-to-sample slopes drew streaks across the edge.
+pub fn join_edges_holding_others(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4]) {
+    assert_eq!(tile.len(), n * n);
+    assert!(n >= 4, "a tile of {n}² samples has no interior");
+    if neighbours.iter().all(Option::is_none) {
+        return;
+    }
+    for nb in neighbours.iter().flatten() {
+        assert_eq!(nb.len(), n * n);
+    }
+    let sides: Vec<Continuation> = continuations(n, &neighbours).collect();
+    // Successive over-relaxation at its optimal factor for this grid.
+    let omega = 2.0 / (1.0 + (std::f32::consts::PI / n as f32).sin());
+    join_heights_with(tile, n, &sides, true, 3 * n, omega);
 }
 
 /// One joined side (index into [`SIDES`]) and, along its edge (k = 0..n), where the
@@ -129,6 +143,13 @@ fn continuations<'a>(n: usize, neighbours: &'a [Option<&[f32]>; 4]) -> impl Iter
 /// Stage 1: the joined edges' samples onto the neighbours' continuations, the correction
 /// spread as a membrane.
 fn join_heights(tile: &mut [f32], n: usize, sides: &[Continuation]) {
+    join_heights_with(tile, n, sides, false, SWEEPS, OMEGA);
+}
+
+/// [`join_heights`] with `sweeps` sweeps at over-relaxation `omega`; `hold_others`: the
+/// edges not joined keep their heights (the correction is fixed at 0 there) instead of being
+/// free.
+fn join_heights_with(tile: &mut [f32], n: usize, sides: &[Continuation], hold_others: bool, sweeps: usize, omega: f32) {
     // The correction each side asks for at each edge sample (corners: the mean of two).
     let mut fixed: Vec<Option<(f32, u32)>> = vec![None; n * n];
     for (side, target, _) in sides {
@@ -138,9 +159,17 @@ fn join_heights(tile: &mut [f32], n: usize, sides: &[Continuation]) {
             fixed[v * n + u] = Some((sum + target[k] - tile[v * n + u], count + 1));
         }
     }
+    if hold_others {
+        for side in (0..4).filter(|s| !sides.iter().any(|(j, _, _)| j == s)) {
+            for k in 0..n {
+                let (u, v) = at_side(side, n, 0, k);
+                fixed[v * n + u].get_or_insert((0.0, 1));
+            }
+        }
+    }
     let fixed: Vec<Option<f32>> = fixed.into_iter().map(|s| s.map(|(sum, k)| sum / k as f32)).collect();
     let mut c: Vec<f32> = fixed.iter().map(|f| f.unwrap_or(0.0)).collect();
-    for _ in 0..SWEEPS {
+    for _ in 0..sweeps {
         for v in 0..n {
             for u in 0..n {
                 if fixed[v * n + u].is_some() {
@@ -152,7 +181,7 @@ fn join_heights(tile: &mut [f32], n: usize, sides: &[Continuation]) {
                 let t = c[if v > 0 { v - 1 } else { 1 } * n + u];
                 let b = c[if v + 1 < n { v + 1 } else { n - 2 } * n + u];
                 let p = &mut c[v * n + u];
-                *p += OMEGA * (0.25 * (l + r + t + b) - *p);
+                *p += omega * (0.25 * (l + r + t + b) - *p);
             }
         }
     }
@@ -161,11 +190,11 @@ fn join_heights(tile: &mut [f32], n: usize, sides: &[Continuation]) {
     }
 }
 
-/// `values` smoothed by a Gaussian of `sigma` samples (weights renormalised where the kernel
-/// leaves the edge).
-fn smooth_along_edge(values: &[f32], sigma: f32) -> Vec<f32> {
-    let reach = (3.0 * sigma).ceil() as i64;
-    let w: Vec<f32> = (-reach..=reach).map(|d| (-0.5 * (d as f32 / sigma).powi(2)).exp()).collect();
+/// `values` smoothed by a Gaussian of [`UNFOLD_SMOOTH_PX`] samples (weights renormalised
+/// where the kernel leaves the edge).
+fn smooth_along_edge(values: &[f32]) -> Vec<f32> {
+    let reach = (3.0 * UNFOLD_SMOOTH_PX).ceil() as i64;
+    let w: Vec<f32> = (-reach..=reach).map(|d| (-0.5 * (d as f32 / UNFOLD_SMOOTH_PX).powi(2)).exp()).collect();
     (0..values.len() as i64)
         .map(|k| {
             let (mut sum, mut weight) = (0.0, 0.0);
@@ -182,7 +211,7 @@ fn smooth_along_edge(values: &[f32], sigma: f32) -> Vec<f32> {
 
 /// Stage 2: the tile's first step inside each joined edge bent towards the neighbour's slope
 /// (the mismatch smoothed along the edge), by a field that is zero on the edges.
-fn join_slopes(tile: &mut [f32], n: usize, sides: &[Continuation], neighbours: &[Option<&[f32]>; 4], smooth_px: f32) {
+fn join_slopes(tile: &mut [f32], n: usize, sides: &[Continuation], neighbours: &[Option<&[f32]>; 4]) {
     let (mut x_sides, mut z_sides) = (Vec::new(), Vec::new());
     for &(side, _, ref slope) in sides {
         let mismatch: Vec<f32> = (0..n)
@@ -192,7 +221,7 @@ fn join_slopes(tile: &mut [f32], n: usize, sides: &[Continuation], neighbours: &
                 slope[k] - (tile[iv * n + iu] - tile[ov * n + ou])
             })
             .collect();
-        let mut step = smooth_along_edge(&mismatch, smooth_px);
+        let mut step = smooth_along_edge(&mismatch);
         // The perpendicular sides at this edge's k = 0 and k = n − 1 ends.
         let (low, high) = if side < 2 { (2, 3) } else { (0, 1) };
         for k in 0..CORNER_FADE_PX.min(n) {
@@ -240,6 +269,39 @@ mod tests {
 
     fn plane(n: usize, a: f32, b: f32, c0: f32) -> Vec<f32> {
         (0..n * n).map(|p| c0 + a * (p % n) as f32 + b * (p / n) as f32).collect()
+    }
+
+    /// Held on its other edges, a bumpy 128² tile 40 m too high beside a sloping left
+    /// neighbour lands on the neighbour's continuation along the joined edge (to 1 mm), keeps
+    /// every other edge sample bit for bit (the corners belong to the joined edge), and the
+    /// correction inside is smooth: no step between neighbouring samples over 2 m (the edge's
+    /// 40 m spread over the tile) except within 16 samples of the joined edge's two ends, where
+    /// the correction turns from 40 m to the held edges' 0 m (steps of ~21 m next to the corner,
+    /// ~3 m 8 samples from it).
+    #[test]
+    fn a_tile_joined_holding_its_other_edges_keeps_them_and_meets_the_neighbour() {
+        let n = 128;
+        let left = plane(n, 2.0, 0.5, 100.0);
+        let bump = |p: usize| ((p % n) as f32 * 0.3).sin() * 3.0 + ((p / n) as f32 * 0.2).cos() * 2.0;
+        let mut tile: Vec<f32> = (0..n * n).map(|p| 100.0 + 2.0 * (n + p % n) as f32 + 0.5 * (p / n) as f32 + 40.0 + bump(p)).collect();
+        let before = tile.clone();
+        join_edges_holding_others(&mut tile, n, [Some(&left), None, None, None]);
+        for v in 0..n {
+            let step = tile[v * n] - left[v * n + n - 1];
+            assert!((step - 2.0).abs() < 1e-3, "row {v}: step {step} m across the edge, slope 2 m");
+        }
+        let held = (1..n).map(|u| (u, 0)).chain((1..n).map(|u| (u, n - 1))).chain((0..n).map(|v| (n - 1, v)));
+        for (u, v) in held {
+            assert_eq!(tile[v * n + u].to_bits(), before[v * n + u].to_bits(), "({u}, {v}) moved");
+        }
+        let d: Vec<f32> = tile.iter().zip(&before).map(|(a, b)| a - b).collect();
+        let near_end = |u: usize, v: usize| u < 16 && (v < 16 || v >= n - 16);
+        let worst = (1..n - 1)
+            .flat_map(|v| (1..n - 1).map(move |u| (u, v)))
+            .filter(|&(u, v)| !near_end(u, v))
+            .map(|(u, v)| (d[v * n + u] - d[v * n + u - 1]).abs().max((d[v * n + u] - d[(v - 1) * n + u]).abs()))
+            .fold(0f32, f32::max);
+        assert!(worst < 2.0, "the correction steps by up to {worst} m");
     }
 
     /// A tile 40 m too high beside a sloping left neighbour: after joining, the step across
