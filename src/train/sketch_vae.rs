@@ -226,6 +226,13 @@ mod tests {
     use super::*;
     use crate::dem::Heightfield;
 
+    /// One synthetic 30 m DEM (420 × 200 samples of crossing waves, 900 ± 235 m).
+    fn synthetic_dems() -> Vec<Dem> {
+        let f = |x: f32, y: f32| (x * 0.031).sin() * 140.0 + (y * 0.047 + x * 0.011).cos() * 95.0 + 900.0;
+        let (w, h) = (420, 200);
+        vec![Dem { id: "synthetic".into(), hf: Heightfield::new(w, h, 30.0, (0..w * h).map(|k| f((k % w) as f32, (k / w) as f32)).collect()) }]
+    }
+
     /// The GPU path trains the VAE like the CPU path: from one saved start (a fresh CPU run's
     /// checkpoint), three steps on burn's wgpu backend (lavapipe here) and on its CPU
     /// backend give the same reconstruction losses to 1e-4 (nats per pixel; both backends
@@ -234,9 +241,7 @@ mod tests {
     #[test]
     fn gpu_and_cpu_backends_train_the_same_three_vae_steps() {
         use crate::train::Backend;
-        let f = |x: f32, y: f32| (x * 0.031).sin() * 140.0 + (y * 0.047 + x * 0.011).cos() * 95.0 + 900.0;
-        let (w, h) = (420, 200);
-        let dems = vec![Dem { id: "synthetic".into(), hf: Heightfield::new(w, h, 30.0, (0..w * h).map(|k| f((k % w) as f32, (k / w) as f32)).collect()) }];
+        let dems = synthetic_dems();
         let cfg = VaeConfig { batch: 2, pool: 2, crop: 64, ..Default::default() };
         let dir = std::env::temp_dir().join(format!("terrain-vae-backends-{}", std::process::id()));
         VaeRun::start(cfg.clone(), &dems, &Backend::Cpu.device().unwrap(), None).unwrap().save(&dir, None).unwrap();
@@ -262,9 +267,7 @@ mod tests {
     /// of the first step's.
     #[test]
     fn twelve_steps_on_one_fixed_batch_lower_the_vae_reconstruction_below_70_percent() {
-        let f = |x: f32, y: f32| (x * 0.031).sin() * 140.0 + (y * 0.047 + x * 0.011).cos() * 95.0 + 900.0;
-        let (w, h) = (420, 200);
-        let dems = vec![Dem { id: "synthetic".into(), hf: Heightfield::new(w, h, 30.0, (0..w * h).map(|k| f((k % w) as f32, (k / w) as f32)).collect()) }];
+        let dems = synthetic_dems();
         let device = Device::flex().autodiff();
         let mut run = VaeRun::start(VaeConfig { batch: 1, pool: 1, crop: 64, lr: 1e-3, ..Default::default() }, &dems, &device, None).unwrap();
         run.m = SketchVae::seeded(&device, 4, 0.05);
@@ -278,9 +281,7 @@ mod tests {
     /// over, the saved weights read by the CPU kernels, and a validation that scores them.
     #[test]
     fn vae_smoke_training_resumes_from_its_checkpoint() {
-        let f = |x: f32, y: f32| (x * 0.031).sin() * 140.0 + (y * 0.047 + x * 0.011).cos() * 95.0 + 900.0;
-        let (w, h) = (420, 200);
-        let dems = vec![Dem { id: "synthetic".into(), hf: Heightfield::new(w, h, 30.0, (0..w * h).map(|k| f((k % w) as f32, (k / w) as f32)).collect()) }];
+        let dems = synthetic_dems();
         let device = Device::flex().autodiff();
         let cfg = VaeConfig { batch: 1, pool: 2, crop: 64, ..Default::default() };
         let dir = std::env::temp_dir().join(format!("terrain-vae-smoke-{}", std::process::id()));

@@ -81,18 +81,24 @@ fn extend(n: usize, sides: &[(usize, Vec<f32>, Vec<f32>)]) -> Vec<f32> {
 /// input), bends its slope across them towards theirs, and spreads both corrections smoothly
 /// inside. Without neighbours nothing changes.
 pub fn join_edges(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4]) {
+    // The neighbours do not change, so their continuations serve both stages.
+    let Some(sides) = joined_sides(tile, n, &neighbours) else { return };
+    join_heights(tile, n, &sides);
+    join_slopes(tile, n, &sides, &neighbours);
+}
+
+/// The continuations of `tile`'s (`n`×`n`) input `neighbours`, or `None` without any; checks
+/// the sizes.
+fn joined_sides(tile: &[f32], n: usize, neighbours: &[Option<&[f32]>; 4]) -> Option<Vec<Continuation>> {
     assert_eq!(tile.len(), n * n);
     assert!(n >= 4, "a tile of {n}² samples has no interior");
     if neighbours.iter().all(Option::is_none) {
-        return;
+        return None;
     }
     for nb in neighbours.iter().flatten() {
         assert_eq!(nb.len(), n * n);
     }
-    // The neighbours do not change, so their continuations serve both stages.
-    let sides: Vec<Continuation> = continuations(n, &neighbours).collect();
-    join_heights(tile, n, &sides);
-    join_slopes(tile, n, &sides, &neighbours);
+    Some(continuations(n, neighbours).collect())
 }
 
 /// Moves the edges of `tile` (`n`×`n`) onto the surfaces of its input `neighbours` as
@@ -103,15 +109,7 @@ pub fn join_edges(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4]) {
 /// towards those neighbours. No slope stage: bending the tile's first step towards a real
 /// DEM's sample-to-sample slopes drew streaks across the edge.
 pub fn join_edges_holding_others(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4]) {
-    assert_eq!(tile.len(), n * n);
-    assert!(n >= 4, "a tile of {n}² samples has no interior");
-    if neighbours.iter().all(Option::is_none) {
-        return;
-    }
-    for nb in neighbours.iter().flatten() {
-        assert_eq!(nb.len(), n * n);
-    }
-    let sides: Vec<Continuation> = continuations(n, &neighbours).collect();
+    let Some(sides) = joined_sides(tile, n, &neighbours) else { return };
     // Successive over-relaxation at its optimal factor for this grid.
     let omega = 2.0 / (1.0 + (std::f32::consts::PI / n as f32).sin());
     join_heights_with(tile, n, &sides, true, 3 * n, omega);
