@@ -230,6 +230,12 @@ impl TerrainApp {
         self.new_world_from(0);
     }
 
+    /// Starts the world over (a new epoch, every tile made again): the learned world's pins
+    /// changed where its tiles are made.
+    pub fn remake_world(&mut self) {
+        self.new_world();
+    }
+
     /// A fresh world whose epoch is at least `epoch`.
     fn new_world_from(&mut self, epoch: u64) {
         // Every new world gets a new epoch (after `epoch`): results of jobs (tiles, TEM

@@ -96,6 +96,8 @@ enum For {
     Sketch(Job<u64>, Target),
     Variants(Job<SketchEdit>),
     Blend(Job<SketchEdit>),
+    /// Pins sent to the worker (their file's name).
+    Pin(String),
 }
 
 /// An edit of the canvas's sketch made by the sketch VAE: at most one of each in flight.
@@ -407,6 +409,36 @@ impl PageCore {
         }
     }
 
+    /// Pins the DEM in `bytes` (a GeoTIFF that states its pixel size, 32 m or finer; the file
+    /// is `name`) into the learned world, centred on the tile under the eye: its whole 32 m
+    /// tiles are kept exactly and the world is made again around them
+    /// ([`crate::world::pins`]). Returns what to tell the user.
+    pub fn pin_dem(&mut self, name: &str, bytes: Vec<u8>) -> Result<String, String> {
+        use crate::world::pins::Pins;
+        if self.app.source() != SourceKind::Learned || !matches!(self.loads.world, Load::Ready { .. }) {
+            return Err(format!("{name}: your terrain is pinned into the learned world; choose it in Settings and let its models load first"));
+        }
+        let hf = crate::dem::Heightfield::read_tiff(std::io::Cursor::new(bytes), f64::NAN).map_err(|e| format!("{name}: {e}"))?;
+        if hf.spacing_m.is_nan() {
+            return Err(format!("{name} does not say its pixel size: pin a GeoTIFF that does"));
+        }
+        let grid = (hf.width as f64 * hf.spacing_m / crate::grid::TILE_SIZE_M) as i32;
+        let rows = (hf.height as f64 * hf.spacing_m / crate::grid::TILE_SIZE_M) as i32;
+        let eye = self.app.camera.position_m;
+        let at = TileCoord::containing(eye.x, eye.z).offset(-(grid - 1) / 2, -(rows - 1) / 2);
+        let mut pins = Pins::new();
+        let tiles = pins.add(&hf, at).map_err(|e| format!("{name}: {e}"))?;
+        let request = Request::Pin { tiles: pins.iter().map(|(c, t)| (c, t.fine.to_vec())).collect() };
+        self.post(Target::Worker, 0, request, For::Pin(name.to_string()));
+        self.app.remake_world();
+        Ok(format!(
+            "Pinned {name}: {} tiles from tile ({}, {}), the world grows around them. A link does not carry them yet: whoever opens it sees the world without your terrain.",
+            tiles.len(),
+            at.i,
+            at.j
+        ))
+    }
+
     /// Takes back what came of an effect.
     pub fn deliver(&mut self, d: Delivery) {
         if let Delivery::Answer(Answer { id, .. }) | Delivery::WorkerGone { id, .. } = &d {
@@ -480,6 +512,8 @@ impl PageCore {
                 };
                 self.fail(set, &err);
             }
+            (For::Pin(_), Reply::Loaded { hash }) => self.console.push(format!("pins {hash} in the CPU worker")),
+            (For::Pin(name), r) => self.message = Some(format!("{name} could not be pinned ({})", failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}")))),
             (For::Tile(job), Reply::Heights { heights, ms }) => {
                 self.app.tile_done(&job, heights, ms);
             }

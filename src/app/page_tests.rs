@@ -470,3 +470,41 @@ fn the_widest_link_with_learned_detail_fits_the_node_budget() {
     assert!(most(&fitted[350..]) <= budget + budget / 20, "{:?}", &fitted[350..]);
     assert!(f.lod_px_effective > 0.5 && f.quads_made > 0, "{f:?}");
 }
+
+/// Your terrain in the page: a 32 m GeoTIFF of 2 × 2 tiles is refused (with the reason)
+/// before the learned world's models are loaded; once they are, it is pinned centred on the
+/// eye's tile ((0, 0): tiles (0, 0)–(1, 1)), the message says so and that links do not carry
+/// pins, the worker makes the pinned tile as the pin's heights bit for bit, and the tile beside
+/// the pin is the pinned world's (the learned source with the same pins, called directly).
+#[test]
+fn a_pinned_geotiff_becomes_the_tiles_around_the_eye_and_the_world_grows_around_it() {
+    use crate::grid::TileCoord;
+    let mut core = PageCore::new(ShareState { position_m: [2048.0, 900.0, 2048.0], pitch: -0.6, radius_tiles: 1.5, ..ShareState::default() }, start(Ok(())));
+    let n = 256;
+    let dem = crate::dem::Heightfield::new(n, n, 32.0, (0..n * n).map(|p| 1500.0 + (p % n) as f32 * 3.0 + ((p / n) as f32 * 0.2).sin() * 40.0).collect());
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    dem.write_tiff(&mut bytes).unwrap();
+    let bytes = bytes.into_inner();
+    let refused = core.pin_dem("mine.tif", bytes.clone()).unwrap_err();
+    assert!(refused.contains("learned world"), "{refused}");
+    let mut shell = Shell::new(&no_swap);
+    shell.frames(&mut core, 1);
+    let said = core.pin_dem("mine.tif", bytes).unwrap();
+    assert!(said.starts_with("Pinned mine.tif: 4 tiles from tile (0, 0)") && said.contains("A link does not carry them"), "{said}");
+    let (pinned, beside) = (TileCoord::new(0, 0), TileCoord::new(-1, 0));
+    for _ in 0..400 {
+        if core.app.tile_heights(pinned).is_some() && core.app.tile_heights(beside).is_some() {
+            break;
+        }
+        shell.frames(&mut core, 1);
+    }
+    let mut pins = crate::world::pins::Pins::new();
+    pins.add(&dem, pinned).unwrap();
+    let pin = pins.get(pinned).unwrap().fine.clone();
+    let got = core.app.tile_heights(pinned).expect("the pinned tile made");
+    assert!(got.iter().zip(pin.iter()).all(|(a, b)| a.to_bits() == b.to_bits()), "the pinned tile is not the pin");
+    let models = LearnedModels::load_dir(&weights()).unwrap();
+    let want = LearnedSource::new(std::sync::Arc::new(models), 1).with_pins(pins).generate(core.app.settings().seed, beside, &Neighbourhood::default()).heights;
+    assert_eq!(core.app.tile_heights(beside).expect("the tile beside made"), &want[..]);
+    assert!(shell.posted.iter().any(|(_, k)| *k == "pin"));
+}

@@ -157,6 +157,8 @@ pub struct UiActions {
     pub dismiss_message: bool,
     /// Download the terrain around the eye in this format.
     pub export: Option<crate::dem::formats::Format>,
+    /// Pick a GeoTIFF to pin into the learned world.
+    pub pin_dem: bool,
 }
 
 /// Overlay state that lives between frames.
@@ -171,7 +173,7 @@ pub struct Overlay {
     /// The statistics are shown (off by default: the overlay is for people).
     pub show_stats: bool,
     /// Where the overlay's controls were drawn last frame (points), for tests that click
-    /// them: `copy_link`, `settings`, `statistics`, and while the settings are open `seed`,
+    /// them: `copy_link`, `settings`, `statistics`, `pin_dem`, and while the settings are open `seed`,
     /// `world_tcm`, `world_procedural`, `world_sketch`.
     pub buttons: std::collections::BTreeMap<&'static str, egui::Rect>,
 }
@@ -287,6 +289,16 @@ impl Overlay {
                     if ui.small_button(name).on_hover_text(format!("the tiles around the eye at 32 m: {what}")).clicked() {
                         act.export = Some(format);
                     }
+                }
+            });
+            ui.horizontal(|ui| {
+                ui.label("Your terrain");
+                let pin = ui
+                    .small_button("Pin a GeoTIFF…")
+                    .on_hover_text("a DEM (GeoTIFF stating its pixel size, 32 m or finer) placed where you are in the learned world, which grows around it");
+                self.buttons.insert("pin_dem", pin.rect);
+                if pin.clicked() {
+                    act.pin_dem = true;
                 }
             });
             if self.show_settings

@@ -21,6 +21,8 @@ pub struct BrowserAsks {
     pub import_sketch: bool,
     /// Download the terrain around the eye in this format.
     pub export: Option<crate::dem::formats::Format>,
+    /// Open a GeoTIFF to pin into the learned world.
+    pub pin_dem: bool,
 }
 
 /// The interface's state between frames.
@@ -58,7 +60,7 @@ impl PageUi {
         if act.dismiss_message {
             core.message = None;
         }
-        let mut asks = BrowserAsks { copy_link: act.copy_link, export: act.export, ..Default::default() };
+        let mut asks = BrowserAsks { copy_link: act.copy_link, export: act.export, pin_dem: act.pin_dem, ..Default::default() };
         if core.app.source() == SourceKind::Sketch {
             if let Some(v) = core.variants.take() {
                 self.panel.set_variants(ctx, v);

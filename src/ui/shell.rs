@@ -48,6 +48,8 @@ pub enum Refused {
 
 /// Largest sketch PNG read (bytes): a 256×256 PNG is far smaller.
 pub const MAX_SKETCH_FILE_BYTES: f64 = 2.0 * 1024.0 * 1024.0;
+/// Largest GeoTIFF read for a pin (bytes): a 4096² float32 grid and its tags.
+pub const MAX_PIN_FILE_BYTES: f64 = 65.0 * 1024.0 * 1024.0;
 
 /// The sketch in a picked file, or what to tell the user.
 pub fn sketch_from_file(file: Picked) -> Result<Sketch, String> {
@@ -151,6 +153,8 @@ pub struct PageShell<P: Platform> {
     link_too_long: u32,
     /// A sketch PNG the user opened, once it is read.
     import: FileSlot,
+    /// Where a GeoTIFF to pin lands.
+    pin_file: FileSlot,
 }
 
 /// Asks for one more frame. egui answers `request_repaint()` with two; a non-zero delay asks
@@ -180,6 +184,7 @@ impl<P: Platform> PageShell<P> {
             frame_work: VecDeque::new(),
             link_too_long: 0,
             import: Rc::default(),
+            pin_file: Rc::default(),
         }
     }
 
@@ -281,6 +286,22 @@ impl<P: Platform> PageShell<P> {
             Some(Err(e)) => self.core.message = Some(e),
             None => {}
         }
+    }
+
+    /// Your terrain: a GeoTIFF to pick, and one picked, pinned into the learned world.
+    fn pin_files(&mut self, asks: BrowserAsks) {
+        if asks.pin_dem
+            && let Err(e) = self.platform.pick_file(".tif,.tiff,image/tiff", MAX_PIN_FILE_BYTES, self.pin_file.clone())
+        {
+            self.core.message = Some(format!("No file dialog: {e}"));
+        }
+        let Some(file) = self.pin_file.borrow_mut().take() else { return };
+        let said = match file.bytes {
+            Ok(bytes) => self.core.pin_dem(&file.name, bytes).unwrap_or_else(|e| e),
+            Err(Refused::TooBig(size)) => format!("{} is {:.1} MB; a GeoTIFF to pin is at most 65 MB (4096² float32 samples)", file.name, size / 1024.0 / 1024.0),
+            Err(Refused::Unreadable(why)) => format!("{} could not be read: {why}", file.name),
+        };
+        self.core.message = Some(said);
     }
 
     /// Offers `sketch` as `sketch.png` in the format's palette.
@@ -420,6 +441,7 @@ impl<P: Platform> PageShell<P> {
         self.env.take_core(&self.core);
         let asks = self.ui.show(&ctx, &mut self.core, &self.env, now);
         self.sketch_files(asks);
+        self.pin_files(asks);
         // A stroke goes out in the frame that drew it.
         self.core.start_sketch_jobs();
         self.carry_out();

@@ -14,7 +14,7 @@ import { chromium } from 'playwright-core';
 import { PNG } from 'pngjs';
 import { execFileSync } from 'node:child_process';
 import zlib from 'node:zlib';
-import { readTiffF32 } from './tiff.mjs';
+import { readTiff, readTiffF32 } from './tiff.mjs';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const dist = process.env.TERRAIN_DIST ?? path.resolve(here, '../../dist');
@@ -679,6 +679,37 @@ test('a panic on the main thread is shown in the page with a reload button, and 
   assert.match(before, /^#v=2&seed=7/);
   // The console has the panic (console_error_panic_hook), and nothing else went wrong.
   assert.ok(errors.some((e) => /terrain_test_panic/.test(e)), JSON.stringify(errors));
+  await page.close();
+});
+
+test('your terrain pinned in the page: a GeoTIFF chosen with "Pin a GeoTIFF…" becomes the tiles around the eye bit for bit, and the learned world beside it is what the native CLI makes with the same pin (within 0.05 m)', async () => {
+  // A 2 × 2-tile GeoTIFF at 32 m (a procedural world's, by the CLI) as the user's terrain.
+  const tif = path.join(out, 'pin.tif');
+  execFileSync(nativeBin, ['world', '--seed', '77', '--tiles', '0', '0', '2', '2', '--out', tif]);
+  const { width, data } = readTiff(fs.readFileSync(tif));
+  const { page, errors } = await open('', '', BIG);
+  let s = await waitFor(page, (q) => /^learned \(TCM/.test(q.source) && q.tem_ready && q.stats.tiles_generated > 0 && q.overlay_buttons?.pin_dem, 'the learned world and its detail loaded');
+  // Clicked where the button stays (the overlay's rows settle as the models load).
+  let last = null;
+  s = await waitFor(page, (q) => { const r = JSON.stringify(q.overlay_buttons.pin_dem); const same = r === last; last = r; return same; }, 'the pin button settled', 30_000, 500);
+  await page.mouse.click(...centre(s.overlay_buttons.pin_dem));
+  await page.waitForSelector('#terrain_sketch_file', { state: 'attached', timeout: 30_000 });
+  await page.setInputFiles('#terrain_sketch_file', tif);
+  s = await waitFor(page, (q) => /^Pinned pin\.tif: 4 tiles from tile \(0, 0\)/.test(q.message ?? ''), 'the pin message');
+  // The eye's tile (0, 0) is the pin's north-west tile, as float32 bit for bit.
+  const pinned = await tileHeights(page, 0, 0);
+  const want = Array.from({ length: 128 * 128 }, (_, k) => data[Math.floor(k / 128) * width + (k % 128)]);
+  assert.ok(pinned.every((h, k) => Math.fround(h) === want[k]), 'the pinned tile differs from the file');
+  // The tile west of it, grown around the pin: the native CLI with the same pin.
+  const beside = await tileHeights(page, -1, 0);
+  const nativeTif = path.join(out, 'pin_beside_native.tif');
+  execFileSync(nativeBin, ['world', '--seed', '1', '--tiles', '-1', '0', '1', '1', '--source', 'tcm', '--weights', path.join(repo, 'weights'), '--pin', `${tif}@0,0`, '--out', nativeTif]);
+  const native = readTiff(fs.readFileSync(nativeTif)).data;
+  const dh = beside.reduce((m, h, k) => Math.max(m, Math.abs(h - native[k])), 0);
+  await page.screenshot({ path: path.join(out, 'pinned.png') });
+  report.pin = { message: s.message, beside_max_dh_vs_native_m: dh };
+  assert.ok(dh < 0.05, `page vs native beside the pin: ${dh} m`);
+  assert.deepEqual(errors, []);
   await page.close();
 });
 
