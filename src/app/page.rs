@@ -170,6 +170,9 @@ pub struct PageCore {
     pub blends: u32,
     /// Notes for the browser console (a GPU path that fell back to the CPU).
     pub console: Vec<String>,
+    /// Your terrain pinned into the learned world ([`Self::pin_dem`]): its file's name and
+    /// tiles.
+    pub pinned: Option<(String, usize)>,
     effects: Vec<Effect>,
     waiting: HashMap<u32, For>,
     /// When each request to the CPU worker was posted (page clock, ms).
@@ -221,6 +224,7 @@ impl PageCore {
             variants: None,
             blends: 0,
             console: Vec::new(),
+            pinned: None,
             effects: Vec::new(),
             waiting: HashMap::new(),
             sent: HashMap::new(),
@@ -431,12 +435,22 @@ impl PageCore {
         let request = Request::Pin { tiles: pins.iter().map(|(c, t)| (c, t.fine.to_vec())).collect() };
         self.post(Target::Worker, 0, request, For::Pin(name.to_string()));
         self.app.remake_world();
+        self.pinned = Some((name.to_string(), tiles.len()));
         Ok(format!(
             "Pinned {name}: {} tiles from tile ({}, {}), the world grows around them. A link does not carry them yet: whoever opens it sees the world without your terrain.",
             tiles.len(),
             at.i,
             at.j
         ))
+    }
+
+    /// Takes the pinned terrain out of the learned world ([`Self::pin_dem`]) and makes the
+    /// world again without it; nothing when none is pinned.
+    pub fn unpin(&mut self) {
+        if let Some((name, _)) = self.pinned.take() {
+            self.post(Target::Worker, 0, Request::Pin { tiles: Vec::new() }, For::Pin(name));
+            self.app.remake_world();
+        }
     }
 
     /// Takes back what came of an effect.

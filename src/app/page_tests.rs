@@ -475,9 +475,10 @@ fn the_widest_link_with_learned_detail_fits_the_node_budget() {
 /// before the learned world's models are loaded; once they are, it is pinned centred on the
 /// eye's tile ((0, 0): tiles (0, 0)–(1, 1)), the message says so and that links do not carry
 /// pins, the worker makes the pinned tile as the pin's heights bit for bit, and the tile beside
-/// the pin is the pinned world's (the learned source with the same pins, called directly).
+/// the pin is the pinned world's (the learned source with the same pins, called directly);
+/// unpinned, the tile is the world's without pins again.
 #[test]
-fn a_pinned_geotiff_becomes_the_tiles_around_the_eye_and_the_world_grows_around_it() {
+fn a_pinned_geotiff_becomes_the_tiles_around_the_eye_the_world_grows_around_it_and_unpinning_restores_it() {
     use crate::grid::TileCoord;
     let mut core = PageCore::new(ShareState { position_m: [2048.0, 900.0, 2048.0], pitch: -0.6, radius_tiles: 1.5, ..ShareState::default() }, start(Ok(())));
     let n = 256;
@@ -507,4 +508,17 @@ fn a_pinned_geotiff_becomes_the_tiles_around_the_eye_and_the_world_grows_around_
     let want = LearnedSource::new(std::sync::Arc::new(models), 1).with_pins(pins).generate(core.app.settings().seed, beside, &Neighbourhood::default()).heights;
     assert_eq!(core.app.tile_heights(beside).expect("the tile beside made"), &want[..]);
     assert!(shell.posted.iter().any(|(_, k)| *k == "pin"));
+    assert_eq!(core.pinned, Some(("mine.tif".to_string(), 4)));
+    // Unpinned: the world without it again.
+    core.unpin();
+    assert_eq!(core.pinned, None);
+    for _ in 0..400 {
+        if core.app.tile_heights(pinned).is_some() {
+            break;
+        }
+        shell.frames(&mut core, 1);
+    }
+    let free =
+        LearnedSource::new(std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap()), 1).generate(core.app.settings().seed, pinned, &Neighbourhood::default()).heights;
+    assert_eq!(core.app.tile_heights(pinned).expect("the tile made again"), &free[..]);
 }

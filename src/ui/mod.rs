@@ -42,6 +42,8 @@ pub struct Environment {
     pub cpu_ms: f64,
     /// Where the sketch generator runs ("WebGPU" or "CPU worker").
     pub sketch_backend: &'static str,
+    /// Your terrain pinned into the learned world: its file's name and tiles.
+    pub pinned: Option<(String, usize)>,
 }
 
 impl Environment {
@@ -61,6 +63,7 @@ impl Environment {
         self.sketch_backend = core.sketch_backend();
         self.worker_rest_per_work = core.rest_per_work();
         self.source = core.app.source_name();
+        self.pinned = core.pinned.clone();
     }
 }
 
@@ -159,6 +162,8 @@ pub struct UiActions {
     pub export: Option<crate::dem::formats::Format>,
     /// Pick a GeoTIFF to pin into the learned world.
     pub pin_dem: bool,
+    /// Take the pinned terrain out of the learned world.
+    pub unpin: bool,
 }
 
 /// Overlay state that lives between frames.
@@ -299,6 +304,14 @@ impl Overlay {
                 self.buttons.insert("pin_dem", pin.rect);
                 if pin.clicked() {
                     act.pin_dem = true;
+                }
+                if let Some((name, tiles)) = &env.pinned {
+                    let unpin = ui.small_button("Unpin").on_hover_text(format!("{name} ({tiles} tiles) is pinned: take it out and make the world again without it"));
+                    self.buttons.insert("unpin", unpin.rect);
+                    if unpin.clicked() {
+                        act.unpin = true;
+                    }
+                    ui.label(egui::RichText::new(format!("{name} · {tiles} tiles")).small());
                 }
             });
             if self.show_settings

@@ -60,6 +60,9 @@ impl PageUi {
         if act.dismiss_message {
             core.message = None;
         }
+        if act.unpin {
+            core.unpin();
+        }
         let mut asks = BrowserAsks { copy_link: act.copy_link, export: act.export, pin_dem: act.pin_dem, ..Default::default() };
         if core.app.source() == SourceKind::Sketch {
             if let Some(v) = core.variants.take() {
