@@ -225,15 +225,10 @@ impl TerrainApp {
         &self.learned
     }
 
-    /// Replaces the world with a fresh one for the current settings (new epoch).
-    fn new_world(&mut self) {
+    /// Replaces the world with a fresh one for the current settings (new epoch): also when
+    /// the learned world's pins changed where its tiles are made.
+    pub fn new_world(&mut self) {
         self.new_world_from(0);
-    }
-
-    /// Starts the world over (a new epoch, every tile made again): the learned world's pins
-    /// changed where its tiles are made.
-    pub fn remake_world(&mut self) {
-        self.new_world();
     }
 
     /// A fresh world whose epoch is at least `epoch`.

@@ -19,6 +19,7 @@ use crate::jobs::{Job, JobQueue, Outcome};
 use crate::models::runtime::{self, Backend, CpuReason, TemChoice};
 use crate::share::ShareState;
 use crate::sketch::{SKETCH_PX, Sketch};
+use crate::world::pins::Pins;
 use crate::world::refine::INPUT_SIDE;
 use crate::world::{PatchKey, SourceKind};
 
@@ -418,7 +419,6 @@ impl PageCore {
     /// tiles are kept exactly and the world is made again around them
     /// ([`crate::world::pins`]). Returns what to tell the user.
     pub fn pin_dem(&mut self, name: &str, bytes: Vec<u8>) -> Result<String, String> {
-        use crate::world::pins::Pins;
         if self.app.source() != SourceKind::Learned || !matches!(self.loads.world, Load::Ready { .. }) {
             return Err(format!("{name}: your terrain is pinned into the learned world; choose it in Settings and let its models load first"));
         }
@@ -426,15 +426,15 @@ impl PageCore {
         if hf.spacing_m.is_nan() {
             return Err(format!("{name} does not say its pixel size: pin a GeoTIFF that does"));
         }
-        let grid = (hf.width as f64 * hf.spacing_m / crate::grid::TILE_SIZE_M) as i32;
+        // Whole tiles it covers across and down, to centre it on the eye's tile.
+        let cols = (hf.width as f64 * hf.spacing_m / crate::grid::TILE_SIZE_M) as i32;
         let rows = (hf.height as f64 * hf.spacing_m / crate::grid::TILE_SIZE_M) as i32;
         let eye = self.app.camera.position_m;
-        let at = TileCoord::containing(eye.x, eye.z).offset(-(grid - 1) / 2, -(rows - 1) / 2);
+        let at = TileCoord::containing(eye.x, eye.z).offset(-(cols - 1) / 2, -(rows - 1) / 2);
         let mut pins = Pins::new();
         let tiles = pins.add(&hf, at).map_err(|e| format!("{name}: {e}"))?;
-        let request = Request::Pin { tiles: pins.iter().map(|(c, t)| (c, t.fine.to_vec())).collect() };
-        self.post(Target::Worker, 0, request, For::Pin(name.to_string()));
-        self.app.remake_world();
+        self.post(Target::Worker, 0, Request::pin(&pins), For::Pin(name.to_string()));
+        self.app.new_world();
         self.pinned = Some((name.to_string(), tiles.len()));
         Ok(format!(
             "Pinned {name}: {} tiles from tile ({}, {}), the world grows around them. A link does not carry them yet: whoever opens it sees the world without your terrain.",
@@ -448,8 +448,8 @@ impl PageCore {
     /// world again without it; nothing when none is pinned.
     pub fn unpin(&mut self) {
         if let Some((name, _)) = self.pinned.take() {
-            self.post(Target::Worker, 0, Request::Pin { tiles: Vec::new() }, For::Pin(name));
-            self.app.remake_world();
+            self.post(Target::Worker, 0, Request::pin(&Pins::new()), For::Pin(name));
+            self.app.new_world();
         }
     }
 

@@ -17,11 +17,7 @@ pub(crate) fn tile_rect(t: &[i64]) -> Result<(i32, i32, u32, u32), String> {
     Ok((x0 as i32, y0 as i32, w as u32, h as u32))
 }
 
-/// `terrain world`: the tiles are made by the same runner and requests as the page's CPU
-/// worker (a [`NativeRunner`] thread), so the CLI, the tests and the page run one code path.
-///
-/// [`NativeRunner`]: terrain::jobs::native::NativeRunner
-/// The pins of `--pin FILE@I,J` arguments ([`terrain::world::pins::Pins::add`]).
+/// The pins of `--pin FILE@I,J[,M]` arguments ([`terrain::world::pins::Pins::add`]).
 pub(crate) fn read_pins(args: &[String]) -> Result<terrain::world::pins::Pins, String> {
     let mut pins = terrain::world::pins::Pins::new();
     for a in args {
@@ -46,7 +42,10 @@ pub(crate) fn read_pins(args: &[String]) -> Result<terrain::world::pins::Pins, S
     Ok(pins)
 }
 
-#[allow(clippy::too_many_arguments)]
+/// `terrain world`: the tiles are made by the same runner and requests as the page's CPU
+/// worker (a [`NativeRunner`] thread), so the CLI, the tests and the page run one code path.
+///
+/// [`NativeRunner`]: terrain::jobs::native::NativeRunner
 pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1: bool, source: Source, weights: Option<PathBuf>, pin: &[String]) -> Result<(), String> {
     use terrain::grid::TileCoord;
     use terrain::jobs::protocol::{Envelope, Reply, Request};
@@ -72,7 +71,7 @@ pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1
             let read = |f: &str| terrain::models::read_weight_file(&dir.join(f)).map_err(|e| e.to_string());
             ask(Request::LoadWorld { tcm: read(TCM_FILE)?, grow: read(GROW_FILE)? })?;
             if !pins.is_empty() {
-                ask(Request::Pin { tiles: pins.iter().map(|(c, t)| (c, t.fine.to_vec())).collect() })?;
+                ask(Request::pin(&pins))?;
             }
             None
         }

@@ -95,6 +95,11 @@ pub enum Request {
 }
 
 impl Request {
+    /// [`Request::Pin`] of `pins`' 32 m tiles (none: the pins cleared).
+    pub fn pin(pins: &crate::world::pins::Pins) -> Self {
+        Request::Pin { tiles: pins.iter().map(|(c, t)| (c, t.fine.to_vec())).collect() }
+    }
+
     /// Whether the request belongs to a world (a tile, a TEM batch): its epoch is checked, and
     /// it is dropped unmade once a newer world's request has arrived.
     pub fn of_world(&self) -> bool {

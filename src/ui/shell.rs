@@ -51,14 +51,21 @@ pub const MAX_SKETCH_FILE_BYTES: f64 = 2.0 * 1024.0 * 1024.0;
 /// Largest GeoTIFF read for a pin (bytes): a 4096² float32 grid and its tags.
 pub const MAX_PIN_FILE_BYTES: f64 = 65.0 * 1024.0 * 1024.0;
 
-/// The sketch in a picked file, or what to tell the user.
-pub fn sketch_from_file(file: Picked) -> Result<Sketch, String> {
+/// A picked file's name and bytes, or what to tell the user when they were not read (`limit`
+/// says how large such a file may be).
+fn picked_bytes(file: Picked, limit: &str) -> Result<(String, Vec<u8>), String> {
     let name = file.name;
     match file.bytes {
-        Ok(bytes) => Sketch::read_png(std::io::Cursor::new(bytes)).map_err(|e| format!("{name}: {e}")),
-        Err(Refused::TooBig(size)) => Err(format!("{name} is {:.1} MB; a sketch PNG (256×256 pixels) is at most 2 MB", size / 1024.0 / 1024.0)),
+        Ok(bytes) => Ok((name, bytes)),
+        Err(Refused::TooBig(size)) => Err(format!("{name} is {:.1} MB; {limit}", size / 1024.0 / 1024.0)),
         Err(Refused::Unreadable(why)) => Err(format!("{name} could not be read: {why}")),
     }
+}
+
+/// The sketch in a picked file, or what to tell the user.
+pub fn sketch_from_file(file: Picked) -> Result<Sketch, String> {
+    let (name, bytes) = picked_bytes(file, "a sketch PNG (256×256 pixels) is at most 2 MB")?;
+    Sketch::read_png(std::io::Cursor::new(bytes)).map_err(|e| format!("{name}: {e}"))
 }
 
 /// What the shell needs of the platform it runs on. Everything here only moves bytes.
@@ -296,12 +303,8 @@ impl<P: Platform> PageShell<P> {
             self.core.message = Some(format!("No file dialog: {e}"));
         }
         let Some(file) = self.pin_file.borrow_mut().take() else { return };
-        let said = match file.bytes {
-            Ok(bytes) => self.core.pin_dem(&file.name, bytes).unwrap_or_else(|e| e),
-            Err(Refused::TooBig(size)) => format!("{} is {:.1} MB; a GeoTIFF to pin is at most 65 MB (4096² float32 samples)", file.name, size / 1024.0 / 1024.0),
-            Err(Refused::Unreadable(why)) => format!("{} could not be read: {why}", file.name),
-        };
-        self.core.message = Some(said);
+        let said = picked_bytes(file, "a GeoTIFF to pin is at most 65 MB (4096² float32 samples)").and_then(|(name, bytes)| self.core.pin_dem(&name, bytes));
+        self.core.message = Some(said.unwrap_or_else(|e| e));
     }
 
     /// Offers `sketch` as `sketch.png` in the format's palette.

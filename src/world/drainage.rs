@@ -49,15 +49,9 @@ impl Flood {
     /// sample (outlets too, in row-major order).
     fn from_outlets(h: &[f32], n: usize, fixed: Option<&[bool]>) -> Self {
         let mut f = Self { n, done: vec![false; n * n], heap: BinaryHeap::new(), seq: 0 };
-        for i in 0..n {
-            for p in [i, (n - 1) * n + i, i * n, i * n + n - 1] {
-                if !f.done[p] && !h[p].is_nan() {
-                    f.done[p] = true;
-                    f.push(p, h[p]);
-                }
-            }
-        }
-        for p in fixed.into_iter().flat_map(|m| m.iter().enumerate().filter(|&(_, &k)| k).map(|(p, _)| p)) {
+        let border = (0..n).flat_map(|i| [i, (n - 1) * n + i, i * n, i * n + n - 1]);
+        let fixed = fixed.into_iter().flat_map(|m| m.iter().enumerate().filter(|&(_, &k)| k).map(|(p, _)| p));
+        for p in border.chain(fixed) {
             if !f.done[p] && !h[p].is_nan() {
                 f.done[p] = true;
                 f.push(p, h[p]);

@@ -215,11 +215,6 @@ impl LearnedSource {
         Self { pins, ..Self::new(self.models.clone(), self.threads) }
     }
 
-    /// The world's pins.
-    pub fn pins(&self) -> &Pins {
-        &self.pins
-    }
-
     /// The same source keeping at most `blocks` filled blocks per stage (tests of eviction).
     pub fn with_fill_cache(mut self, blocks: usize) -> Self {
         self.filled = Mutex::new(BlockCache::new(blocks));
@@ -696,9 +691,9 @@ mod shipped_tests {
     /// 32 m) each pinned at tiles (0, 0)–(1, 1) of seed 1's world, and the 6 × 6 tiles −2..=3
     /// made around them. The pinned tiles are the pin's heights bit for bit; the seam figure of
     /// the pin's border (8 edges) has a mean ≤ 1.2, and so has that of the world's own tile
-    /// edges in the region (a join that moved a tile's other edges made it 1.29); for St Helens, a source that makes the tiles in the reverse
-    /// order gives the same tiles, and a tile far beyond the pins' reach (10, 10) is the
-    /// world's without pins.
+    /// edges in the region (a join that moved a tile's other edges made it 1.29); for St
+    /// Helens, a source that makes the tiles in the reverse order gives the same tiles, and a
+    /// tile far beyond the pins' reach (10, 10) is the world's without pins.
     #[test]
     fn pinned_dems_are_kept_exactly_and_the_world_grows_around_them_without_a_seam() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));

@@ -34,14 +34,11 @@ impl PinnedTile {
         if let Some(p) = fine.iter().position(|v| !v.is_finite()) {
             return Err(format!("a pinned tile's height at sample {p} is {}", fine[p]));
         }
-        let f = n / TILE_PX;
-        let coarse = (0..TILE_PX * TILE_PX)
-            .map(|q| {
-                let (x, y) = (q % TILE_PX * f, q / TILE_PX * f);
-                (0..f * f).map(|k| fine[(y + k / f) * n + x + k % f] as f64).sum::<f64>() as f32 / (f * f) as f32
-            })
-            .collect();
-        Ok(Self { fine: Arc::new(fine), coarse: Arc::new(coarse) })
+        // Two 2×2 box means, as the training cuts its 128 m fields from 32 m windows.
+        let tile = Heightfield::new(n, n, BASE_SPACING_M, fine);
+        let coarse = tile.downsample2().downsample2();
+        assert_eq!(coarse.width, TILE_PX, "a 32 m tile is {TILE_PX} samples at 128 m");
+        Ok(Self { fine: Arc::new(tile.data), coarse: Arc::new(coarse.data) })
     }
 }
 
