@@ -139,9 +139,10 @@ impl TerrainApp {
         (if far { detailed.max(FAR_FIELD_M + 0.5 * TILE_SIZE_M + self.camera.position_m.y.max(0.0)) } else { detailed }) as f32
     }
 
-    /// Whether the world shown is the learned one with its models ready.
+    /// Whether the world shown is made by the learned networks with their models ready: the
+    /// learned world, or the sketch pinned into it.
     pub(super) fn learned_shown_ready(&self) -> bool {
-        self.source() == SourceKind::Learned && matches!(self.learned, LearnedStatus::Ready { .. })
+        (self.source() == SourceKind::Learned && matches!(self.learned, LearnedStatus::Ready { .. })) || self.sketch_in_learned()
     }
 
     /// A stand-in could not be made: it may be asked for again.

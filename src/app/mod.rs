@@ -24,10 +24,12 @@ use crate::render::gpu::{FrameParams, sun_direction};
 use crate::share::ShareState;
 use crate::sketch::canvas::Canvas;
 use crate::sketch::{SKETCH_PX, Sketch};
+use crate::world::learned::{PIN_COARSE_REACH_TILES, PIN_REACH_TILES};
+use crate::world::pins::Pins;
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
 use crate::world::refine::{PatchKey, PatchStore, RefineJob};
-use crate::world::sketched::SketchSource;
-use crate::world::{ProceduralSource, SourceKind, TILE_SIZE_M, TileCoord, TileSource, WorldStream};
+use crate::world::sketched::{SKETCH_TILES, SketchSource};
+use crate::world::{ProceduralSource, SourceKind, TILE_SIZE_M, Tile, TileCoord, TileSource, WorldStream};
 
 /// Milliseconds per frame that tile generation may use at least before it waits for the next
 /// frame. When frames are slow for other reasons (a busy GPU), the budget grows to a quarter of
@@ -111,6 +113,12 @@ pub struct TerrainApp {
     sketch_terrain: Option<(u64, Arc<Vec<f32>>)>,
     /// The canvas's code and the revision it was made at (share links).
     sketch_code: (u64, String),
+    /// Terrain the user pinned into the learned world ([`set_user_pins`](Self::set_user_pins)).
+    user_pins: Pins,
+    /// The pins the world shown wants where its learned tiles are made, and their hash
+    /// ([`worker_pins`](Self::worker_pins)): the sketch's tiles in the sketch world, else the
+    /// user's.
+    worker_pins: Arc<(String, Pins)>,
 }
 
 /// A camera pose that shows the whole sketch (8.2 km square centred on the origin) from the
@@ -162,6 +170,8 @@ impl TerrainApp {
             sketch_rejected: None,
             sketch_terrain: None,
             sketch_code: (0, code),
+            user_pins: Pins::new(),
+            worker_pins: Arc::new((String::new(), Pins::new())),
         };
         app.set_view(&s);
         app
@@ -169,6 +179,10 @@ impl TerrainApp {
 
     fn make_world(s: &ShareState, learned: &LearnedStatus, sketch: Option<&Arc<Vec<f32>>>, procedural_elsewhere: bool) -> WorldStream {
         match (s.source, learned) {
+            // The sketch pinned into the learned world, which grows around it.
+            (SourceKind::Sketch, LearnedStatus::Ready { hash }) if sketch.is_some() => {
+                WorldStream::made_elsewhere(s.seed, format!("sketch in the learned world (TCM {hash})"), s.radius_tiles)
+            }
             (SourceKind::Sketch, _) => match sketch {
                 Some(h) => WorldStream::new(s.seed, Box::new(SketchSource::new(h.clone(), s.relief_m)), s.radius_tiles),
                 None => WorldStream::made_elsewhere(s.seed, "sketch (its terrain is being made…)".into(), s.radius_tiles),
@@ -197,7 +211,7 @@ impl TerrainApp {
             return None;
         }
         self.learned = status;
-        if self.settings.source == SourceKind::Learned {
+        if self.settings.source != SourceKind::Procedural {
             self.new_world();
         }
         self.linked_weights_note()
@@ -236,12 +250,68 @@ impl TerrainApp {
         // Every new world gets a new epoch (after `epoch`): results of jobs (tiles, TEM
         // batches) made for an older one are dropped.
         let epoch = self.world.successor_epoch(epoch);
-        self.world = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere).at_epoch(epoch);
+        let new = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere).at_epoch(epoch);
+        let old = std::mem::replace(&mut self.world, new);
         self.nodes = NodeCache::new();
         self.coarse_nodes.clear();
         let (last, at) = std::mem::take(&mut self.last_nodes);
         self.stand_in = (!last.is_empty()).then_some((last, at));
         self.refine = PatchStore::new(0, epoch);
+        let pins = match self.sketch_terrain.as_ref().filter(|_| self.sketch_in_learned()) {
+            Some((_, h)) => {
+                let sketch = SketchSource::new(h.clone(), self.settings.relief_m);
+                let pins = sketch.pins();
+                self.take_over_sketch(old, &sketch, &pins);
+                // Its own tiles and the old ones stay drawn: no picture of the old world.
+                self.stand_in = None;
+                pins
+            }
+            None => self.user_pins.clone(),
+        };
+        if pins != self.worker_pins.1 {
+            self.worker_pins = Arc::new((pins.hash(), pins));
+        }
+    }
+
+    /// Whether the world shown is the sketch pinned into the learned world (the sketch world
+    /// with its terrain here and the learned models ready).
+    fn sketch_in_learned(&self) -> bool {
+        self.settings.source == SourceKind::Sketch && matches!(self.learned, LearnedStatus::Ready { .. }) && self.sketch_terrain.is_some()
+    }
+
+    /// The new sketch-in-learned world takes over `old`'s tiles: the sketch's pinned tiles at
+    /// once, the old tiles as stand-ins until the worker's arrive, and the fading plain of
+    /// `sketch` around the pins where `old` had nothing, so the sketch is drawable at once. An
+    /// old world that was the same learned world with the sketch pinned (same seed and
+    /// weights) is the same beyond the pins' reach: those tiles are kept as they are.
+    fn take_over_sketch(&mut self, old: WorldStream, sketch: &SketchSource, pins: &Pins) {
+        let same = old.seed() == self.world.seed() && old.source_name() == self.world.source_name();
+        let fixed = SKETCH_TILES.iter().map(|&c| Tile::new(c, pins.get(c).map(|p| p.fine.to_vec()).unwrap_or_default())).collect();
+        let beyond = |c: TileCoord| !pins.within(c, PIN_REACH_TILES);
+        let coarse_beyond = |c: TileCoord| !pins.within(c, PIN_COARSE_REACH_TILES);
+        self.world.take_over(old, fixed, same.then_some((&beyond as &dyn Fn(TileCoord) -> bool, &coarse_beyond as &dyn Fn(TileCoord) -> bool)));
+        for c in SKETCH_TILES.iter().flat_map(|c| c.window3x3()) {
+            if !self.world.contains(c) {
+                self.world.insert_stale(sketch.tile(c));
+            }
+        }
+    }
+
+    /// The pins wherever the learned world's tiles are made for the world shown, with their
+    /// hash ("" for none): the sketch's tiles in the sketch world, else the user's
+    /// ([`set_user_pins`](Self::set_user_pins)). Whoever makes them must be given these
+    /// before this world's tile jobs.
+    pub fn worker_pins(&self) -> Arc<(String, Pins)> {
+        self.worker_pins.clone()
+    }
+
+    /// Pins the user's terrain into the learned world (none: takes it out); a learned world
+    /// shown is made again around them.
+    pub fn set_user_pins(&mut self, pins: Pins) {
+        self.user_pins = pins;
+        if self.settings.source == SourceKind::Learned {
+            self.new_world();
+        }
     }
 
     /// Starts the world over at epoch `epoch` or later: a page that starts again (after a lost
@@ -354,7 +424,15 @@ impl TerrainApp {
     /// A tile came back: `heights` (metres, [`TILE_SAMPLES`]² row-major) made in `ms`
     /// milliseconds. Kept if it belongs to the world shown now; returns whether it was.
     pub fn tile_done(&mut self, job: &Job<TileCoord>, heights: Vec<f32>, ms: f64) -> bool {
-        self.world.finish(job, heights, ms)
+        let replaces = self.world.is_stale(job.key);
+        let kept = self.world.finish(job, heights, ms);
+        if kept && replaces {
+            // The nodes and refined patches made over the stand-in (and its neighbours' edges).
+            let window = job.key.window3x3();
+            self.nodes.retain_tiles(|t| !window.contains(&t));
+            self.refine.retain_tiles(|t| !window.contains(&t));
+        }
+        kept
     }
 
     /// A tile could not be made: it may be asked for again.
@@ -466,6 +544,12 @@ impl TerrainApp {
         self.stats.frame_ms_worst = *v.last().unwrap_or(&0.0);
     }
 
+    /// The tiles of the world shown that can be drawn around the eye now.
+    pub fn drawable_tiles(&self) -> Vec<TileCoord> {
+        let eye = self.camera.position_m;
+        self.world.drawable(eye.x, eye.z)
+    }
+
     /// The heights (metres) of tile `c` of the world shown, if it is cached.
     pub fn tile_heights(&self, c: TileCoord) -> Option<&[f32]> {
         self.world.get(c).map(|t| t.heights.as_slice())
@@ -538,6 +622,7 @@ impl TerrainApp {
         self.stats.refine_backend = self.refine_backend.clone().unwrap_or_default();
         self.stats.source = self.source().label().into();
         self.stats.tile_jobs = self.world.job_stats();
+        self.stats.tiles_stale = self.world.stale_count();
         self.stats.eye_m = eye.to_array();
         let sum = tiles.iter().filter_map(|&c| self.world.get(c)).fold(0u64, |acc, t| acc.wrapping_add(mix64(t.checksum ^ tile_seed(0, t.coord))));
         self.stats.view_checksum = format!("{sum:016x}");
@@ -556,6 +641,9 @@ impl TerrainApp {
             amplitude_m: match self.source() {
                 SourceKind::Learned => (crate::world::learned::MACRO_BASE_M + crate::world::learned::MACRO_AMPLITUDE_M) as f32,
                 SourceKind::Procedural => (n.amplitude_m + n.base_m).max(100.0),
+                SourceKind::Sketch if self.sketch_in_learned() => {
+                    (self.settings.relief_m as f32).max((crate::world::learned::MACRO_BASE_M + crate::world::learned::MACRO_AMPLITUDE_M) as f32)
+                }
                 SourceKind::Sketch => self.settings.relief_m as f32,
             },
             show_lod: self.show_lod,

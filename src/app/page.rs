@@ -197,6 +197,8 @@ pub struct PageCore {
     edits: JobQueue<SketchEdit>,
     /// The fragment in the address bar as last read or written, and when it was written.
     link: (String, f64),
+    /// The hash of the pins the CPU worker's learned world has (`None` before it has one).
+    pins_sent: Option<String>,
 }
 
 impl PageCore {
@@ -244,6 +246,7 @@ impl PageCore {
             pending_blend: None,
             edits: JobQueue::new(2),
             link: (String::new(), f64::NEG_INFINITY),
+            pins_sent: None,
         };
         if let Err(why) = core.worker.clone() {
             core.fail(ModelSet::World, &LoadError::NoWorker(why));
@@ -371,6 +374,8 @@ impl PageCore {
         *self.loads.get_mut(set) = Load::Ready { hash: hash.clone(), backend };
         match set {
             ModelSet::World => {
+                // The worker's new learned world has no pins.
+                self.pins_sent = Some(String::new());
                 if let Some(note) = self.app.set_learned(LearnedStatus::Ready { hash }) {
                     self.message = Some(note);
                 }
@@ -433,9 +438,8 @@ impl PageCore {
         let at = TileCoord::containing(eye.x, eye.z).offset(-(cols - 1) / 2, -(rows - 1) / 2);
         let mut pins = Pins::new();
         let tiles = pins.add(&hf, at).map_err(|e| format!("{name}: {e}"))?;
-        self.post(Target::Worker, 0, Request::pin(&pins), For::Pin(name.to_string()));
-        self.app.new_world();
         self.pinned = Some((name.to_string(), tiles.len()));
+        self.app.set_user_pins(pins);
         Ok(format!(
             "Pinned {name}: {} tiles from tile ({}, {}), the world grows around them. A link does not carry them yet: whoever opens it sees the world without your terrain.",
             tiles.len(),
@@ -447,9 +451,8 @@ impl PageCore {
     /// Takes the pinned terrain out of the learned world ([`Self::pin_dem`]) and makes the
     /// world again without it; nothing when none is pinned.
     pub fn unpin(&mut self) {
-        if let Some((name, _)) = self.pinned.take() {
-            self.post(Target::Worker, 0, Request::pin(&Pins::new()), For::Pin(name));
-            self.app.new_world();
+        if self.pinned.take().is_some() {
+            self.app.set_user_pins(Pins::new());
         }
     }
 
@@ -657,6 +660,17 @@ impl PageCore {
             return;
         }
         self.app.set_procedural_elsewhere(true);
+        // The worker's learned world gets the pins of the world shown before its tile jobs.
+        let pins = self.app.worker_pins();
+        if self.pins_sent.as_ref().is_some_and(|sent| *sent != pins.0) {
+            let name = match (&self.pinned, self.app.settings().source) {
+                (_, SourceKind::Sketch) => "the sketch".to_string(),
+                (Some((name, _)), _) => name.clone(),
+                (None, _) => "no terrain".to_string(),
+            };
+            self.post(Target::Worker, 0, Request::pin(&pins.1), For::Pin(name));
+            self.pins_sent = Some(pins.0.clone());
+        }
         let seed = self.app.settings().seed;
         let noise = (self.app.source() == SourceKind::Procedural).then(|| self.app.settings().noise);
         // Coarse first: the stand-ins of the learned tiles near the eye go out before the tiles.

@@ -269,7 +269,12 @@ fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_fra
         core.start_work(100.0 + f as f64 * 16.0);
         for e in core.take_effects() {
             if let Effect::Post { envelope, .. } = e {
-                assert_eq!(envelope.request.kind(), "sketch");
+                if envelope.request.kind() != "sketch" {
+                    // The learned world around the sketch: its pins and tiles.
+                    let answer = shell.runner.handle(envelope);
+                    core.deliver(Delivery::Answer(answer));
+                    continue;
+                }
                 sketches += 1;
                 let heights = vec![f32::NAN; SKETCH_PX * SKETCH_PX];
                 core.deliver(Delivery::Answer(Answer { id: envelope.id, reply: Reply::Heights { heights, ms: 1.0 } }));
@@ -283,7 +288,72 @@ fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_fra
     core.app.canvas.drag(100.0, 50.0);
     core.app.canvas.release();
     core.start_work(400.0);
-    assert_eq!(core.take_effects().len(), 1, "the next stroke is asked for");
+    let sketch_posts = core.take_effects().iter().filter(|e| matches!(e, Effect::Post { envelope, .. } if envelope.request.kind() == "sketch")).count();
+    assert_eq!(sketch_posts, 1, "the next stroke is asked for");
+}
+
+/// The sketch world with the learned world's models ready is the sketch pinned into the
+/// learned world: the worker gets the sketch's pins before any tile of that world; the
+/// sketch's four tiles are its terrain × relief / 255 bit for bit and the tile beside them is
+/// the learned source's with the sketch pinned. After a stroke, the frame that shows its
+/// terrain draws the sketch at once over the old surroundings (stale stand-ins, none of the
+/// previous world's picture), and the surroundings are made again for the new pins.
+#[test]
+fn the_sketch_world_is_pinned_into_the_learned_world_which_grows_around_it_again_after_a_stroke() {
+    use crate::world::sketched::{SKETCH_TILES, SketchSource};
+    let share = ShareState { source: SourceKind::Sketch, position_m: [0.0, 2500.0, 3000.0], pitch: -0.6, radius_tiles: 1.5, ..ShareState::default() };
+    let mut core = PageCore::new(share, start(Ok(())));
+    let mut shell = Shell::new(&no_swap);
+    let settle = |core: &mut PageCore, shell: &mut Shell| {
+        for _ in 0..800 {
+            shell.frames(core, 1);
+            let s = core.app.stats();
+            if s.sketch_shown == core.app.canvas.revision() + 1 && s.tiles_pending == 0 && s.tiles_stale == 0 {
+                return;
+            }
+        }
+        panic!("the sketch world did not settle: {:?}", core.app.stats());
+    };
+    settle(&mut core, &mut shell);
+    assert!(core.app.source_name().starts_with("sketch in the learned world"), "{}", core.app.source_name());
+    let first_pin = shell.posted.iter().position(|(_, k)| *k == "pin").expect("the sketch's pins sent");
+    assert!(shell.posted[..first_pin].iter().all(|(_, k)| *k != "tile"), "a tile was asked for before the pins");
+    let models = std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap());
+    let seed = core.app.settings().seed;
+    let check = |core: &PageCore| {
+        let sketch = SketchSource::new(std::sync::Arc::new(core.app.sketch_terrain().unwrap().to_vec()), core.app.settings().relief_m);
+        for c in SKETCH_TILES {
+            let got = core.app.tile_heights(c).expect("a sketch tile");
+            assert!(got.iter().zip(sketch.tile(c).heights.iter()).all(|(a, b)| a.to_bits() == b.to_bits()), "sketch tile {c:?}");
+        }
+        let beside = crate::grid::TileCoord::new(1, 0);
+        let want = LearnedSource::new(models.clone(), 1).with_pins(sketch.pins()).generate(seed, beside, &Neighbourhood::default()).heights;
+        assert_eq!(core.app.tile_heights(beside).expect("the tile beside the sketch"), &want[..]);
+    };
+    check(&core);
+    // A stroke across the sketch.
+    let before = core.app.tile_heights(crate::grid::TileCoord::new(0, 0)).unwrap().to_vec();
+    core.app.canvas.set_tool(crate::sketch::canvas::Tool::Ridge);
+    core.app.canvas.press(130.0, 20.0);
+    core.app.canvas.drag(250.0, 240.0);
+    core.app.canvas.release();
+    let want = core.app.canvas.revision() + 1;
+    for _ in 0..50 {
+        shell.frames(&mut core, 1);
+        if core.app.stats().sketch_shown == want {
+            break;
+        }
+    }
+    assert_eq!(core.app.stats().sketch_shown, want, "the stroke's terrain");
+    core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
+    let s = core.app.stats().clone();
+    assert_ne!(core.app.tile_heights(crate::grid::TileCoord::new(0, 0)).unwrap(), &before[..], "the stroke changed the sketch's tile");
+    let drawable = core.app.drawable_tiles();
+    assert!(SKETCH_TILES.iter().all(|c| drawable.contains(c)), "the sketch is drawable at once: {drawable:?}");
+    assert!(s.tiles_stale > 0 && s.tiles_pending > 0 && s.nodes_drawn > 0 && !s.previous_world_shown, "{s:?}");
+    eprintln!("after the stroke: {} stale tiles stand in, {} pending", s.tiles_stale, s.tiles_pending);
+    settle(&mut core, &mut shell);
+    check(&core);
 }
 
 /// A worker that never answers: once a request has waited [`WORKER_TIMEOUT_MS`], the page

@@ -14,8 +14,11 @@ pub struct AppStats {
     pub tiles_cached: usize,
     /// Most tiles the cache may hold.
     pub tiles_capacity: usize,
-    /// Wanted tiles still missing.
+    /// Wanted tiles still missing (or only standing in from an earlier world).
     pub tiles_pending: usize,
+    /// Cached tiles of an earlier world drawn until this world's arrive (the surroundings of
+    /// a sketch that changed, while the learned world grows around it again).
+    pub tiles_stale: usize,
     /// Tiles evicted.
     pub tiles_evicted: u64,
     /// Mean generation time per tile (milliseconds).

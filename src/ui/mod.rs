@@ -225,7 +225,7 @@ impl Overlay {
         egui::Window::new("Terrain").anchor(egui::Align2::LEFT_TOP, [8.0, 8.0]).resizable(false).default_width(260.0).show(ctx, |ui| {
             // For people: the world, what is being made, the controls. The numbers behind
             // "Statistics" (the tests read them from the statistics JSON either way).
-            let seed = if stats.source == SourceKind::Sketch.label() { String::new() } else { format!(" · seed {}", self.applied.seed) };
+            let seed = if stats.source == SourceKind::Sketch.label() && !env.source.contains("learned") { String::new() } else { format!(" · seed {}", self.applied.seed) };
             ui.label(egui::RichText::new(format!("{}{seed}", env.source)).strong());
             // Always shown, and no spinner: a widget that appears, or a spinner, asks egui for
             // repaints, which would draw the overlay between the paced frames of the 3-D view

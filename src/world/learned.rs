@@ -83,6 +83,17 @@ pub const BREACH_DEPTH_M: f32 = 50.0;
 /// [`BREACH_DEPTH_M`]: 0.258 / 0.258; 13 m: 0.280 / 0.265; 20 m: 0.289 / 0.271.
 pub const CHANNEL_WALL_M: f32 = 16.0;
 
+/// How far (tiles, Chebyshev distance) a pin reaches into the 128 m network tiles: a tile's
+/// 128 m tile takes the pinned tiles beside it and its schedule dependencies, which take
+/// theirs, three levels deep at most (phase 3 → phases 1, 2 → phase 0 → a pin). Farther
+/// out they are the world's without pins.
+pub const PIN_COARSE_REACH_TILES: i32 = 3;
+
+/// How far (tiles, Chebyshev distance) a pin reaches into the 32 m tiles: one more than
+/// [`PIN_COARSE_REACH_TILES`] for the ×4 step's 3×3 context, one for the first drainage block
+/// and one for the second (offset) block. Farther out the tiles are the world's without pins.
+pub const PIN_REACH_TILES: i32 = PIN_COARSE_REACH_TILES + 3;
+
 /// Side (tiles) of the blocks whose closed depressions are drained together.
 pub const FILL_BLOCK_TILES: i32 = 2;
 
@@ -692,10 +703,11 @@ mod shipped_tests {
     /// made around them. The pinned tiles are the pin's heights bit for bit; the seam figure of
     /// the pin's border (8 edges) has a mean ≤ 1.2, and so has that of the world's own tile
     /// edges in the region (a join that moved a tile's other edges made it 1.29); for St
-    /// Helens, a source that makes the tiles in the reverse order gives the same tiles, and a
-    /// tile far beyond the pins' reach (10, 10) is the world's without pins.
+    /// Helens, a source that makes the tiles in the reverse order gives the same tiles, and
+    /// tiles one beyond the pins' reach ([`PIN_REACH_TILES`] for 32 m tiles,
+    /// [`PIN_COARSE_REACH_TILES`] for 128 m tiles) are the world's without pins.
     #[test]
-    fn pinned_dems_are_kept_exactly_and_the_world_grows_around_them_without_a_seam() {
+    fn pinned_dems_are_kept_exactly_the_world_grows_around_them_without_a_seam_and_is_unchanged_beyond_their_reach() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
         let models = Arc::new(LearnedModels::load_dir(&root.join("weights")).expect("the shipped weights"));
         let free = LearnedSource::new(models, crate::models::cpu::default_threads());
@@ -709,7 +721,7 @@ mod shipped_tests {
         }
     }
 
-    /// The checks of [`pinned_dems_are_kept_exactly_and_the_world_grows_around_them_without_a_seam`]
+    /// The checks of [`pinned_dems_are_kept_exactly_the_world_grows_around_them_without_a_seam_and_is_unchanged_beyond_their_reach`]
     /// for one set of `pins` (`id` names them); `all`: also the visit order and a far tile.
     fn pinned_region(free: &LearnedSource, pins: &Pins, id: &str, all: bool) {
         let pinned = free.with_pins(pins.clone());
@@ -761,8 +773,15 @@ mod shipped_tests {
             let a = reverse.generate(1, c, &Neighbourhood::default()).heights;
             assert_eq!(a, cut(&h, m, n, (t % k) * n, (t / k) * n), "tile {c:?} depends on the visit order");
         }
-        let far = TileCoord::new(10, 10);
-        assert_eq!(pinned.generate(1, far, &Neighbourhood::default()).heights, free.generate(1, far, &Neighbourhood::default()).heights);
+        // Just beyond the pins' reach the world is the one without pins: its 32 m tiles one
+        // tile beyond PIN_REACH_TILES, its 128 m tiles one beyond PIN_COARSE_REACH_TILES.
+        for far in [TileCoord::new(2 + PIN_REACH_TILES, 1), TileCoord::new(-1 - PIN_REACH_TILES, -1 - PIN_REACH_TILES)] {
+            assert!(!pins.within(far, PIN_REACH_TILES));
+            assert_eq!(pinned.generate(1, far, &Neighbourhood::default()).heights, free.generate(1, far, &Neighbourhood::default()).heights, "{far:?}");
+        }
+        for far in [TileCoord::new(2 + PIN_COARSE_REACH_TILES, 0), TileCoord::new(-1 - PIN_COARSE_REACH_TILES, 1)] {
+            assert_eq!(pinned.coarse_tile(1, far), free.coarse_tile(1, far), "{far:?}");
+        }
     }
 
     /// The bounds can fail: an untrained TCM's world (random weights) is outside them.

@@ -113,6 +113,16 @@ impl Pins {
         self.tiles.is_empty()
     }
 
+    /// Whether tile `c` lies within `reach` tiles (Chebyshev distance) of a pinned tile.
+    pub fn within(&self, c: TileCoord, reach: i32) -> bool {
+        self.tiles.keys().any(|p| (p.i - c.i).abs().max((p.j - c.j).abs()) <= reach)
+    }
+
+    /// The pinned tiles' coordinates, in tile order.
+    pub fn coords(&self) -> Vec<TileCoord> {
+        self.tiles.keys().copied().collect()
+    }
+
     /// The pinned tiles in tile order, with their 32 m heights.
     pub fn iter(&self) -> impl Iterator<Item = (TileCoord, &PinnedTile)> {
         self.tiles.iter().map(|(c, t)| (*c, t))

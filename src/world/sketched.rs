@@ -5,9 +5,14 @@
 //! falling ground follows the sketch's edge smoothed more the farther out it is (a box mean
 //! of the sketch around the nearest edge sample, as wide as the distance), so the edge's
 //! valleys and ridges do not run out as straight stripes across the plain.
+//!
+//! Where the learned world's models are at hand the sketch's tiles are pinned into it instead
+//! ([`SketchSource::pins`]) and the learned world grows around them; this fading plain is the
+//! world while they load, and the fallback when they fail.
 
 use std::sync::Arc;
 
+use super::pins::Pins;
 use super::{BASE_SPACING_M, Neighbourhood, TILE_SAMPLES, Tile, TileCoord, TileSource};
 use crate::sketch::SKETCH_PX;
 
@@ -19,6 +24,8 @@ pub const DEFAULT_RELIEF_M: f64 = 1500.0;
 pub const RELIEF_M: std::ops::RangeInclusive<f64> = 10.0..=8000.0;
 /// First world sample (x and z) covered by the sketch: it is centred on the origin.
 pub const FIRST_SAMPLE: i64 = -(SKETCH_PX as i64) / 2;
+/// The tiles the sketch covers, row-major.
+pub const SKETCH_TILES: [TileCoord; 4] = [TileCoord { i: -1, j: -1 }, TileCoord { i: 0, j: -1 }, TileCoord { i: -1, j: 0 }, TileCoord { i: 0, j: 0 }];
 
 /// Tile source of a sketch's terrain.
 pub struct SketchSource {
@@ -53,6 +60,25 @@ impl SketchSource {
         sum / ((x1 - x0 + 1) * (y1 - y0 + 1)) as f64
     }
 
+    /// The 2 × 2 tiles the sketch covers ([`SKETCH_TILES`]) as pins of the learned world
+    /// ([`super::learned::LearnedSource::with_pins`]): its terrain in metres, sample for
+    /// sample, so the learned world grows around the sketch.
+    pub fn pins(&self) -> Pins {
+        let mut pins = Pins::new();
+        for c in SKETCH_TILES {
+            let tile = self.tile(c);
+            pins.insert(c, tile.heights).expect("a sketch's terrain is finite (checked when it arrives)");
+        }
+        pins
+    }
+
+    /// Tile `coord` of this world.
+    pub fn tile(&self, coord: TileCoord) -> Tile {
+        let (x0, z0) = (coord.i as i64 * TILE_SAMPLES as i64, coord.j as i64 * TILE_SAMPLES as i64);
+        let heights = (0..TILE_SAMPLES * TILE_SAMPLES).map(|p| self.height(x0 + (p % TILE_SAMPLES) as i64, z0 + (p / TILE_SAMPLES) as i64)).collect();
+        Tile::new(coord, heights)
+    }
+
     /// Height (metres) at world sample (`gx`, `gz`).
     pub fn height(&self, gx: i64, gz: i64) -> f32 {
         let n = SKETCH_PX as i64;
@@ -85,9 +111,7 @@ impl TileSource for SketchSource {
     }
 
     fn generate(&self, _seed: u64, coord: TileCoord, _neighbours: &Neighbourhood<'_>) -> Tile {
-        let (x0, z0) = (coord.i as i64 * TILE_SAMPLES as i64, coord.j as i64 * TILE_SAMPLES as i64);
-        let heights = (0..TILE_SAMPLES * TILE_SAMPLES).map(|p| self.height(x0 + (p % TILE_SAMPLES) as i64, z0 + (p / TILE_SAMPLES) as i64)).collect();
-        Tile::new(coord, heights)
+        self.tile(coord)
     }
 }
 

@@ -3,7 +3,7 @@
 //! per frame) or as jobs in flight elsewhere ([`WorldStream::start_jobs`] →
 //! [`WorldStream::finish`]), kept in a bounded cache, and evicted farthest first.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 
 use web_time::Instant;
@@ -92,6 +92,9 @@ pub struct WorldStream {
     /// their jobs (the same epoch as `jobs`).
     coarse: HashMap<TileCoord, Arc<Vec<f32>>>,
     coarse_jobs: JobQueue<TileCoord>,
+    /// Cached tiles of an earlier world, drawn until this world's arrive
+    /// ([`take_over`](Self::take_over)): asked for like missing ones, replaced on arrival.
+    stale: HashSet<TileCoord>,
 }
 
 impl WorldStream {
@@ -112,7 +115,61 @@ impl WorldStream {
         let radius_tiles = radius_tiles.clamp(1.0, 32.0);
         let jobs = JobQueue::new(TILE_JOBS_IN_FLIGHT);
         let coarse_jobs = JobQueue::new(COARSE_JOBS_IN_FLIGHT);
-        Self { seed, source, tiles: HashMap::new(), radius_tiles, capacity: capacity_for(radius_tiles), stats: StreamStats::default(), jobs, coarse: HashMap::new(), coarse_jobs }
+        Self {
+            seed,
+            source,
+            tiles: HashMap::new(),
+            radius_tiles,
+            capacity: capacity_for(radius_tiles),
+            stats: StreamStats::default(),
+            jobs,
+            coarse: HashMap::new(),
+            coarse_jobs,
+            stale: HashSet::new(),
+        }
+    }
+
+    /// Takes `old`'s tiles so that something stays drawn while this world's are made: `fixed`
+    /// tiles (known here, e.g. pinned ones) are this world's at once; every other tile of
+    /// `old` is kept as a stale stand-in and asked for again, except where `same_beyond` says
+    /// this world equals `old`: a tile for which `same_beyond.0(c)` holds is kept as this
+    /// world's own, and so is a coarse tile for which `same_beyond.1(c)` holds. `old`'s other
+    /// coarse tiles are dropped.
+    pub fn take_over(&mut self, old: WorldStream, fixed: Vec<Tile>, same_beyond: Option<(&dyn Fn(TileCoord) -> bool, &dyn Fn(TileCoord) -> bool)>) {
+        for (c, t) in old.tiles {
+            let same = same_beyond.is_some_and(|(tile, _)| tile(c)) && !old.stale.contains(&c);
+            if !same {
+                self.stale.insert(c);
+            }
+            self.tiles.insert(c, t);
+        }
+        if let Some((_, coarse)) = same_beyond {
+            self.coarse.extend(old.coarse.into_iter().filter(|(c, _)| coarse(*c)));
+        }
+        for t in fixed {
+            self.stale.remove(&t.coord);
+            self.tiles.insert(t.coord, Arc::new(t));
+        }
+        self.stats.cached = self.tiles.len();
+    }
+
+    /// Caches `tile` as a stale stand-in: drawn until this world's own arrives
+    /// ([`take_over`](Self::take_over)).
+    pub fn insert_stale(&mut self, tile: Tile) {
+        self.stale.insert(tile.coord);
+        self.tiles.insert(tile.coord, Arc::new(tile));
+        self.stats.cached = self.tiles.len();
+    }
+
+    /// How many cached tiles are stale stand-ins.
+    pub fn stale_count(&self) -> usize {
+        self.stale.len()
+    }
+
+    /// Whether cached tile `c` is a stale stand-in from an earlier world
+    /// ([`take_over`](Self::take_over)) still waiting for this world's.
+    pub fn is_stale(&self, c: TileCoord) -> bool {
+        self.stale.contains(&c)
     }
 
     /// The same world as world `epoch` of its viewer (jobs of other epochs are stale).
@@ -348,7 +405,7 @@ impl WorldStream {
         let mut made = Vec::new();
         if matches!(self.source, Maker::Here(_)) {
             for &c in &wanted {
-                if self.tiles.contains_key(&c) {
+                if self.tiles.contains_key(&c) && !self.stale.contains(&c) {
                     continue;
                 }
                 if !made.is_empty() && start.elapsed().as_secs_f64() * 1e3 >= budget_ms {
@@ -357,22 +414,23 @@ impl WorldStream {
                 self.ensure_into(c, &mut made);
             }
         }
-        self.stats.pending = wanted.iter().filter(|c| !self.tiles.contains_key(c)).count();
+        self.stats.pending = wanted.iter().filter(|c| !self.tiles.contains_key(c) || self.stale.contains(c)).count();
         self.evict(x_m, z_m);
         self.stats.cached = self.tiles.len();
         made
     }
 
-    /// Wanted tiles around (x, z) metres that are not cached, nearest first: what to ask of a
-    /// source that works elsewhere.
+    /// Wanted tiles around (x, z) metres that are not cached or only stale, nearest first:
+    /// what to ask of a source that works elsewhere.
     pub fn missing(&self, x_m: f64, z_m: f64) -> Vec<TileCoord> {
-        self.wanted(x_m, z_m).into_iter().filter(|c| !self.tiles.contains_key(c)).collect()
+        self.wanted(x_m, z_m).into_iter().filter(|c| !self.tiles.contains_key(c) || self.stale.contains(c)).collect()
     }
 
     /// Takes a tile made elsewhere in `ms` milliseconds (it replaces a cached one of the same
-    /// coordinate). The caller makes sure it belongs to this world ([`finish`](Self::finish)
-    /// does).
+    /// coordinate, stale or not). The caller makes sure it belongs to this world
+    /// ([`finish`](Self::finish) does).
     pub fn insert(&mut self, tile: Tile, ms: f64) {
+        self.stale.remove(&tile.coord);
         self.stats.generate_ms += ms;
         self.stats.generated += 1;
         self.tiles.insert(tile.coord, Arc::new(tile));
@@ -390,7 +448,7 @@ impl WorldStream {
     }
 
     fn ensure_into(&mut self, c: TileCoord, made: &mut Vec<TileCoord>) -> Arc<Tile> {
-        if let Some(t) = self.tiles.get(&c) {
+        if let Some(t) = self.tiles.get(&c).filter(|_| !self.stale.contains(&c)) {
             return t.clone();
         }
         let Maker::Here(source) = &self.source else { panic!("tile {c:?} is made elsewhere and has not arrived") };
@@ -411,6 +469,7 @@ impl WorldStream {
         self.stats.generate_ms += t0.elapsed().as_secs_f64() * 1e3;
         self.stats.generated += 1;
         self.tiles.insert(c, tile.clone());
+        self.stale.remove(&c);
         made.push(c);
         tile
     }
@@ -433,6 +492,7 @@ impl WorldStream {
         let excess = self.tiles.len() - self.capacity;
         for (_, c) in by_distance.into_iter().take(excess) {
             self.tiles.remove(&c);
+            self.stale.remove(&c);
             self.stats.evicted += 1;
         }
     }
@@ -500,6 +560,52 @@ mod tests {
             }
             Tile::new(c, t.heights)
         }
+    }
+
+    /// A world made elsewhere that takes over an earlier one: the fixed tile is this world's
+    /// at once (not asked for), the earlier world's other tiles stay drawable as stale
+    /// stand-ins and are asked for again (pending until they arrive, then replaced and no
+    /// longer stale); where the two worlds are the same, tiles and coarse tiles are kept as
+    /// this world's and not asked for.
+    #[test]
+    fn a_world_taking_over_keeps_the_old_tiles_drawable_until_its_own_replace_them() {
+        let source = ProceduralSource::default();
+        let mut old = WorldStream::new(3, Box::new(ProceduralSource::default()), 1.0);
+        let (x, z) = (TILE_SIZE_M * 0.5, TILE_SIZE_M * 0.5);
+        while old.update(x, z, 1e9).len() > 0 {}
+        let cached: Vec<TileCoord> = old.cached_coords().collect();
+        assert!(cached.len() >= 9 && old.drawable(x, z).contains(&TileCoord::new(0, 0)));
+        old.insert_coarse(TileCoord::new(9, 0), vec![1.0; COARSE_SAMPLES * COARSE_SAMPLES]);
+        old.insert_coarse(TileCoord::new(1, 0), vec![1.0; COARSE_SAMPLES * COARSE_SAMPLES]);
+        let mut new = WorldStream::made_elsewhere(3, "pinned".into(), 1.0);
+        let fixed = Tile::new(TileCoord::new(0, 0), vec![5.0; TILE_SAMPLES * TILE_SAMPLES]);
+        let beyond = |c: TileCoord| c.i >= 2;
+        let coarse_beyond = |c: TileCoord| c.i >= 5;
+        new.take_over(old, vec![fixed], Some((&beyond, &coarse_beyond)));
+        assert_eq!(new.get(TileCoord::new(0, 0)).unwrap().heights[0], 5.0);
+        assert!(!new.is_stale(TileCoord::new(0, 0)) && new.is_stale(TileCoord::new(1, 1)) && new.is_stale(TileCoord::new(-1, 0)));
+        assert!(!new.is_stale(TileCoord::new(2, 0)), "beyond the reach a tile is this world's");
+        assert!(new.coarse(TileCoord::new(9, 0)).is_some() && new.coarse(TileCoord::new(1, 0)).is_none());
+        assert!(new.drawable(x, z).contains(&TileCoord::new(0, 0)), "drawable at once over stale neighbours");
+        let missing = new.missing(x, z);
+        assert!(!missing.contains(&TileCoord::new(0, 0)) && !missing.contains(&TileCoord::new(2, 0)));
+        assert!(missing.contains(&TileCoord::new(1, 1)) && missing.contains(&TileCoord::new(-1, -1)));
+        new.update(x, z, 0.0);
+        assert_eq!(new.stats().pending, missing.len());
+        let jobs = new.start_jobs(x, z);
+        assert_eq!(jobs.len(), TILE_JOBS_IN_FLIGHT);
+        for job in &jobs {
+            let heights = source.generate(4, job.key, &Neighbourhood::default()).heights;
+            assert!(new.finish(job, heights.clone(), 1.0));
+            assert!(!new.is_stale(job.key));
+            assert_eq!(new.get(job.key).unwrap().heights, heights);
+        }
+        new.update(x, z, 0.0);
+        assert_eq!(new.stats().pending, missing.len() - jobs.len());
+        // Without a same region every old tile is stale and no coarse tile is kept.
+        let mut other = WorldStream::made_elsewhere(3, "other".into(), 1.0);
+        other.take_over(new, vec![], None);
+        assert!(cached.iter().all(|c| other.is_stale(*c)) && other.coarse(TileCoord::new(9, 0)).is_none());
     }
 
     fn neighbour_world() -> WorldStream {
