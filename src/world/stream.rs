@@ -69,6 +69,10 @@ impl StreamStats {
     }
 }
 
+/// Where a world taking over another is the same as it ([`WorldStream::take_over`]): whether
+/// a tile, and whether a coarse tile, at a coordinate is unchanged.
+pub type SameBeyond<'a> = (&'a dyn Fn(TileCoord) -> bool, &'a dyn Fn(TileCoord) -> bool);
+
 /// Who makes a world's tiles.
 enum Maker {
     /// A source called here, within the frame's budget.
@@ -135,7 +139,7 @@ impl WorldStream {
     /// this world equals `old`: a tile for which `same_beyond.0(c)` holds is kept as this
     /// world's own, and so is a coarse tile for which `same_beyond.1(c)` holds. `old`'s other
     /// coarse tiles are dropped.
-    pub fn take_over(&mut self, old: WorldStream, fixed: Vec<Tile>, same_beyond: Option<(&dyn Fn(TileCoord) -> bool, &dyn Fn(TileCoord) -> bool)>) {
+    pub fn take_over(&mut self, old: WorldStream, fixed: Vec<Tile>, same_beyond: Option<SameBeyond<'_>>) {
         for (c, t) in old.tiles {
             let same = same_beyond.is_some_and(|(tile, _)| tile(c)) && !old.stale.contains(&c);
             if !same {
@@ -572,7 +576,7 @@ mod tests {
         let source = ProceduralSource::default();
         let mut old = WorldStream::new(3, Box::new(ProceduralSource::default()), 1.0);
         let (x, z) = (TILE_SIZE_M * 0.5, TILE_SIZE_M * 0.5);
-        while old.update(x, z, 1e9).len() > 0 {}
+        while !old.update(x, z, 1e9).is_empty() {}
         let cached: Vec<TileCoord> = old.cached_coords().collect();
         assert!(cached.len() >= 9 && old.drawable(x, z).contains(&TileCoord::new(0, 0)));
         old.insert_coarse(TileCoord::new(9, 0), vec![1.0; COARSE_SAMPLES * COARSE_SAMPLES]);
