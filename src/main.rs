@@ -88,6 +88,15 @@ enum Command {
         /// exactly while the world grows around them. Repeatable.
         #[arg(long, value_name = "FILE@I,J[,M]")]
         pin: Vec<String>,
+        /// The page's sketch world (--source tcm): a sketch PNG (the format's palette) made
+        /// into terrain as the page draws it (one view of the generator, weights from
+        /// --weights), --relief metres from its lowest to its highest point, pinned on tiles
+        /// (−1, −1)–(0, 0) with the learned world grown around it.
+        #[arg(long, value_name = "SKETCH.png")]
+        sketch: Option<PathBuf>,
+        /// Relief of --sketch: metres from its lowest to its highest point (10–8000).
+        #[arg(long, default_value_t = terrain::world::sketched::DEFAULT_RELIEF_M)]
+        relief: f64,
     },
     /// Hillshade DEMs side by side into one grey PNG, each area-averaged to one spacing and
     /// cut to the same square around its centre (e.g. a region of the world beside real ranges).
@@ -594,7 +603,9 @@ struct TrainArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::World { seed, tiles, out, pow2_plus_1, source, weights, pin } => world(seed, &tiles, &out, pow2_plus_1, source, weights, &pin),
+        Command::World { seed, tiles, out, pow2_plus_1, source, weights, pin, sketch, relief } => {
+            world(seed, &tiles, &out, pow2_plus_1, source, weights, &pin, sketch.as_deref().map(|s| (s, relief)))
+        }
         Command::Hillshade { input, spacing_m, side, out } => hillshade(&input, spacing_m, side as usize, &out),
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),

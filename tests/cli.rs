@@ -57,6 +57,13 @@ fn bad_arguments_are_clear_errors() {
         (vec!["world", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--pin", "/tmp/x.tif@0,0"], 1, "add --source tcm"),
         (vec!["world", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--source", "tcm", "--pin", "/tmp/x.tif@a,b"], 1, "after @ come the tile I,J"),
         (vec!["world", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--source", "tcm", "--pin", "/nonexistent/p.tif@0,0"], 1, "--pin /nonexistent/p.tif"),
+        (vec!["world", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--sketch", "/tmp/s.png"], 1, "add --source tcm"),
+        (
+            vec!["world", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--source", "tcm", "--sketch", "/tmp/s.png", "--relief", "9000"],
+            1,
+            "--relief must be between 10 and 8000",
+        ),
+        (vec!["world", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--source", "tcm", "--sketch", "/nonexistent/s.png"], 1, "--sketch /nonexistent/s.png"),
         (vec!["enhance", "--input", "/tmp/x.tif", "--input-res", "30", "--output-res", "1", "--out", "/tmp/y.tif"], 1, "--input-res must be one of"),
         (vec!["enhance", "--input", "/tmp/x.tif", "--input-res", "8", "--output-res", "16", "--out", "/tmp/y.tif"], 1, "finer"),
         (vec!["enhance", "--input", "/nonexistent/in.tif", "--input-res", "32", "--output-res", "16", "--out", "/tmp/y.tif"], 1, "/nonexistent/in.tif"),

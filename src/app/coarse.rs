@@ -139,6 +139,23 @@ impl TerrainApp {
         (if far { detailed.max(FAR_FIELD_M + 0.5 * TILE_SIZE_M + self.camera.position_m.y.max(0.0)) } else { detailed }) as f32
     }
 
+    /// Distance fog (metres from the eye): where it starts and where it is whole. With a far
+    /// field it is whole at the far field's edge seen from the eye (the slant distance to a
+    /// point [`FAR_FIELD_M`] away at sea level), so that edge never shows, not even from high
+    /// above; it starts at 35 % of that, or nearer the edge when the eye is high (at 90 % of
+    /// the eye's height) so the ground below stays clear. Without one, it spans 35–100 % of
+    /// the far plane.
+    pub(super) fn fog_m(&self) -> (f32, f32) {
+        let far = self.camera.far_m as f64;
+        if !(self.learned_shown_ready() || self.local_far_field()) {
+            return ((0.35 * far) as f32, far as f32);
+        }
+        let h = self.camera.position_m.y.max(0.0);
+        let end = FAR_FIELD_M.hypot(h).min(far);
+        let start = (0.35 * end).max(0.9 * h).min(0.9 * end);
+        (start as f32, end as f32)
+    }
+
     /// Whether the world shown is made by the learned networks with their models ready: the
     /// learned world, or the sketch pinned into it.
     pub(super) fn learned_shown_ready(&self) -> bool {

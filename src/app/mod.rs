@@ -628,13 +628,13 @@ impl TerrainApp {
         self.stats.view_checksum = format!("{sum:016x}");
 
         let n = &self.settings.noise;
-        let far = self.camera.far_m;
+        let (fog_start_m, fog_end_m) = self.fog_m();
         let params = FrameParams {
             camera: self.camera,
             size: size_px,
             sun_dir: sun_direction(2.3, 0.45),
-            fog_start_m: far * 0.35,
-            fog_end_m: far,
+            fog_start_m,
+            fog_end_m,
             // The sketch's plain lies at 0 m and is drawn as water by the terrain itself (level
             // ground); the sea plane goes below it so the two do not fight.
             water_level_m: if self.source() == SourceKind::Sketch { SKETCH_SEA_M } else { 0.0 },

@@ -459,6 +459,28 @@ fn frames_until_far_field(app: &mut TerrainApp) -> Vec<TileCoord> {
     app.world.far_ring(eye.x, eye.z)
 }
 
+/// The far field's edge never shows: seen from 1.5, 20 and 60 km up, the fog is whole
+/// (≥ 99.9 %) at the slant distance to a point 61 km away at sea level, while the ground
+/// straight below the eye is at most 12 % fogged.
+#[test]
+fn the_fog_is_whole_at_the_far_fields_edge_and_light_below_the_eye_from_any_height() {
+    use crate::world::stream::FAR_FIELD_M;
+    let mut app = TerrainApp::new(procedural(1.0));
+    for h in [1500.0, 20_000.0, 60_000.0] {
+        app.camera.position_m.y = h;
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        let (start, end) = app.fog_m();
+        let fog = |d: f64| {
+            let t = ((d as f32 - start) / (end - start).max(1.0)).clamp(0.0, 1.0);
+            t * t * (3.0 - 2.0 * t)
+        };
+        let (edge, below) = (fog(FAR_FIELD_M.hypot(h)), fog(h));
+        eprintln!("{h} m up: fog {start:.0}–{end:.0} m, at the edge {edge:.3}, below {below:.3}");
+        assert!(edge >= 0.999 && below <= 0.12, "{h} m up: fog at the edge {edge}, below {below}");
+        assert!(end <= app.camera.far_m);
+    }
+}
+
 /// The procedural world has a far field too: once its tiles are made, the ring out to 61 km is
 /// made here (a few tiles a frame) and drawn; each far tile holds the tile's own samples at
 /// every 4th position (so it meets the detailed tiles exactly), and the view reaches 61 km.

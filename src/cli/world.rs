@@ -46,14 +46,38 @@ pub(crate) fn read_pins(args: &[String]) -> Result<terrain::world::pins::Pins, S
 /// worker (a [`NativeRunner`] thread), so the CLI, the tests and the page run one code path.
 ///
 /// [`NativeRunner`]: terrain::jobs::native::NativeRunner
-pub(crate) fn world(seed: u64, tiles: &[i64], out: &std::path::Path, pow2_plus_1: bool, source: Source, weights: Option<PathBuf>, pin: &[String]) -> Result<(), String> {
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn world(
+    seed: u64,
+    tiles: &[i64],
+    out: &std::path::Path,
+    pow2_plus_1: bool,
+    source: Source,
+    weights: Option<PathBuf>,
+    pin: &[String],
+    sketch: Option<(&std::path::Path, f64)>,
+) -> Result<(), String> {
     use terrain::grid::TileCoord;
     use terrain::jobs::protocol::{Envelope, Reply, Request};
     let (x0, y0, w, h) = tile_rect(tiles)?;
-    if !pin.is_empty() && source != Source::Tcm {
-        return Err("--pin grows the learned world around a DEM: add --source tcm".into());
+    if (!pin.is_empty() || sketch.is_some()) && source != Source::Tcm {
+        return Err("--pin and --sketch grow the learned world around your terrain: add --source tcm".into());
     }
-    let pins = read_pins(pin)?;
+    let mut pins = read_pins(pin)?;
+    if let Some((file, relief_m)) = sketch {
+        use terrain::world::sketched::{RELIEF_M, SKETCH_TILES, SketchSource};
+        if !RELIEF_M.contains(&relief_m) {
+            return Err(format!("--relief must be between {} and {} metres, not {relief_m}", RELIEF_M.start(), RELIEF_M.end()));
+        }
+        let sk = terrain::sketch::Sketch::read_path(file).map_err(|e| format!("--sketch {}: {e}", file.display()))?;
+        let heights = sketch_generator(weights.clone())?.generate(&sk, &mut Default::default(), terrain::models::cpu::default_threads());
+        let sketched = SketchSource::new(std::sync::Arc::new(heights), relief_m).pins();
+        for c in SKETCH_TILES {
+            let tile = sketched.get(c).ok_or("a sketch pins its four tiles")?;
+            pins.insert(c, tile.fine.to_vec())?;
+        }
+        eprintln!("pinned the sketch {} ({relief_m} m relief) on tiles (-1, -1)–(0, 0)", file.display());
+    }
     terrain::dem::formats::Format::of(out).map_err(|e| e.to_string())?;
     let runner = terrain::jobs::native::NativeRunner::spawn(terrain::models::cpu::default_threads());
     let ask = |request| -> Result<Reply, String> {

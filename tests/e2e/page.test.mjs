@@ -155,7 +155,7 @@ test('the default world is the learned one and renders terrain (its coarse stand
   await page.close();
 });
 
-test('first impressions: the page at +2 s, the statistics view, a new seed by editing the link (the old picture kept, then the new world) and the sketch world chosen in the settings, framed at once (timings and screenshots)', async () => {
+test('first impressions: the page at +2 s, the statistics view, a new seed by editing the link (the old picture kept, then the new world) and the sketch world chosen in the settings, framed at once, the learned world grown around it as the native CLI makes it (timings and screenshots)', async () => {
   const t0 = Date.now();
   // The sketch world's screenshot at the size the sketch test uses (its panel beside the view).
   const { page, errors } = await open('', '', { width: 1280, height: 900 });
@@ -209,9 +209,21 @@ test('first impressions: the page at +2 s, the statistics view, a new seed by ed
   const [ex, ey, ez] = s.stats.eye_m;
   assert.ok(Math.abs(ex) < 500 && ez > 4000 && ez < 6500 && ey > 3000, `the camera does not frame the sketch: ${s.stats.eye_m}`);
   assert.ok(imageSpread(shot, 380).sd > 8, 'the sketch world looks uniform');
-  s = await waitFor(page, (q) => q.stats.far_pending === 0 && q.stats.far_drawn > 0, 'the sketch world\'s far field', 120_000, 100);
+  // The learned world grows around the sketch (its tiles pinned): every stand-in replaced,
+  // and the tile east of the sketch is what the native CLI makes with the same sketch pinned.
+  s = await waitFor(page, (q) => /^sketch in the learned world/.test(q.source) && q.stats.tiles_pending === 0 && q.stats.tiles_stale === 0 && q.stats.far_pending === 0 && q.stats.far_drawn > 0, 'the learned world around the sketch and its far field', 400_000, 100);
+  report.sketch_world.learned_around_s = (Date.now() - t2) / 1000;
   report.sketch_world.far_drawn = s.stats.far_drawn;
   await page.screenshot({ path: path.join(out, 'sketch_world_far_field.png') });
+  const seed = new URLSearchParams(s.link).get('seed');
+  const relief = new URLSearchParams(s.link).get('relief');
+  const beside = await tileHeights(page, 1, 0);
+  const nativeTif = path.join(out, 'sketch_world_beside_native.tif');
+  execFileSync(nativeBin, ['world', '--seed', seed, '--tiles', '1', '0', '1', '1', '--source', 'tcm', '--weights', path.join(repo, 'weights'), '--sketch', writeSketchPng(s.link, 'sketch_world'), '--relief', relief, '--out', nativeTif]);
+  const native = readTiff(fs.readFileSync(nativeTif)).data;
+  const dh = beside.reduce((m, h, k) => Math.max(m, Math.abs(h - native[k])), 0);
+  report.sketch_world.beside_max_dh_vs_native_m = dh;
+  assert.ok(dh < 0.05, `the learned world beside the sketch, page vs native CLI: ${dh} m`);
   assert.deepEqual(errors, []);
   await page.close();
 });
@@ -776,15 +788,20 @@ async function tileHeights(page, i, j) {
   throw new Error(`tile ${i}, ${j} never arrived`);
 }
 
+/** The sketch of `link` as a PNG in the format's palette (out/`name`_sketch.png); returns its path. */
+function writeSketchPng(link, name) {
+  const file = path.join(out, `${name}_sketch.png`);
+  const img = new PNG({ width: 256, height: 256 });
+  decodeSketch(sketchCode(link)).forEach((n, p) => { img.data.set([n & 4 ? 255 : 0, [63, 127, 191, 255][n & 3], n & 8 ? 255 : 0, 255], 4 * p); });
+  fs.writeFileSync(file, PNG.sync.write(img));
+  return file;
+}
+
 /** Largest |Δh| (m) between the page's four sketch tiles and the native CLI's `terrain sketch
  * --views 1` (one view, as the page draws) on the sketch of `link` (its 16-bit output scaled by
  * the link's relief). */
 async function nativeSketchDh(page, link, name) {
-  const linked = path.join(out, `${name}_sketch.png`);
-  const sk = decodeSketch(sketchCode(link));
-  const img = new PNG({ width: 256, height: 256 });
-  sk.forEach((n, p) => { img.data.set([n & 4 ? 255 : 0, [63, 127, 191, 255][n & 3], n & 8 ? 255 : 0, 255], 4 * p); });
-  fs.writeFileSync(linked, PNG.sync.write(img));
+  const linked = writeSketchPng(link, name);
   const dem = path.join(out, `${name}_dem.png`);
   execFileSync(nativeBin, ['sketch', '--input', linked, '--out', dem, '--views', '1', '--weights', path.join(repo, 'weights')]);
   const native = PNG.sync.read(fs.readFileSync(dem), { skipRescale: true });
