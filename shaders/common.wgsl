@@ -55,6 +55,8 @@ fn apply_fog(c: vec3<f32>, rel: vec3<f32>) -> vec3<f32> {
     let d = length(rel);
     let t = clamp((d - g.fog.x) / max(g.fog.y - g.fog.x, 1.0), 0.0, 1.0);
     let f = t * t * (3.0 - 2.0 * t);
-    let haze = sky_colour(normalize(vec3<f32>(rel.x, max(rel.y, 0.0) * 0.3, rel.z)));
+    // The sky drawn behind it in the same direction: where the fog is whole (the far field's
+    // edge) the terrain is exactly the sky beside it, so no edge shows, from any height.
+    let haze = sky_colour(normalize(rel));
     return mix(c, haze, f);
 }

@@ -13,6 +13,8 @@
 //! The page's query string (`?tem=gpu|cpu|off`) holds options of this page load, not of the
 //! world: [`PageOptions`].
 
+pub mod bundle;
+
 use crate::models::runtime::TemChoice;
 use crate::world::{NoiseKind, NoiseParams, SourceKind};
 

@@ -305,6 +305,11 @@ impl TerrainApp {
         self.worker_pins.clone()
     }
 
+    /// The terrain the user pinned into the learned world.
+    pub fn user_pins(&self) -> &Pins {
+        &self.user_pins
+    }
+
     /// Pins the user's terrain into the learned world (none: takes it out); a learned world
     /// shown is made again around them.
     pub fn set_user_pins(&mut self, pins: Pins) {

@@ -18,6 +18,7 @@ use crate::jobs::protocol::{Answer, Envelope, Reply, Request, SketchBytes};
 use crate::jobs::{Job, JobQueue, Outcome};
 use crate::models::runtime::{self, Backend, CpuReason, TemChoice};
 use crate::share::ShareState;
+use crate::share::bundle::WorldBundle;
 use crate::sketch::{SKETCH_PX, Sketch};
 use crate::world::pins::Pins;
 use crate::world::refine::INPUT_SIDE;
@@ -441,11 +442,54 @@ impl PageCore {
         self.pinned = Some((name.to_string(), tiles.len()));
         self.app.set_user_pins(pins);
         Ok(format!(
-            "Pinned {name}: {} tiles from tile ({}, {}), the world grows around them. A link does not carry them yet: whoever opens it sees the world without your terrain.",
+            "Pinned {name}: {} tiles from tile ({}, {}), the world grows around them. A link does not carry them: \"Save world\" makes a file with the link and your terrain.",
             tiles.len(),
             at.i,
             at.j
         ))
+    }
+
+    /// The world as a bundle file ([`crate::share::bundle`]): the link of the view and the
+    /// terrain pinned into it, for a world whose pins a link cannot carry. `None` with nothing
+    /// pinned (the link alone is the world).
+    pub fn save_world(&self) -> Option<Vec<u8>> {
+        let pins = self.app.user_pins();
+        (!pins.is_empty()).then(|| WorldBundle { link: self.app.asked_state().to_fragment(), pins: pins.clone() }.to_bytes())
+    }
+
+    /// Opens a world bundle ([`Self::save_world`]) named `name`: its link's world and view,
+    /// with its terrain pinned. Returns what to tell the user; a file that is not a bundle, or
+    /// whose link is broken, changes nothing.
+    pub fn open_world(&mut self, name: &str, bytes: &[u8]) -> Result<String, String> {
+        let bundle = WorldBundle::from_bytes(bytes).map_err(|e| format!("{name}: {e}"))?;
+        let share = ShareState::from_fragment(&bundle.link).map_err(|e| format!("{name}: its link is broken ({e})"))?;
+        let tiles = bundle.pins.coords().len();
+        self.app.apply(share);
+        self.app.set_user_pins(bundle.pins);
+        self.pinned = (tiles > 0).then(|| (name.to_string(), tiles));
+        let wait = if matches!(self.loads.world, Load::Ready { .. }) { "" } else { " once the learned world's models have loaded" };
+        Ok(format!("Opened {name}: its world and view, with {tiles} pinned tiles{wait}."))
+    }
+
+    /// A file the user dropped on the page (or opened), by what its bytes are: a world bundle
+    /// is opened, a GeoTIFF pinned ([`Self::pin_dem`]), a sketch PNG drawn on the canvas and
+    /// shown in the sketch world. Returns what to tell the user; anything else is refused with
+    /// why, and nothing changes.
+    pub fn open_file(&mut self, name: &str, bytes: Vec<u8>) -> Result<String, String> {
+        match bytes.get(..4) {
+            Some([0x1f, 0x8b, ..]) => self.open_world(name, &bytes),
+            Some(b"II*\0" | b"MM\0*") => self.pin_dem(name, bytes),
+            Some([0x89, b'P', b'N', b'G']) => {
+                let sketch = crate::sketch::Sketch::read_png(std::io::Cursor::new(bytes))
+                    .map_err(|e| format!("{name} is not a sketch ({e}); a heightmap to pin must be a GeoTIFF that states its pixel size"))?;
+                self.app.canvas.load(sketch);
+                if self.app.settings().source != SourceKind::Sketch {
+                    self.app.apply_settings(ShareState { source: SourceKind::Sketch, ..self.app.settings().clone() });
+                }
+                Ok(format!("Opened the sketch {name}: its terrain is made in the sketch world."))
+            }
+            _ => Err(format!("{name}: drop a GeoTIFF to pin, a sketch PNG, or a world bundle (.json.gz)")),
+        }
     }
 
     /// Takes the pinned terrain out of the learned world ([`Self::pin_dem`]) and makes the

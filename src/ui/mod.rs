@@ -164,6 +164,10 @@ pub struct UiActions {
     pub pin_dem: bool,
     /// Take the pinned terrain out of the learned world.
     pub unpin: bool,
+    /// Download the world (its link and pinned terrain) as a bundle.
+    pub save_world: bool,
+    /// Pick a world bundle to open.
+    pub open_world: bool,
 }
 
 /// Overlay state that lives between frames.
@@ -296,7 +300,7 @@ impl Overlay {
                     }
                 }
             });
-            ui.horizontal(|ui| {
+            ui.horizontal_wrapped(|ui| {
                 ui.label("Your terrain");
                 let pin = ui
                     .small_button("Pin a GeoTIFF…")
@@ -305,11 +309,24 @@ impl Overlay {
                 if pin.clicked() {
                     act.pin_dem = true;
                 }
+                let open = ui
+                    .small_button("Open world…")
+                    .on_hover_text("a world bundle saved with \"Save world\": its link and pinned terrain (or drop it, a GeoTIFF or a sketch PNG on the page)");
+                self.buttons.insert("open_world", open.rect);
+                if open.clicked() {
+                    act.open_world = true;
+                }
                 if let Some((name, tiles)) = &env.pinned {
                     let unpin = ui.small_button("Unpin").on_hover_text(format!("{name} ({tiles} tiles) is pinned: take it out and make the world again without it"));
                     self.buttons.insert("unpin", unpin.rect);
                     if unpin.clicked() {
                         act.unpin = true;
+                    }
+                    let save =
+                        ui.small_button("Save world").on_hover_text("a file with the link and your pinned terrain, which a link cannot carry: whoever opens it sees this world");
+                    self.buttons.insert("save_world", save.rect);
+                    if save.clicked() {
+                        act.save_world = true;
                     }
                     ui.label(egui::RichText::new(format!("{name} · {tiles} tiles")).small());
                 }

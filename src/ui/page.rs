@@ -23,6 +23,10 @@ pub struct BrowserAsks {
     pub export: Option<crate::dem::formats::Format>,
     /// Open a GeoTIFF to pin into the learned world.
     pub pin_dem: bool,
+    /// Download the world as a bundle.
+    pub save_world: bool,
+    /// Open a world bundle.
+    pub open_world: bool,
 }
 
 /// The interface's state between frames.
@@ -63,7 +67,8 @@ impl PageUi {
         if act.unpin {
             core.unpin();
         }
-        let mut asks = BrowserAsks { copy_link: act.copy_link, export: act.export, pin_dem: act.pin_dem, ..Default::default() };
+        let mut asks =
+            BrowserAsks { copy_link: act.copy_link, export: act.export, pin_dem: act.pin_dem, save_world: act.save_world, open_world: act.open_world, ..Default::default() };
         if core.app.source() == SourceKind::Sketch {
             if let Some(v) = core.variants.take() {
                 self.panel.set_variants(ctx, v);

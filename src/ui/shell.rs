@@ -89,6 +89,9 @@ pub trait Platform: 'static {
     /// Asks the user for a file of type `accept` (e.g. `image/png`); it lands in `slot`,
     /// unread when it is larger than `max_bytes`.
     fn pick_file(&self, accept: &str, max_bytes: f64, slot: FileSlot) -> Result<(), String>;
+    /// Reads a file the user dropped on the page; it is pushed onto `landed`, unread when it
+    /// is larger than `max_bytes`.
+    fn read_dropped(&self, file: egui::DroppedFileHandle, max_bytes: f64, landed: Rc<RefCell<Vec<Picked>>>);
 }
 
 /// The GPU a frame draws the 3-D view with.
@@ -162,6 +165,10 @@ pub struct PageShell<P: Platform> {
     import: FileSlot,
     /// Where a GeoTIFF to pin lands.
     pin_file: FileSlot,
+    /// Where a world bundle to open lands.
+    world_file: FileSlot,
+    /// Files dropped on the page, once read.
+    dropped: Rc<RefCell<Vec<Picked>>>,
 }
 
 /// Asks for one more frame. egui answers `request_repaint()` with two; a non-zero delay asks
@@ -192,6 +199,8 @@ impl<P: Platform> PageShell<P> {
             link_too_long: 0,
             import: Rc::default(),
             pin_file: Rc::default(),
+            world_file: Rc::default(),
+            dropped: Rc::default(),
         }
     }
 
@@ -305,6 +314,36 @@ impl<P: Platform> PageShell<P> {
         let Some(file) = self.pin_file.borrow_mut().take() else { return };
         let said = picked_bytes(file, "a GeoTIFF to pin is at most 65 MB (4096² float32 samples)").and_then(|(name, bytes)| self.core.pin_dem(&name, bytes));
         self.core.message = Some(said.unwrap_or_else(|e| e));
+    }
+
+    /// Your world as a file: the bundle to save, one to pick, one picked or dropped (with any
+    /// other file dropped on the page: a GeoTIFF to pin, a sketch PNG), opened by the core.
+    fn world_files(&mut self, ctx: &egui::Context, asks: BrowserAsks) {
+        use crate::share::bundle;
+        if asks.save_world {
+            let saved = match self.core.save_world() {
+                Some(bytes) => {
+                    self.platform.download(bundle::FILE_NAME, &bytes, "application/gzip").map(|_| format!("Saved {}: the link and your pinned terrain.", bundle::FILE_NAME))
+                }
+                None => Err("Nothing is pinned: the link alone is this world.".to_string()),
+            };
+            self.core.message = Some(saved.unwrap_or_else(|e| e));
+        }
+        if asks.open_world
+            && let Err(e) = self.platform.pick_file(".gz,application/gzip", bundle::MAX_FILE_BYTES, self.world_file.clone())
+        {
+            self.core.message = Some(format!("No file dialog: {e}"));
+        }
+        for file in ctx.input(|i| i.raw.dropped_files.clone()) {
+            self.platform.read_dropped(file, MAX_PIN_FILE_BYTES, self.dropped.clone());
+        }
+        let mut files: Vec<(Picked, &str)> = std::mem::take(&mut *self.dropped.borrow_mut()).into_iter().map(|f| (f, "a file dropped on the page is at most 65 MB")).collect();
+        files.extend(self.world_file.borrow_mut().take().map(|f| (f, "a world bundle is at most 16 MB")));
+        for (file, limit) in files {
+            let said = picked_bytes(file, limit).and_then(|(name, bytes)| self.core.open_file(&name, bytes));
+            self.core.message = Some(said.unwrap_or_else(|e| e));
+            self.ui.overlay.reset(self.core.app.settings().clone());
+        }
     }
 
     /// Offers `sketch` as `sketch.png` in the format's palette.
@@ -445,6 +484,7 @@ impl<P: Platform> PageShell<P> {
         let asks = self.ui.show(&ctx, &mut self.core, &self.env, now);
         self.sketch_files(asks);
         self.pin_files(asks);
+        self.world_files(&ctx, asks);
         // A stroke goes out in the frame that drew it.
         self.core.start_sketch_jobs();
         self.carry_out();

@@ -1,6 +1,7 @@
 //! Files in and out of the page: a download of bytes, a file the user picks, a fetch.
 
 use std::cell::RefCell;
+use std::rc::Rc;
 
 use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
@@ -75,6 +76,22 @@ pub fn pick_file(accept: &str, max_bytes: f64, slot: FileSlot) -> Result<(), Str
     input.set_value("");
     input.click();
     Ok(())
+}
+
+/// Reads `file`, dropped on the page, onto `landed`: refused unread when its size is over
+/// `max_bytes`.
+pub fn read_dropped(file: egui::DroppedFileHandle, max_bytes: f64, landed: Rc<RefCell<Vec<Picked>>>) {
+    let name = file.path().display().to_string();
+    if let Some(size) = file.web_file().map(|f| f.size())
+        && size > max_bytes
+    {
+        landed.borrow_mut().push(Picked { name, bytes: Err(Refused::TooBig(size)) });
+        return;
+    }
+    wasm_bindgen_futures::spawn_local(async move {
+        let bytes = file.bytes_async().await.map_err(Refused::Unreadable);
+        landed.borrow_mut().push(Picked { name, bytes });
+    });
 }
 
 /// Downloads `url`'s body.

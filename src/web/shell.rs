@@ -6,7 +6,7 @@ use wasm_bindgen::prelude::*;
 
 use super::worker::CpuWorker;
 use super::{DEVICES, files, location_hash};
-use crate::ui::shell::{Fetching, FileSlot, PageShell, Platform, Task, ViewGpu};
+use crate::ui::shell::{Fetching, FileSlot, PageShell, Picked, Platform, Task, ViewGpu};
 
 /// A web page as the shell's platform.
 pub(super) struct WebPlatform;
@@ -47,6 +47,10 @@ impl Platform for WebPlatform {
 
     fn pick_file(&self, accept: &str, max_bytes: f64, slot: FileSlot) -> Result<(), String> {
         files::pick_file(accept, max_bytes, slot)
+    }
+
+    fn read_dropped(&self, file: egui::DroppedFileHandle, max_bytes: f64, landed: std::rc::Rc<std::cell::RefCell<Vec<Picked>>>) {
+        files::read_dropped(file, max_bytes, landed);
     }
 }
 

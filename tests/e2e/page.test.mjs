@@ -725,6 +725,55 @@ test('your terrain pinned in the page: a GeoTIFF chosen with "Pin a GeoTIFF…" 
   await page.close();
 });
 
+/** Drops `file` on the page's canvas as `name`, as a user dragging it from their desktop. */
+async function dropFile(page, file, name) {
+  const b64 = fs.readFileSync(file).toString('base64');
+  await page.evaluate(({ b64, name }) => {
+    const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+    const dt = new DataTransfer();
+    dt.items.add(new File([bytes], name));
+    const canvas = document.querySelector('canvas');
+    for (const type of ['dragenter', 'dragover', 'drop']) canvas.dispatchEvent(new DragEvent(type, { dataTransfer: dt, bubbles: true, cancelable: true }));
+  }, { b64, name });
+}
+
+test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world" downloads a bundle, and that bundle dropped on a fresh page at another seed and place opens the same world (the pinned tile and the learned tile beside it bit for bit)', async () => {
+  const tif = path.join(out, 'drop.tif');
+  execFileSync(nativeBin, ['world', '--seed', '78', '--tiles', '0', '0', '2', '2', '--out', tif]);
+  const { page, errors } = await open('', '', BIG);
+  await waitFor(page, (q) => /^learned \(TCM/.test(q.source) && q.stats.tiles_generated > 0, 'the learned world loaded');
+  await dropFile(page, tif, 'drop.tif');
+  let s = await waitFor(page, (q) => /^Pinned drop\.tif: 4 tiles from tile \(0, 0\)/.test(q.message ?? ''), 'the pin message after the drop');
+  const first = [await tileHeights(page, 0, 0), await tileHeights(page, -1, 0)];
+  const { width, data } = readTiff(fs.readFileSync(tif));
+  assert.ok(first[0].every((h, k) => Math.fround(h) === data[Math.floor(k / 128) * width + (k % 128)]), 'the dropped GeoTIFF is not the pinned tile');
+  // "Save world", clicked where it stays.
+  let last = null;
+  s = await waitFor(page, (q) => { const r = JSON.stringify(q.overlay_buttons.save_world); const same = r === last && r !== undefined; last = r; return same; }, 'the Save world button settled', 30_000, 500);
+  const link = s.link;
+  const dl = page.waitForEvent('download');
+  await page.mouse.click(...centre(s.overlay_buttons.save_world));
+  const bundle = path.join(out, 'terrain-world.json.gz');
+  const download = await dl;
+  assert.equal(download.suggestedFilename(), 'terrain-world.json.gz');
+  await download.saveAs(bundle);
+  await page.close();
+  // A fresh page elsewhere in another world.
+  const fresh = await open('v=2&seed=5&src=tcm&cam=50000,2500,0,0,-0.5&r=3&lod=6', '', BIG);
+  await waitFor(fresh.page, (q) => /^learned \(TCM/.test(q.source) && q.stats.tiles_generated > 0, 'the fresh page\'s learned world');
+  await dropFile(fresh.page, bundle, 'terrain-world.json.gz');
+  s = await waitFor(fresh.page, (q) => /^Opened terrain-world\.json\.gz: its world and view, with 4 pinned tiles/.test(q.message ?? ''), 'the bundle opened');
+  const again = [await tileHeights(fresh.page, 0, 0), await tileHeights(fresh.page, -1, 0)];
+  const same = again.map((t, k) => t.every((h, i) => Object.is(h, first[k][i])));
+  s = await stats(fresh.page);
+  report.world_bundle = { bytes: fs.statSync(bundle).size, pinned_same: same[0], beside_same: same[1], seed_after: new URLSearchParams(s.link).get('seed'), seed_saved: new URLSearchParams(link).get('seed') };
+  assert.deepEqual(same, [true, true], 'the bundle opened another world');
+  assert.equal(report.world_bundle.seed_after, report.world_bundle.seed_saved);
+  assert.deepEqual(errors, []);
+  assert.deepEqual(fresh.errors, []);
+  await fresh.page.close();
+});
+
 test('without WebGPU the page says so instead of failing silently', async () => {
   const plain = await chromium.launch({
     executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium',

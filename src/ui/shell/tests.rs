@@ -100,6 +100,37 @@ impl Platform for TestPlatform {
         *slot.borrow_mut() = Some(Picked { name: "x.png".into(), bytes: Err(Refused::Unreadable("no file in this test".into())) });
         Ok(())
     }
+
+    fn read_dropped(&self, file: egui::DroppedFileHandle, max_bytes: f64, landed: Rc<RefCell<Vec<Picked>>>) {
+        let name = file.path().display().to_string();
+        let bytes = file.bytes().map_err(Refused::Unreadable).and_then(|b| if b.len() as f64 > max_bytes { Err(Refused::TooBig(b.len() as f64)) } else { Ok(b) });
+        landed.borrow_mut().push(Picked { name, bytes });
+    }
+}
+
+/// A file dropped on the test page.
+#[derive(Debug)]
+struct TestFile(std::path::PathBuf, Vec<u8>);
+
+impl egui::DroppedFile for TestFile {
+    fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+
+    fn bytes(&self) -> Result<Vec<u8>, String> {
+        Ok(self.1.clone())
+    }
+}
+
+/// One frame of 1280×800 points with `name` (holding `bytes`) dropped on the page.
+fn drop_file(shell: &mut PageShell<TestPlatform>, platform: &TestPlatform, ctx: &egui::Context, name: &str, bytes: Vec<u8>) {
+    let input = egui::RawInput {
+        screen_rect: Some(egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1280.0, 800.0))),
+        dropped_files: vec![std::sync::Arc::new(TestFile(name.into(), bytes))],
+        ..Default::default()
+    };
+    ctx.run_ui(input, |ui| shell.frame(ui, None)).textures_delta.clear();
+    platform.run_tasks();
 }
 
 /// A page opened at `fragment` on the test platform, with a worker thread and no GPU.
@@ -220,4 +251,72 @@ fn the_view_exports_as_png16_with_its_sidecar_and_as_glb() {
     let side: serde_json::Value = serde_json::from_slice(&platform.files.borrow()[1]).unwrap();
     assert_eq!(side["spacing_m"], 32.0);
     assert!(downloads[2].1 > 1_000_000, "a mesh of 640² vertices: {} bytes", downloads[2].1);
+}
+
+/// Files dropped on the page are opened by what they are. A GeoTIFF is pinned around the eye
+/// in the learned world; the world saved as a bundle and dropped on a fresh page opens the
+/// same world: its view, the pinned tile bit for bit and the learned tile beside it as the
+/// first page made it. A sketch PNG takes the page to the sketch world with that sketch; a
+/// file of another kind says what can be dropped and changes nothing.
+#[test]
+fn dropped_files_pin_a_geotiff_open_a_saved_world_bundle_and_a_sketch() {
+    let fragment = "#v=2&seed=3&src=tcm&cam=2048,900,2048,0,-0.6&r=1&lod=6";
+    let (mut shell, platform, _runners) = page(fragment);
+    let ctx = egui::Context::default();
+    let settle = |shell: &mut PageShell<TestPlatform>, tiles: &[TileCoord]| {
+        for _ in 0..400 {
+            frames(shell, &platform, &ctx, 1);
+            if shell.core.loads.world.is_ready() && tiles.iter().all(|&c| shell.core.app.tile_heights(c).is_some()) {
+                return;
+            }
+        }
+        panic!("tiles {tiles:?} not made: {:?}", shell.core.app.stats());
+    };
+    let (pinned, beside) = (TileCoord::new(0, 0), TileCoord::new(-1, 0));
+    settle(&mut shell, &[]);
+    assert!(shell.core.save_world().is_none(), "nothing pinned: no bundle");
+    let n = 256;
+    let dem = Heightfield::new(n, n, 32.0, (0..n * n).map(|p| 900.0 + (p % n) as f32 * 2.0 + ((p / n) as f32 * 0.3).cos() * 60.0).collect());
+    let mut tif = std::io::Cursor::new(Vec::new());
+    dem.write_tiff(&mut tif).unwrap();
+    drop_file(&mut shell, &platform, &ctx, "mine.tif", tif.into_inner());
+    assert!(shell.core.message.clone().unwrap_or_default().starts_with("Pinned mine.tif: 4 tiles"), "{:?}", shell.core.message);
+    settle(&mut shell, &[pinned, beside]);
+    let first: Vec<Vec<f32>> = [pinned, beside].iter().map(|&c| shell.core.app.tile_heights(c).unwrap().to_vec()).collect();
+    assert_eq!(first[0], dem.window(0, 0, 128, 128).data, "the pinned tile is the GeoTIFF's");
+    let bundle = shell.core.save_world().expect("a bundle of the pinned world");
+    // A fresh page (another seed, elsewhere) opens the bundle: the same world and view.
+    let (mut other, platform2, _r2) = page("#v=2&seed=99&src=tcm&cam=90000,3000,0,0,-0.5&r=1&lod=6");
+    let ctx2 = egui::Context::default();
+    for _ in 0..400 {
+        frames(&mut other, &platform2, &ctx2, 1);
+        if other.core.loads.world.is_ready() {
+            break;
+        }
+    }
+    drop_file(&mut other, &platform2, &ctx2, crate::share::bundle::FILE_NAME, bundle);
+    assert!(other.core.message.clone().unwrap_or_default().starts_with("Opened terrain-world.json.gz: its world and view, with 4 pinned tiles"), "{:?}", other.core.message);
+    assert_eq!((other.core.app.settings().seed, other.core.app.camera.position_m.x), (3, 2048.0));
+    for _ in 0..400 {
+        frames(&mut other, &platform2, &ctx2, 1);
+        if [pinned, beside].iter().all(|&c| other.core.app.tile_heights(c).is_some()) {
+            break;
+        }
+    }
+    for (k, c) in [pinned, beside].into_iter().enumerate() {
+        let got = other.core.app.tile_heights(c).expect("made on the second page");
+        assert!(got.iter().zip(&first[k]).all(|(a, b)| a.to_bits() == b.to_bits()), "tile {c:?} differs from the first page's");
+    }
+    // A sketch PNG: the sketch world, showing it.
+    let sketch = crate::sketch::examples::all().swap_remove(2).1;
+    let mut png = Vec::new();
+    sketch.write_png(&mut png).unwrap();
+    drop_file(&mut other, &platform2, &ctx2, "mine.png", png);
+    assert_eq!(other.core.app.settings().source, crate::world::SourceKind::Sketch);
+    assert_eq!(other.core.app.canvas.sketch(), &sketch);
+    // Anything else.
+    let seed = other.core.app.settings().seed;
+    drop_file(&mut other, &platform2, &ctx2, "notes.txt", b"hello".to_vec());
+    assert_eq!(other.core.message.clone().unwrap_or_default(), "notes.txt: drop a GeoTIFF to pin, a sketch PNG, or a world bundle (.json.gz)");
+    assert_eq!((other.core.app.settings().seed, other.core.app.settings().source), (seed, crate::world::SourceKind::Sketch));
 }
