@@ -154,6 +154,17 @@ pub fn next_id() -> u32 {
     NEXT_ID.fetch_add(1, Ordering::Relaxed).max(1)
 }
 
+/// What a page started again after a lost device keeps of the old one.
+#[derive(Clone, Debug)]
+pub struct Kept {
+    /// The view and settings.
+    pub share: ShareState,
+    /// What to tell the user.
+    pub note: String,
+    /// The terrain pinned into the learned world, and its file's name.
+    pub pinned: Option<(String, Pins)>,
+}
+
 /// The page's core (see the module documentation).
 pub struct PageCore {
     /// The world, camera and sketch canvas.
@@ -490,6 +501,18 @@ impl PageCore {
             }
             _ => Err(format!("{name}: drop a GeoTIFF to pin, a sketch PNG, or a world bundle (.json.gz)")),
         }
+    }
+
+    /// The terrain pinned into the learned world and its file's name, for a page that starts
+    /// again after a lost device ([`Kept`]).
+    pub fn kept_pins(&self) -> Option<(String, Pins)> {
+        self.pinned.as_ref().map(|(name, _)| (name.clone(), self.app.user_pins().clone()))
+    }
+
+    /// Pins `pins` (kept from `name`) again, as a page started again after a lost device.
+    pub fn restore_pins(&mut self, name: String, pins: Pins) {
+        self.pinned = Some((name, pins.coords().len()));
+        self.app.set_user_pins(pins);
     }
 
     /// Takes the pinned terrain out of the learned world ([`Self::pin_dem`]) and makes the

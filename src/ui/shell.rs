@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering::SeqCst};
 
 use crate::app::MESH_KEEP_FRAMES;
-use crate::app::page::{Delivery, Effect, PageCore, PageStart, Target};
+use crate::app::page::{Delivery, Effect, Kept, PageCore, PageStart, Target};
 use crate::app::runners::{Port, Runners};
 use crate::grid::TileCoord;
 use crate::render::gpu::TerrainRenderer;
@@ -213,7 +213,7 @@ impl<P: Platform> PageShell<P> {
         adapter: (String, bool),
         worker: Result<Rc<P::Worker>, String>,
         query: &str,
-        restart: Option<(ShareState, String)>,
+        restart: Option<Kept>,
     ) -> Self {
         let (options, notice) = crate::share::PageOptions::from_query(query);
         if let Err(e) = &worker {
@@ -239,11 +239,14 @@ impl<P: Platform> PageShell<P> {
     /// The page on `platform` as it opens: at the view of the address bar's fragment, or at
     /// `restart`'s view (with its note) after a lost device, with what the platform found at
     /// start-up and a notice about the page's options, if any.
-    pub fn open(platform: Rc<P>, runners: Rc<Runners<P::Worker>>, start: PageStart, restart: Option<(ShareState, String)>, notice: Option<String>, env: Environment) -> Self {
+    pub fn open(platform: Rc<P>, runners: Rc<Runners<P::Worker>>, start: PageStart, restart: Option<Kept>, notice: Option<String>, env: Environment) -> Self {
         let fragment = platform.fragment();
-        let (share, message) = PageCore::opening_view(restart, &fragment, notice);
+        let (share, message) = PageCore::opening_view(restart.as_ref().map(|k| (k.share.clone(), k.note.clone())), &fragment, notice);
         let mut core = PageCore::new(share.clone(), start).opened_at(fragment);
         core.message = core.message.take().or(message);
+        if let Some((name, pins)) = restart.and_then(|k| k.pinned) {
+            core.restore_pins(name, pins);
+        }
         Self::new(core, platform, runners, share, env)
     }
 

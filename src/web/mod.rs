@@ -44,11 +44,12 @@ pub fn terrain_lose_device() -> bool {
     DEVICE.with(|d| d.borrow().as_ref().map(|d| d.destroy()).is_some())
 }
 
-/// Replaces the lost device: stops the old renderer and starts the page again at `state`.
-async fn restart(state: ShareState, why: String) {
+/// Replaces the lost device: stops the old renderer and starts the page again at `state`, with
+/// the terrain that was pinned (`pinned`: its file's name and tiles).
+async fn restart(state: ShareState, pinned: Option<(String, crate::world::pins::Pins)>, why: String) {
     RUNNER.with(|r| r.borrow_mut().take()).inspect(|r| r.destroy());
     let note = format!("The GPU device was lost ({why}); the page started a new one and kept the view.");
-    if let Err(e) = run(Some((state, note))).await {
+    if let Err(e) = run(Some(crate::app::page::Kept { share: state, note, pinned })).await {
         show_page_message(&format!("The GPU device was lost and a new one could not be started: {e}"), false);
     }
 }
@@ -136,9 +137,9 @@ fn location_hash() -> String {
     web_sys::window().and_then(|w| w.location().hash().ok()).unwrap_or_default()
 }
 
-/// Starts the page: the view from the link, or `restart` (the view to keep and a note) after
+/// Starts the page: the view from the link, or `restart` (the view, a note and the pins to keep) after
 /// a lost device. The view starts at once; the models join the core as they load.
-async fn run(restart: Option<(ShareState, String)>) -> Result<(), String> {
+async fn run(restart: Option<crate::app::page::Kept>) -> Result<(), String> {
     let window = web_sys::window().ok_or("no window")?;
     let document = window.document().ok_or("no document")?;
     let canvas: web_sys::HtmlCanvasElement =

@@ -60,7 +60,7 @@ pub(super) struct WebApp(pub PageShell<WebPlatform>);
 impl eframe::App for WebApp {
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         if DEVICES.take_loss() {
-            wasm_bindgen_futures::spawn_local(super::restart(self.0.core.app.share_state(), "device lost".into()));
+            wasm_bindgen_futures::spawn_local(super::restart(self.0.core.app.share_state(), self.0.core.kept_pins(), "device lost".into()));
             return;
         }
         let Some(rs) = frame.wgpu_render_state() else { return };

@@ -320,3 +320,29 @@ fn dropped_files_pin_a_geotiff_open_a_saved_world_bundle_and_a_sketch() {
     assert_eq!(other.core.message.clone().unwrap_or_default(), "notes.txt: drop a GeoTIFF to pin, a sketch PNG, or a world bundle (.json.gz)");
     assert_eq!((other.core.app.settings().seed, other.core.app.settings().source), (seed, crate::world::SourceKind::Sketch));
 }
+
+/// A page started again after a lost device keeps the terrain that was pinned: its core names
+/// it, the note is shown, and the pinned tile arrives from the worker as pinned, bit for bit.
+#[test]
+fn a_page_started_again_after_a_lost_device_keeps_the_pinned_terrain() {
+    let platform = Rc::new(TestPlatform::default());
+    let worker = Rc::new(TestWorker { runner: NativeRunner::spawn(1), dead: RefCell::new(None), calls_when_dead: Cell::new(0) });
+    let n = crate::grid::coord::TILE_SAMPLES;
+    let heights: Vec<f32> = (0..n * n).map(|p| 1200.0 + (p % n) as f32 * 1.5 - (p / n) as f32).collect();
+    let mut pins = crate::world::pins::Pins::new();
+    pins.insert(TileCoord::new(0, 0), heights.clone()).unwrap();
+    let share = ShareState::from_fragment("v=2&seed=3&src=tcm&cam=2048,900,2048,0,-0.6&r=1&lod=6").unwrap();
+    let kept = crate::app::page::Kept { share, note: "the device was lost".into(), pinned: Some(("mine.tif".into(), pins)) };
+    let mut shell = PageShell::start(platform.clone(), Err("no GPU in this test".into()), ("test".into(), false), Ok(worker), "", Some(kept));
+    assert_eq!(shell.core.pinned, Some(("mine.tif".to_string(), 1)));
+    assert_eq!(shell.core.message.as_deref(), Some("the device was lost"));
+    let ctx = egui::Context::default();
+    for _ in 0..400 {
+        frames(&mut shell, &platform, &ctx, 1);
+        if shell.core.loads.world.is_ready() && shell.core.app.tile_heights(TileCoord::new(0, 0)).is_some() {
+            break;
+        }
+    }
+    let got = shell.core.app.tile_heights(TileCoord::new(0, 0)).expect("the pinned tile made");
+    assert!(got.iter().zip(&heights).all(|(a, b)| a.to_bits() == b.to_bits()), "the pinned tile is not the kept pin");
+}
