@@ -8,6 +8,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 pub mod coarse;
+pub mod heightmap;
 pub mod loads;
 pub mod page;
 pub mod runners;

@@ -11,6 +11,7 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 use glam::DVec3;
 
+use super::heightmap::{PendingPng, PngKind};
 use super::loads::{Load, LoadError, Loads, ModelSet, notice, reason};
 use super::{LearnedStatus, REFINE_BATCH, TerrainApp};
 use crate::grid::TileCoord;
@@ -211,6 +212,11 @@ pub struct PageCore {
     link: (String, f64),
     /// The hash of the pins the CPU worker's learned world has (`None` before it has one).
     pins_sent: Option<String>,
+    /// A heightmap PNG the user opened, waiting for its spacing and heights.
+    pub heightmap: Option<PendingPng>,
+    /// JSON sidecars the user opened (name, contents), the latest four, for a heightmap PNG
+    /// that comes after them.
+    sidecars: Vec<(String, serde_json::Value)>,
 }
 
 impl PageCore {
@@ -259,6 +265,8 @@ impl PageCore {
             edits: JobQueue::new(2),
             link: (String::new(), f64::NEG_INFINITY),
             pins_sent: None,
+            heightmap: None,
+            sidecars: Vec::new(),
         };
         if let Err(why) = core.worker.clone() {
             core.fail(ModelSet::World, &LoadError::NoWorker(why));
@@ -436,20 +444,45 @@ impl PageCore {
     /// tiles are kept exactly and the world is made again around them
     /// ([`crate::world::pins`]). Returns what to tell the user.
     pub fn pin_dem(&mut self, name: &str, bytes: Vec<u8>) -> Result<String, String> {
-        if self.app.source() != SourceKind::Learned || !matches!(self.loads.world, Load::Ready { .. }) {
-            return Err(format!("{name}: your terrain is pinned into the learned world; choose it in Settings and let its models load first"));
-        }
+        self.can_pin(name)?;
         let hf = crate::dem::Heightfield::read_tiff(std::io::Cursor::new(bytes), f64::NAN).map_err(|e| format!("{name}: {e}"))?;
         if hf.spacing_m.is_nan() {
             return Err(format!("{name} does not say its pixel size: pin a GeoTIFF that does"));
         }
+        self.pin_heightfield(name, &hf)
+    }
+
+    /// Why terrain named `name` cannot be pinned now, if it cannot: pins go into the learned
+    /// world, once its models are loaded.
+    fn can_pin(&self, name: &str) -> Result<(), String> {
+        if self.app.source() != SourceKind::Learned || !matches!(self.loads.world, Load::Ready { .. }) {
+            return Err(format!("{name}: your terrain is pinned into the learned world; choose it in Settings and let its models load first"));
+        }
+        Ok(())
+    }
+
+    /// Pins the heightmap PNG waiting for its answers ([`Self::heightmap`]) with the answers
+    /// it has now, as [`Self::pin_dem`] pins a GeoTIFF. On an error it keeps waiting, so the
+    /// answers can be changed.
+    pub fn pin_heightmap(&mut self) -> Result<String, String> {
+        let p = self.heightmap.as_ref().ok_or("no heightmap PNG is waiting to be pinned")?;
+        let name = p.name.clone();
+        self.can_pin(&name)?;
+        let hf = p.heightfield()?;
+        let said = self.pin_heightfield(&name, &hf)?;
+        self.heightmap = None;
+        Ok(said)
+    }
+
+    /// Pins `hf` (from the file `name`) centred on the tile under the eye.
+    fn pin_heightfield(&mut self, name: &str, hf: &crate::dem::Heightfield) -> Result<String, String> {
         // Whole tiles it covers across and down, to centre it on the eye's tile.
         let cols = (hf.width as f64 * hf.spacing_m / crate::grid::TILE_SIZE_M) as i32;
         let rows = (hf.height as f64 * hf.spacing_m / crate::grid::TILE_SIZE_M) as i32;
         let eye = self.app.camera.position_m;
         let at = TileCoord::containing(eye.x, eye.z).offset(-(cols - 1) / 2, -(rows - 1) / 2);
         let mut pins = Pins::new();
-        let tiles = pins.add(&hf, at).map_err(|e| format!("{name}: {e}"))?;
+        let tiles = pins.add(hf, at).map_err(|e| format!("{name}: {e}"))?;
         self.pinned = Some((name.to_string(), tiles.len()));
         self.app.set_user_pins(pins);
         Ok(format!(
@@ -484,23 +517,58 @@ impl PageCore {
 
     /// A file the user dropped on the page (or opened), by what its bytes are: a world bundle
     /// is opened, a GeoTIFF pinned ([`Self::pin_dem`]), a sketch PNG drawn on the canvas and
-    /// shown in the sketch world. Returns what to tell the user; anything else is refused with
-    /// why, and nothing changes.
+    /// shown in the sketch world, another PNG waits as a heightmap for its spacing and heights
+    /// ([`Self::heightmap`], [`Self::pin_heightmap`]), and a JSON sidecar of this project's
+    /// exports gives them. Returns what to tell the user; anything else is refused with why,
+    /// and nothing changes.
     pub fn open_file(&mut self, name: &str, bytes: Vec<u8>) -> Result<String, String> {
         match bytes.get(..4) {
             Some([0x1f, 0x8b, ..]) => self.open_world(name, &bytes),
             Some(b"II*\0" | b"MM\0*") => self.pin_dem(name, bytes),
             Some([0x89, b'P', b'N', b'G']) => {
-                let sketch = crate::sketch::Sketch::read_png(std::io::Cursor::new(bytes))
-                    .map_err(|e| format!("{name} is not a sketch ({e}); a heightmap to pin must be a GeoTIFF that states its pixel size"))?;
+                let sketch = match crate::sketch::Sketch::read_png(std::io::Cursor::new(&bytes)) {
+                    Ok(s) => s,
+                    Err(_) => return self.wait_for_heightmap_answers(name, bytes),
+                };
                 self.app.canvas.load(sketch);
                 if self.app.settings().source != SourceKind::Sketch {
                     self.app.apply_settings(ShareState { source: SourceKind::Sketch, ..self.app.settings().clone() });
                 }
                 Ok(format!("Opened the sketch {name}: its terrain is made in the sketch world."))
             }
-            _ => Err(format!("{name}: drop a GeoTIFF to pin, a sketch PNG, or a world bundle (.json.gz)")),
+            Some([b'{', ..]) if name.ends_with(".json") => {
+                let json: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| format!("{name}: {e}"))?;
+                if let Some(p) = &mut self.heightmap
+                    && p.apply_sidecar(name, &json)
+                {
+                    return Ok(format!("{name} gave {}'s spacing and heights: check them and press Pin.", p.name));
+                }
+                self.sidecars.push((name.to_string(), json));
+                let old = self.sidecars.len().saturating_sub(4);
+                self.sidecars.drain(..old);
+                Ok(format!("{name} is kept for the heightmap PNG it describes."))
+            }
+            _ => Err(format!("{name}: drop a GeoTIFF or a heightmap PNG to pin, a sketch PNG, or a world bundle (.json.gz)")),
         }
+    }
+
+    /// A PNG that is not a sketch: a heightmap that waits for its spacing and heights (from a
+    /// sidecar that came before it, if one describes it), or why it is none.
+    fn wait_for_heightmap_answers(&mut self, name: &str, bytes: Vec<u8>) -> Result<String, String> {
+        let mut p = PendingPng::new(name, bytes).map_err(|e| format!("{e}; nor is it a sketch"))?;
+        let from = self.sidecars.iter().rev().find(|(n, j)| p.apply_sidecar(n, j)).map(|(n, _)| n.clone());
+        let said = match (&from, p.kind) {
+            (Some(side), _) => format!("{name}: a heightmap PNG; {side} gave its spacing and heights: check them and press Pin."),
+            (None, PngKind::TerrainRgb) => format!("{name}: a terrain-RGB PNG; say its spacing and press Pin."),
+            (None, PngKind::Grey { .. }) => format!("{name}: a heightmap PNG; say its spacing and the heights of its lowest and highest values, and press Pin."),
+        };
+        self.heightmap = Some(p);
+        Ok(said)
+    }
+
+    /// Drops the heightmap PNG waiting for its answers.
+    pub fn cancel_heightmap(&mut self) {
+        self.heightmap = None;
     }
 
     /// The terrain pinned into the learned world and its file's name, for a page that starts

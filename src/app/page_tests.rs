@@ -592,3 +592,52 @@ fn a_pinned_geotiff_becomes_the_tiles_around_the_eye_the_world_grows_around_it_a
         LearnedSource::new(std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap()), 1).generate(core.app.settings().seed, pinned, &Neighbourhood::default()).heights;
     assert_eq!(core.app.tile_heights(pinned).expect("the tile made again"), &free[..]);
 }
+
+/// A 16-bit heightmap PNG (this project's export) opened after its JSON sidecar waits with the
+/// sidecar's spacing and heights, and Pin pins it like the GeoTIFF of the same terrain: the
+/// eye's tile within half a PNG unit of it. Opened alone it waits with answers to give (and
+/// can be cancelled); a PNG of another kind is refused with why.
+#[test]
+fn a_heightmap_png_with_its_sidecar_is_pinned_like_its_geotiff() {
+    use crate::dem::formats::Format;
+    use crate::grid::TileCoord;
+    let mut core = PageCore::new(ShareState { position_m: [2048.0, 900.0, 2048.0], pitch: -0.6, radius_tiles: 1.0, ..ShareState::default() }, start(Ok(())));
+    let mut shell = Shell::new(&no_swap);
+    shell.frames(&mut core, 1);
+    let n = 256;
+    let dem = crate::dem::Heightfield::new(n, n, 32.0, (0..n * n).map(|p| 300.0 + (p % n) as f32 * 4.0 + ((p / n) as f32 * 0.1).sin() * 80.0).collect());
+    let out = dem.export(Format::Png16, "hm.png").unwrap();
+    let side = serde_json::to_vec(&out.sidecar.clone().unwrap()).unwrap();
+    let half_unit = (out.sidecar.as_ref().unwrap().max_m - out.sidecar.as_ref().unwrap().min_m) / 65535.0 * 0.5;
+    // Alone: it waits for answers; cancelled, nothing is pinned.
+    let said = core.open_file("hm.png", out.bytes.clone()).unwrap();
+    assert!(said.contains("say its spacing and the heights"), "{said}");
+    core.cancel_heightmap();
+    assert!(core.heightmap.is_none() && core.pinned.is_none());
+    // The sidecar, then the PNG.
+    assert!(core.open_file("hm.png.json", side).unwrap().contains("kept for the heightmap PNG"));
+    let said = core.open_file("hm.png", out.bytes).unwrap();
+    assert!(said.contains("hm.png.json gave its spacing and heights"), "{said}");
+    let said = core.pin_heightmap().unwrap();
+    assert!(said.starts_with("Pinned hm.png: 4 tiles from tile (0, 0)"), "{said}");
+    assert!(core.heightmap.is_none());
+    let pinned = TileCoord::new(0, 0);
+    for _ in 0..400 {
+        if core.app.tile_heights(pinned).is_some() {
+            break;
+        }
+        shell.frames(&mut core, 1);
+    }
+    let got = core.app.tile_heights(pinned).expect("the pinned tile");
+    let want = dem.window(0, 0, 128, 128).data;
+    let worst = got.iter().zip(&want).map(|(a, b)| (a - b).abs() as f64).fold(0.0, f64::max);
+    assert!(worst <= half_unit + 1e-3, "{worst} m vs half a unit {half_unit} m");
+    // A 16-bit RGB PNG is neither a sketch nor a heightmap.
+    let mut rgb16 = Vec::new();
+    let mut e = png::Encoder::new(&mut rgb16, 1, 1);
+    e.set_color(png::ColorType::Rgb);
+    e.set_depth(png::BitDepth::Sixteen);
+    e.write_header().unwrap().write_image_data(&[0; 6]).unwrap();
+    let refused = core.open_file("odd.png", rgb16).unwrap_err();
+    assert!(refused.contains("odd.png is a PNG of Rgb at Sixteen") && refused.contains("nor is it a sketch"), "{refused}");
+}

@@ -5,6 +5,7 @@
 
 use super::sketch::SketchPanel;
 use super::{Environment, Overlay};
+use crate::app::heightmap::PngKind;
 use crate::app::page::PageCore;
 use crate::share::ShareState;
 use crate::sketch::Sketch;
@@ -67,6 +68,7 @@ impl PageUi {
         if act.unpin {
             core.unpin();
         }
+        self.heightmap_dialog(ctx, core);
         let mut asks =
             BrowserAsks { copy_link: act.copy_link, export: act.export, pin_dem: act.pin_dem, save_world: act.save_world, open_world: act.open_world, ..Default::default() };
         if core.app.source() == SourceKind::Sketch {
@@ -91,6 +93,49 @@ impl PageUi {
             }
         }
         asks
+    }
+
+    /// The questions a heightmap PNG waiting to be pinned asks ([`PageCore::heightmap`]): its
+    /// spacing and, for grey values, the heights of its lowest and highest value; Pin pins it
+    /// (what happened goes to the message), Cancel drops it.
+    fn heightmap_dialog(&mut self, ctx: &egui::Context, core: &mut PageCore) {
+        let Some(p) = core.heightmap.as_mut() else { return };
+        let (mut pin, mut cancel) = (false, false);
+        egui::Window::new("Pin a heightmap PNG").collapsible(false).resizable(false).anchor(egui::Align2::CENTER_CENTER, [0.0, 0.0]).show(ctx, |ui| {
+            ui.label(format!("{}: {} × {} samples", p.name, p.size.0, p.size.1));
+            if let Some(side) = &p.sidecar {
+                ui.label(egui::RichText::new(format!("answers from {side}")).small());
+            }
+            ui.horizontal(|ui| {
+                ui.label("spacing");
+                ui.add(egui::DragValue::new(&mut p.spacing_m).range(0.01..=1000.0).speed(0.1).suffix(" m"));
+            });
+            match p.kind {
+                PngKind::Grey { max_value } => {
+                    ui.horizontal(|ui| {
+                        ui.label("0 =");
+                        ui.add(egui::DragValue::new(&mut p.low_m).speed(1.0).suffix(" m"));
+                        ui.label(format!("{max_value} ="));
+                        ui.add(egui::DragValue::new(&mut p.high_m).speed(1.0).suffix(" m"));
+                    });
+                }
+                PngKind::TerrainRgb => {
+                    ui.label("terrain-RGB: the heights it encodes");
+                }
+            }
+            ui.horizontal(|ui| {
+                let b = ui.button("Pin");
+                self.overlay.buttons.insert("pin_heightmap", b.rect);
+                pin = b.clicked();
+                cancel = ui.button("Cancel").clicked();
+            });
+        });
+        if pin {
+            core.message = Some(core.pin_heightmap().unwrap_or_else(|e| e));
+        }
+        if cancel {
+            core.cancel_heightmap();
+        }
     }
 
     /// The page's statistics as JSON ([`super::stats_json`]).

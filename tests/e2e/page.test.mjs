@@ -727,17 +727,21 @@ test('your terrain pinned in the page: a GeoTIFF chosen with "Pin a GeoTIFF…" 
 
 /** Drops `file` on the page's canvas as `name`, as a user dragging it from their desktop. */
 async function dropFile(page, file, name) {
-  const b64 = fs.readFileSync(file).toString('base64');
-  await page.evaluate(({ b64, name }) => {
-    const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
-    const dt = new DataTransfer();
-    dt.items.add(new File([bytes], name));
-    const canvas = document.querySelector('canvas');
-    for (const type of ['dragenter', 'dragover', 'drop']) canvas.dispatchEvent(new DragEvent(type, { dataTransfer: dt, bubbles: true, cancelable: true }));
-  }, { b64, name });
+  await dropFiles(page, [[file, name]]);
 }
 
-test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world" downloads a bundle, and that bundle dropped on a fresh page at another seed and place opens the same world (the pinned tile and the learned tile beside it bit for bit)', async () => {
+/** Drops several files at once ([path, name] pairs) on the page's canvas. */
+async function dropFiles(page, files) {
+  const items = files.map(([file, name]) => ({ b64: fs.readFileSync(file).toString('base64'), name }));
+  await page.evaluate((items) => {
+    const dt = new DataTransfer();
+    for (const { b64, name } of items) dt.items.add(new File([Uint8Array.from(atob(b64), (c) => c.charCodeAt(0))], name));
+    const canvas = document.querySelector('canvas');
+    for (const type of ['dragenter', 'dragover', 'drop']) canvas.dispatchEvent(new DragEvent(type, { dataTransfer: dt, bubbles: true, cancelable: true }));
+  }, items);
+}
+
+test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world" downloads a bundle, and that bundle dropped on a fresh page at another seed and place opens the same world (the pinned tile and the learned tile beside it bit for bit); the same terrain as a 16-bit PNG dropped with its sidecar pins within half a unit', async () => {
   const tif = path.join(out, 'drop.tif');
   execFileSync(nativeBin, ['world', '--seed', '78', '--tiles', '0', '0', '2', '2', '--out', tif]);
   const { page, errors } = await open('', '', BIG);
@@ -769,6 +773,22 @@ test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world
   report.world_bundle = { bytes: fs.statSync(bundle).size, pinned_same: same[0], beside_same: same[1], seed_after: new URLSearchParams(s.link).get('seed'), seed_saved: new URLSearchParams(link).get('seed') };
   assert.deepEqual(same, [true, true], 'the bundle opened another world');
   assert.equal(report.world_bundle.seed_after, report.world_bundle.seed_saved);
+  // The same terrain as a 16-bit PNG with its JSON sidecar, dropped together: the page asks
+  // for nothing the sidecar says, and Pin pins it within half a PNG unit of the GeoTIFF.
+  const hm = path.join(out, 'drop_hm.png');
+  execFileSync(nativeBin, ['world', '--seed', '78', '--tiles', '0', '0', '2', '2', '--out', hm]);
+  const side = JSON.parse(fs.readFileSync(`${hm}.json`, 'utf8'));
+  await dropFiles(fresh.page, [[hm, 'drop_hm.png'], [`${hm}.json`, 'drop_hm.png.json']]);
+  last = null;
+  s = await waitFor(fresh.page, (q) => { const r = JSON.stringify(q.overlay_buttons.pin_heightmap); const same = r === last && r !== undefined; last = r; return same; }, 'the heightmap dialog', 30_000, 500);
+  await fresh.page.mouse.click(...centre(s.overlay_buttons.pin_heightmap));
+  s = await waitFor(fresh.page, (q) => /^Pinned drop_hm\.png: 4 tiles from tile \(0, 0\)/.test(q.message ?? ''), 'the heightmap pinned');
+  const fromPng = await tileHeights(fresh.page, 0, 0);
+  const dhPng = fromPng.reduce((m, h, k) => Math.max(m, Math.abs(h - data[Math.floor(k / 128) * width + (k % 128)])), 0);
+  const halfUnit = ((side.max_m - side.min_m) / 65535) * 0.5;
+  report.world_bundle.png16_vs_geotiff_max_dh_m = dhPng;
+  report.world_bundle.png16_half_unit_m = halfUnit;
+  assert.ok(dhPng <= halfUnit + 1e-3, `the pinned PNG vs the GeoTIFF: ${dhPng} m (half a unit ${halfUnit} m)`);
   assert.deepEqual(errors, []);
   assert.deepEqual(fresh.errors, []);
   await fresh.page.close();

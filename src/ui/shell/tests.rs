@@ -317,7 +317,7 @@ fn dropped_files_pin_a_geotiff_open_a_saved_world_bundle_and_a_sketch() {
     // Anything else.
     let seed = other.core.app.settings().seed;
     drop_file(&mut other, &platform2, &ctx2, "notes.txt", b"hello".to_vec());
-    assert_eq!(other.core.message.clone().unwrap_or_default(), "notes.txt: drop a GeoTIFF to pin, a sketch PNG, or a world bundle (.json.gz)");
+    assert_eq!(other.core.message.clone().unwrap_or_default(), "notes.txt: drop a GeoTIFF or a heightmap PNG to pin, a sketch PNG, or a world bundle (.json.gz)");
     assert_eq!((other.core.app.settings().seed, other.core.app.settings().source), (seed, crate::world::SourceKind::Sketch));
 }
 
