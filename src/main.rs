@@ -57,46 +57,79 @@ struct Views {
     count: u32,
 }
 
+/// The region of the world a command writes, and the world it comes from.
+#[derive(clap::Args, Debug)]
+struct RegionArgs {
+    /// World seed.
+    #[arg(long)]
+    seed: u64,
+    /// Tiles [X0, X0+W) × [Y0, Y0+H): 128 × 128 samples each.
+    #[arg(long, num_args = 4, value_names = ["X0", "Y0", "W", "H"], allow_negative_numbers = true, required = true)]
+    tiles: Vec<i64>,
+    /// Output file, in the format of its extension: .tif (float32 GeoTIFF), .png (16-bit
+    /// grey) or .raw (16-bit little-endian), each of those two with a JSON sidecar stating
+    /// the metres of 0 and 65535 and the spacing, or .glb (binary glTF mesh with normals).
+    #[arg(long)]
+    out: PathBuf,
+    /// Resample to a square of 2ⁿ+1 samples per side (for Unity and Unreal terrains).
+    #[arg(long)]
+    pow2_plus_1: bool,
+    /// Tile source.
+    #[arg(long, value_enum, default_value_t = Source::Procedural)]
+    source: Source,
+    /// Folder of the learned world's weights (--source tcm; default: ./weights, else the
+    /// crate's).
+    #[arg(long)]
+    weights: Option<PathBuf>,
+    /// Pin a DEM (32 m or finer) into the learned world (--source tcm): FILE@I,J puts its
+    /// north-west corner on tile (I, J), FILE@I,J,M also gives its spacing M in metres (for
+    /// a file without its own); it is area-averaged to 32 m, and its whole tiles are kept
+    /// exactly while the world grows around them. Repeatable.
+    #[arg(long, value_name = "FILE@I,J[,M]")]
+    pin: Vec<String>,
+    /// The page's sketch world (--source tcm): a sketch PNG (the format's palette) made
+    /// into terrain as the page draws it (one view of the generator, weights from
+    /// --weights), --relief metres from its lowest to its highest point, pinned on tiles
+    /// (−1, −1)–(0, 0) with the learned world grown around it.
+    #[arg(long, value_name = "SKETCH.png")]
+    sketch: Option<PathBuf>,
+    /// Relief of --sketch: metres from its lowest to its highest point (10–8000).
+    #[arg(long, default_value_t = terrain::world::sketched::DEFAULT_RELIEF_M)]
+    relief: f64,
+}
+
+/// `terrain export --format`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum ExportFormat {
+    /// 16-bit grey PNG + JSON sidecar.
+    Png16,
+    /// 16-bit little-endian RAW + JSON sidecar.
+    Raw,
+    /// float32 GeoTIFF.
+    Tif,
+    /// Binary glTF mesh with normals.
+    Glb,
+}
+
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Write the 32 m heights (metres) of a rectangle of tiles as a float32 GeoTIFF.
     World {
-        /// World seed.
-        #[arg(long)]
-        seed: u64,
-        /// Tiles [X0, X0+W) × [Y0, Y0+H): 128 × 128 samples each.
-        #[arg(long, num_args = 4, value_names = ["X0", "Y0", "W", "H"], allow_negative_numbers = true, required = true)]
-        tiles: Vec<i64>,
-        /// Output file, in the format of its extension: .tif (float32 GeoTIFF), .png (16-bit
-        /// grey) or .raw (16-bit little-endian), each of those two with a JSON sidecar stating
-        /// the metres of 0 and 65535 and the spacing, or .glb (binary glTF mesh with normals).
-        #[arg(long)]
-        out: PathBuf,
-        /// Resample to a square of 2ⁿ+1 samples per side (for Unity and Unreal terrains).
-        #[arg(long)]
-        pow2_plus_1: bool,
-        /// Tile source.
-        #[arg(long, value_enum, default_value_t = Source::Procedural)]
-        source: Source,
-        /// Folder of the learned world's weights (--source tcm; default: ./weights, else the
-        /// crate's).
-        #[arg(long)]
-        weights: Option<PathBuf>,
-        /// Pin a DEM (32 m or finer) into the learned world (--source tcm): FILE@I,J puts its
-        /// north-west corner on tile (I, J), FILE@I,J,M also gives its spacing M in metres (for
-        /// a file without its own); it is area-averaged to 32 m, and its whole tiles are kept
-        /// exactly while the world grows around them. Repeatable.
-        #[arg(long, value_name = "FILE@I,J[,M]")]
-        pin: Vec<String>,
-        /// The page's sketch world (--source tcm): a sketch PNG (the format's palette) made
-        /// into terrain as the page draws it (one view of the generator, weights from
-        /// --weights), --relief metres from its lowest to its highest point, pinned on tiles
-        /// (−1, −1)–(0, 0) with the learned world grown around it.
-        #[arg(long, value_name = "SKETCH.png")]
-        sketch: Option<PathBuf>,
-        /// Relief of --sketch: metres from its lowest to its highest point (10–8000).
-        #[arg(long, default_value_t = terrain::world::sketched::DEFAULT_RELIEF_M)]
-        relief: f64,
+        #[command(flatten)]
+        region: RegionArgs,
+    },
+    /// Export a rectangle of tiles at a spacing: the 32 m tiles (as `world`), or refined by the
+    /// learned detail (TEM) to 16, 8, 4, 2 or 1 m (as `enhance`), written as --format says.
+    Export {
+        #[command(flatten)]
+        region: RegionArgs,
+        /// Metres between samples: 32 (the tiles), 16, 8, 4, 2 or 1 (refined by the TEM, weights
+        /// from --weights).
+        #[arg(long, default_value_t = 32.0)]
+        spacing: f64,
+        /// File format; the --out file's extension must agree (.png, .raw, .tif, .glb).
+        #[arg(long, value_enum)]
+        format: Option<ExportFormat>,
     },
     /// Hillshade DEMs side by side into one grey PNG, each area-averaged to one spacing and
     /// cut to the same square around its centre (e.g. a region of the world beside real ranges).
@@ -603,9 +636,8 @@ struct TrainArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::World { seed, tiles, out, pow2_plus_1, source, weights, pin, sketch, relief } => {
-            world(seed, &tiles, &out, pow2_plus_1, source, weights, &pin, sketch.as_deref().map(|s| (s, relief)))
-        }
+        Command::World { region } => world(&region),
+        Command::Export { region, spacing, format } => export(&region, spacing, format),
         Command::Hillshade { input, spacing_m, side, out } => hillshade(&input, spacing_m, side as usize, &out),
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),

@@ -64,6 +64,13 @@ fn bad_arguments_are_clear_errors() {
             "--relief must be between 10 and 8000",
         ),
         (vec!["world", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--source", "tcm", "--sketch", "/nonexistent/s.png"], 1, "--sketch /nonexistent/s.png"),
+        (vec!["export", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--spacing", "5"], 1, "--spacing must be 32, 16, 8, 4, 2 or 1 metres, not 5"),
+        (
+            vec!["export", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--format", "png16"],
+            1,
+            "--format png16 writes a .png file; --out /tmp/x.tif is another format",
+        ),
+        (vec!["export", "--seed", "1", "--tiles", "0", "0", "1", "1", "--out", "/tmp/x.tif", "--format", "jpeg"], 2, "possible values: png16"),
         (vec!["enhance", "--input", "/tmp/x.tif", "--input-res", "30", "--output-res", "1", "--out", "/tmp/y.tif"], 1, "--input-res must be one of"),
         (vec!["enhance", "--input", "/tmp/x.tif", "--input-res", "8", "--output-res", "16", "--out", "/tmp/y.tif"], 1, "finer"),
         (vec!["enhance", "--input", "/nonexistent/in.tif", "--input-res", "32", "--output-res", "16", "--out", "/tmp/y.tif"], 1, "/nonexistent/in.tif"),
@@ -267,6 +274,34 @@ fn world_exports_png16_with_a_sidecar_and_glb() {
     assert_eq!((&b[0..4], json["accessors"][0]["count"].as_u64()), (&b"glTF"[..], Some(128 * 128)));
     let o = run(&["world", "--seed", "3", "--tiles", "0", "0", "1", "1", "--out", tmp("e.jpg").to_str().unwrap()]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains(".glb (mesh)"));
+}
+
+/// `terrain export` at 32 m writes the same heights as `terrain world`, bit for bit; at 8 m
+/// it writes the same tiles refined by the TEM as `terrain enhance` refines `world`'s
+/// GeoTIFF (the same samples, the same north-west corner), and --format png16 writes the
+/// PNG with its sidecar.
+#[test]
+fn export_writes_the_world_at_32_m_and_refined_to_8_m_as_enhance_does() {
+    let (w, e32, e8, enh, png) = (tmp("x_world.tif"), tmp("x_32.tif"), tmp("x_8.tif"), tmp("x_enh.tif"), tmp("x_8.png"));
+    let tiles = ["--seed", "5", "--tiles", "1", "-1", "1", "1"];
+    for (cmd, out, extra) in
+        [("world", &w, vec![]), ("export", &e32, vec![]), ("export", &e8, vec!["--spacing", "8"]), ("export", &png, vec!["--spacing", "8", "--format", "png16"])]
+    {
+        let mut args = vec![cmd];
+        args.extend(tiles);
+        args.extend(["--out", out.to_str().unwrap()]);
+        args.extend(extra);
+        let o = run(&args);
+        assert!(o.status.success(), "{cmd}: {}", String::from_utf8_lossy(&o.stderr));
+    }
+    let o = run(&["enhance", "--input", w.to_str().unwrap(), "--output-res", "8", "--out", enh.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(read(&e32).data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), read(&w).data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+    let (a, b) = (read(&e8), read(&enh));
+    assert_eq!((a.width, a.height, a.spacing_m, a.geo), (512, 512, 8.0, b.geo));
+    assert_eq!(a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+    let side: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tmp("x_8.png.json")).unwrap()).unwrap();
+    assert_eq!((side["width"].as_u64(), side["spacing_m"].as_f64()), (Some(512), Some(8.0)));
 }
 
 /// `terrain enhance` on a world export with a no-data hole, its spacing read from the file (a

@@ -765,6 +765,20 @@ impl TerrainApp {
         crate::world::export::around(&self.world, eye.x, eye.z, self.settings.radius_tiles.floor() as u32)
     }
 
+    /// The view's learned detail at TEM level `level` (16, 8, 4, 2 or 1 m) around the eye, what
+    /// the page exports at that spacing ([`PatchStore::export_around`]), or what to tell the
+    /// user when none is refined there yet.
+    pub fn export_refined(&self, level: usize) -> Result<crate::dem::Heightfield, String> {
+        let s = crate::models::tem::LEVEL_SPACING_M.get(level).ok_or_else(|| format!("the learned detail has levels 0 to {}, not {level}", LEVELS - 1))?;
+        if self.refine_backend.is_none() {
+            return Err(format!("Nothing is refined to {s} m: learned detail is off (switch it on in the overlay)."));
+        }
+        let eye = self.camera.position_m;
+        self.refine
+            .export_around(level, eye.x, eye.z)
+            .ok_or_else(|| format!("Nothing is refined to {s} m yet: fly lower over rough ground until the view shows that detail, then export."))
+    }
+
     /// Puts the camera where it shows the whole sketch ([`sketch_overview`]).
     pub fn frame_sketch(&mut self) {
         let (p, yaw, pitch) = sketch_overview(self.settings.relief_m);

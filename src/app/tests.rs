@@ -72,6 +72,33 @@ fn refinement_draws_nodes_below_the_base_depth() {
     assert!(app.stats().max_depth_drawn <= BASE_DATA_DEPTH);
 }
 
+/// The page's export at a TEM spacing: before any patch is made it says so; once level-0
+/// patches are made around the eye, the export is a square of whole patches at 16 m, every
+/// sample the stored patch pixel at its place (its corner where those pixels lie in the
+/// world's frame); a level the TEM does not have is refused.
+#[test]
+fn the_view_exports_its_learned_detail_at_16_m_where_it_is_refined() {
+    let tem = crate::models::tem::TemSet::untrained(&crate::models::tem::Exec::cpu());
+    let mut app = low_refining_app();
+    let before = app.export_refined(0).unwrap_err();
+    assert!(before.contains("Nothing is refined to 16 m yet"), "{before}");
+    for _ in 0..80 {
+        app.frame(&ControlInput::default(), 1.0 / 60.0, [800, 600]);
+        app.refine_blocking(&tem, REFINE_BATCH).unwrap();
+    }
+    let hf = app.export_refined(0).unwrap();
+    assert_eq!(hf.spacing_m, 16.0);
+    assert!(hf.width == hf.height && hf.width.is_multiple_of(128) && hf.width >= 128, "{} × {}", hf.width, hf.height);
+    let g = hf.geo.expect("placed in the world's frame");
+    let (px0, py0) = (((g.origin_m[0] + 16.0) / 16.0).round() as i64, ((16.0 - g.origin_m[1]) / 16.0).round() as i64);
+    for k in (0..hf.data.len()).step_by(97) {
+        let (x, y) = ((k % hf.width) as i64, (k / hf.width) as i64);
+        assert_eq!(Some(hf.data[k]), app.refine.pixel(0, px0 + x, py0 + y), "sample {k}");
+    }
+    eprintln!("exported {} × {} samples at 16 m", hf.width, hf.height);
+    assert!(app.export_refined(9).is_err());
+}
+
 /// An app with refinement on, low above rough ground looking down, after enough frames
 /// that the quadtree asks for refined patches.
 fn low_refining_app() -> TerrainApp {

@@ -46,24 +46,67 @@ pub(crate) fn read_pins(args: &[String]) -> Result<terrain::world::pins::Pins, S
 /// worker (a [`NativeRunner`] thread), so the CLI, the tests and the page run one code path.
 ///
 /// [`NativeRunner`]: terrain::jobs::native::NativeRunner
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn world(
-    seed: u64,
-    tiles: &[i64],
-    out: &std::path::Path,
-    pow2_plus_1: bool,
-    source: Source,
-    weights: Option<PathBuf>,
-    pin: &[String],
-    sketch: Option<(&std::path::Path, f64)>,
-) -> Result<(), String> {
+pub(crate) fn world(r: &RegionArgs) -> Result<(), String> {
+    terrain::dem::formats::Format::of(&r.out).map_err(|e| e.to_string())?;
+    let hf = region(r)?;
+    write_region(hf, r)
+}
+
+/// `terrain export`: the region of [`world`] at `spacing_m`: the 32 m tiles, or refined by the
+/// TEM as `terrain enhance` refines a DEM; `format`, when given, must agree with the --out
+/// file's extension.
+pub(crate) fn export(r: &RegionArgs, spacing_m: f64, format: Option<ExportFormat>) -> Result<(), String> {
+    use terrain::dem::formats::Format;
+    let of_file = Format::of(&r.out).map_err(|e| e.to_string())?;
+    if let Some(f) = format {
+        let (want, name, ext) = match f {
+            ExportFormat::Png16 => (Format::Png16, "png16", ".png"),
+            ExportFormat::Raw => (Format::Raw16, "raw", ".raw"),
+            ExportFormat::Tif => (Format::GeoTiff, "tif", ".tif"),
+            ExportFormat::Glb => (Format::Glb, "glb", ".glb"),
+        };
+        if want != of_file {
+            return Err(format!("--format {name} writes a {ext} file; --out {} is another format", r.out.display()));
+        }
+    }
+    let base = terrain::grid::BASE_SPACING_M;
+    if spacing_m != base {
+        terrain::enhance::levels_for(base, spacing_m).map_err(|_| format!("--spacing must be 32, 16, 8, 4, 2 or 1 metres, not {spacing_m}"))?;
+    }
+    let hf = region(r)?;
+    let hf = if spacing_m == base {
+        hf
+    } else {
+        terrain::enhance::output_size(hf.width, hf.height, terrain::enhance::levels_for(base, spacing_m).map(|(a, b)| b - a + 1).unwrap_or(0)).map_err(|e| e.to_string())?;
+        let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(r.weights.clone()), &terrain::models::tem::Exec::cpu())?;
+        let t = std::time::Instant::now();
+        let (refined, stats) = terrain::enhance::enhance(&hf, base, spacing_m, &tem, 4, &mut |_, _, _| {}).map_err(|e| e.to_string())?;
+        eprintln!(
+            "refined {}×{} at 32 m to {}×{} at {spacing_m} m: {} patches in {:.1} s",
+            hf.width,
+            hf.height,
+            refined.width,
+            refined.height,
+            stats.quads_made,
+            t.elapsed().as_secs_f64()
+        );
+        refined
+    };
+    write_region(hf, r)
+}
+
+/// The 32 m heights of `r`'s tiles, made by the page's worker procedure (with its pins and
+/// sketch).
+fn region(r: &RegionArgs) -> Result<terrain::dem::Heightfield, String> {
     use terrain::grid::TileCoord;
     use terrain::jobs::protocol::{Envelope, Reply, Request};
-    let (x0, y0, w, h) = tile_rect(tiles)?;
-    if (!pin.is_empty() || sketch.is_some()) && source != Source::Tcm {
+    let (x0, y0, w, h) = tile_rect(&r.tiles)?;
+    let (source, weights) = (r.source, r.weights.clone());
+    let sketch = r.sketch.as_deref().map(|s| (s, r.relief));
+    if (!r.pin.is_empty() || sketch.is_some()) && source != Source::Tcm {
         return Err("--pin and --sketch grow the learned world around your terrain: add --source tcm".into());
     }
-    let mut pins = read_pins(pin)?;
+    let mut pins = read_pins(&r.pin)?;
     if let Some((file, relief_m)) = sketch {
         use terrain::world::sketched::{RELIEF_M, SKETCH_TILES, SketchSource};
         if !RELIEF_M.contains(&relief_m) {
@@ -78,7 +121,6 @@ pub(crate) fn world(
         }
         eprintln!("pinned the sketch {} ({relief_m} m relief) on tiles (-1, -1)–(0, 0)", file.display());
     }
-    terrain::dem::formats::Format::of(out).map_err(|e| e.to_string())?;
     let runner = terrain::jobs::native::NativeRunner::spawn(terrain::models::cpu::default_threads());
     let ask = |request| -> Result<Reply, String> {
         let answer = runner.call(&Envelope { id: 1, epoch: 0, rest_per_work: 0.0, request }).map_err(|e| e.to_string())?;
@@ -104,14 +146,19 @@ pub(crate) fn world(
     for j in y0..y0 + h as i32 {
         for i in x0..x0 + w as i32 {
             let tile = TileCoord::new(i, j);
-            match ask(Request::Tile { seed, tile, noise })? {
+            match ask(Request::Tile { seed: r.seed, tile, noise })? {
                 Reply::Heights { heights, .. } => made.insert(tile, std::sync::Arc::new(terrain::world::Tile::new(tile, heights))),
                 other => return Err(format!("tile {i}, {j}: unexpected reply {other:?}")),
             };
         }
     }
-    let hf = export::from_tiles(x0, y0, w, h, |c| made.get(&c).cloned()).ok_or("a tile was not made")?;
-    let hf = if pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
+    Ok(export::from_tiles(x0, y0, w, h, |c| made.get(&c).cloned()).ok_or("a tile was not made")?)
+}
+
+/// Writes `hf` to `r.out` (resampled to 2ⁿ+1 when asked) and says what was written.
+fn write_region(hf: terrain::dem::Heightfield, r: &RegionArgs) -> Result<(), String> {
+    let out = &r.out;
+    let hf = if r.pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
     let sidecar = hf.export_path(out).map_err(|e| save_error(out, e))?;
     match sidecar {
         Some(s) => eprintln!("wrote {} ({}×{} samples at {:.3} m; 0 = {:.2} m, 65535 = {:.2} m) and its .json", out.display(), s.width, s.height, s.spacing_m, s.min_m, s.max_m),

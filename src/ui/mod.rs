@@ -158,8 +158,8 @@ pub struct UiActions {
     pub mode: Option<CameraMode>,
     /// Close the message banner.
     pub dismiss_message: bool,
-    /// Download the terrain around the eye in this format.
-    pub export: Option<crate::dem::formats::Format>,
+    /// Download the terrain around the eye.
+    pub export: Option<ExportAsk>,
     /// Pick a GeoTIFF to pin into the learned world.
     pub pin_dem: bool,
     /// Take the pinned terrain out of the learned world.
@@ -168,6 +168,18 @@ pub struct UiActions {
     pub save_world: bool,
     /// Pick a world bundle to open.
     pub open_world: bool,
+}
+
+/// An export the user asked for: the format, the spacing (`level`: a TEM level where refined,
+/// `None` for the 32 m tiles) and whether to resample to a 2ⁿ+1 square.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ExportAsk {
+    /// The file format.
+    pub format: crate::dem::formats::Format,
+    /// TEM level (0 = 16 m … 4 = 1 m), or `None` for 32 m.
+    pub level: Option<usize>,
+    /// Resample to 2ⁿ+1 samples a side (Unity, Unreal).
+    pub pow2_plus_1: bool,
 }
 
 /// Overlay state that lives between frames.
@@ -185,18 +197,22 @@ pub struct Overlay {
     /// them: `copy_link`, `settings`, `statistics`, `pin_dem`, and while the settings are open `seed`,
     /// `world_tcm`, `world_procedural`, `world_sketch`.
     pub buttons: std::collections::BTreeMap<&'static str, egui::Rect>,
+    /// The export's spacing: a TEM level, or `None` for 32 m.
+    pub export_level: Option<usize>,
+    /// Exports are resampled to 2ⁿ+1 samples a side.
+    pub export_pow2: bool,
 }
 
 impl Overlay {
     /// An overlay editing `s`.
     pub fn new(s: ShareState) -> Self {
-        Self { draft: s.clone(), applied: s, show_settings: false, show_stats: false, buttons: Default::default() }
+        Self { draft: s.clone(), applied: s, show_settings: false, show_stats: false, buttons: Default::default(), export_level: None, export_pow2: false }
     }
 
     /// Replaces the draft with settings that came from elsewhere (e.g. a link opened in the
     /// same page).
     pub fn reset(&mut self, s: ShareState) {
-        *self = Self { show_settings: self.show_settings, ..Self::new(s) };
+        *self = Self { show_settings: self.show_settings, export_level: self.export_level, export_pow2: self.export_pow2, ..Self::new(s) };
     }
 
     /// Draws the overlay. `speed_mps`, `show_lod` and `refine` (learned detail on/off) are
@@ -295,10 +311,21 @@ impl Overlay {
                     (Format::GeoTiff, "GeoTIFF", "float32 metres, for GIS"),
                     (Format::Glb, "glTF", "a mesh with normals (Blender, Godot)"),
                 ] {
-                    if ui.small_button(name).on_hover_text(format!("the tiles around the eye at 32 m: {what}")).clicked() {
-                        act.export = Some(format);
+                    if ui.small_button(name).on_hover_text(format!("the terrain around the eye: {what}")).clicked() {
+                        act.export = Some(ExportAsk { format, level: self.export_level, pow2_plus_1: self.export_pow2 });
                     }
                 }
+            });
+            ui.horizontal(|ui| {
+                ui.label("at");
+                let spacing = |l: Option<usize>| l.map_or("32 m (tiles)".to_string(), |l| format!("{} m (learned detail)", crate::models::tem::LEVEL_SPACING_M[l]));
+                let combo = egui::ComboBox::from_id_salt("export_spacing").selected_text(spacing(self.export_level)).show_ui(ui, |ui| {
+                    for l in std::iter::once(None).chain((0..crate::models::tem::LEVELS).map(Some)) {
+                        ui.selectable_value(&mut self.export_level, l, spacing(l));
+                    }
+                });
+                self.buttons.insert("export_spacing", combo.response.rect);
+                ui.checkbox(&mut self.export_pow2, "2ⁿ+1").on_hover_text("resampled to a square of 2ⁿ+1 samples a side, as Unity and Unreal terrains want");
             });
             ui.horizontal_wrapped(|ui| {
                 ui.label("Your terrain");

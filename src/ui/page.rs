@@ -20,8 +20,8 @@ pub struct BrowserAsks {
     pub export_sketch: bool,
     /// Open a sketch PNG.
     pub import_sketch: bool,
-    /// Download the terrain around the eye in this format.
-    pub export: Option<crate::dem::formats::Format>,
+    /// Download the terrain around the eye.
+    pub export: Option<super::ExportAsk>,
     /// Open a GeoTIFF to pin into the learned world.
     pub pin_dem: bool,
     /// Download the world as a bundle.

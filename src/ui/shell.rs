@@ -356,21 +356,32 @@ impl<P: Platform> PageShell<P> {
         self.platform.download("sketch.png", &png, "image/png")
     }
 
-    /// Downloads the terrain around the eye in `format` (a PNG's or RAW's sidecar too), named
-    /// after the world and seed; what cannot be made is said in the message.
-    pub fn export(&mut self, format: crate::dem::formats::Format) {
+    /// Downloads the terrain around the eye as `ask` says (a PNG's or RAW's sidecar too): the
+    /// 32 m tiles, or the learned detail of a TEM level where it is refined, resampled to
+    /// 2ⁿ+1 on request; named after the world, seed and spacing. What cannot be made is said in
+    /// the message.
+    pub fn export(&mut self, ask: crate::ui::ExportAsk) {
         use crate::dem::formats::Format;
-        let Some(hf) = self.core.app.export_view() else {
-            self.core.message = Some("Nothing to export yet: the tile under the eye is still being made.".into());
-            return;
+        let hf = match ask.level {
+            None => self.core.app.export_view().ok_or_else(|| "Nothing to export yet: the tile under the eye is still being made.".to_string()),
+            Some(level) => self.core.app.export_refined(level),
         };
+        let hf = match hf {
+            Ok(hf) if ask.pow2_plus_1 => hf.to_pow2_plus_1(),
+            Ok(hf) => hf,
+            Err(e) => {
+                self.core.message = Some(e);
+                return;
+            }
+        };
+        let format = ask.format;
         let (ext, mime) = match format {
             Format::Png16 => ("png", "image/png"),
             Format::Raw16 => ("raw", "application/octet-stream"),
             Format::GeoTiff => ("tif", "image/tiff"),
             Format::Glb => ("glb", "model/gltf-binary"),
         };
-        let name = format!("terrain-{}-{}.{ext}", self.core.app.source().key(), self.core.app.settings().seed);
+        let name = format!("terrain-{}-{}-{}m.{ext}", self.core.app.source().key(), self.core.app.settings().seed, hf.spacing_m);
         let done = hf.export(format, &name).map_err(|e| e.to_string()).and_then(|out| {
             self.platform.download(&name, &out.bytes, mime)?;
             match out.sidecar {
@@ -494,8 +505,8 @@ impl<P: Platform> PageShell<P> {
         if asks.copy_link {
             self.copy_link(&ctx, now);
         }
-        if let Some(format) = asks.export {
-            self.export(format);
+        if let Some(ask) = asks.export {
+            self.export(ask);
         }
         self.write_link(now, false);
         self.probes.borrow_mut().stats_json = self.ui.stats_json(&self.core, &self.env, &self.frame_work, self.device_restarts, self.link_too_long);

@@ -318,6 +318,44 @@ impl PatchStore {
         self.patches.retain(|k, _| k.level as usize != level);
     }
 
+    /// The refined heights of `level` around (x, z) metres as one heightfield, what the page
+    /// exports at that spacing: the largest square of k × k stored patches (k = 3, 2, 1) that
+    /// holds the patch under (x, z), or the stored patch of that level nearest to it when that
+    /// one is not made; their 128² core pixels, placed in the world's metric frame like
+    /// [`super::export::from_tiles`]. `None` when no patch of `level` is stored.
+    pub fn export_around(&self, level: usize, x_m: f64, z_m: f64) -> Option<crate::dem::Heightfield> {
+        let s = LEVEL_SPACING_M[level];
+        let span = PATCH as f64 * s;
+        let under = |v: f64| ((v + 16.0) / span).floor() as i64;
+        let (ux, uy) = (under(x_m), under(z_m));
+        let here = |x: i64, y: i64| self.patches.contains_key(&PatchKey { level: level as u8, x, y });
+        let (cx, cy) = if here(ux, uy) {
+            (ux, uy)
+        } else {
+            let d = |k: &PatchKey| (k.x - ux).pow(2) + (k.y - uy).pow(2);
+            let k = self.patches.keys().filter(|k| k.level as usize == level).min_by_key(|k| (d(k), k.y, k.x))?;
+            (k.x, k.y)
+        };
+        // Squares holding (cx, cy): 3 × 3 centred on it, then each 2 × 2, then itself.
+        let squares = [(3, cx - 1, cy - 1), (2, cx - 1, cy - 1), (2, cx, cy - 1), (2, cx - 1, cy), (2, cx, cy), (1, cx, cy)];
+        let (k, x0, y0) = squares.into_iter().find(|&(k, x0, y0)| (0..k).all(|j| (0..k).all(|i| here(x0 + i, y0 + j))))?;
+        let side = k as usize * PATCH;
+        let mut data = vec![0f32; side * side];
+        for j in 0..k {
+            for i in 0..k {
+                let patch = &self.patches[&PatchKey { level: level as u8, x: x0 + i, y: y0 + j }];
+                for v in 0..PATCH {
+                    let row = (j as usize * PATCH + v) * side + i as usize * PATCH;
+                    let src = (v + PATCH_MARGIN) * STORED_SIDE + PATCH_MARGIN;
+                    data[row..row + PATCH].copy_from_slice(&patch[src..src + PATCH]);
+                }
+            }
+        }
+        // Level pixel p covers [s·p − 16, s·(p + 1) − 16) m (x east, z south; y north).
+        let corner = [x0 as f64 * span - 16.0, -(y0 as f64 * span - 16.0)];
+        Some(crate::dem::Heightfield::new(side, side, s, data).with_geo(Some(crate::dem::GeoRef { origin_m: corner, epsg: None })))
+    }
+
     /// Height (metres) of level pixel (px, py) of `level`, if its patch is stored (core pixels
     /// only).
     pub fn pixel(&self, level: usize, px: i64, py: i64) -> Option<f32> {

@@ -741,7 +741,7 @@ async function dropFiles(page, files) {
   }, items);
 }
 
-test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world" downloads a bundle, and that bundle dropped on a fresh page at another seed and place opens the same world (the pinned tile and the learned tile beside it bit for bit); the same terrain as a 16-bit PNG dropped with its sidecar pins within half a unit', async () => {
+test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world" downloads a bundle, and that bundle dropped on a fresh page at another seed and place opens the same world (the pinned tile and the learned tile beside it bit for bit); the same terrain as a 16-bit PNG dropped with its sidecar pins within half a unit; a sketch PNG dropped opens the sketch world with it', async () => {
   const tif = path.join(out, 'drop.tif');
   execFileSync(nativeBin, ['world', '--seed', '78', '--tiles', '0', '0', '2', '2', '--out', tif]);
   const { page, errors } = await open('', '', BIG);
@@ -789,6 +789,14 @@ test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world
   report.world_bundle.png16_vs_geotiff_max_dh_m = dhPng;
   report.world_bundle.png16_half_unit_m = halfUnit;
   assert.ok(dhPng <= halfUnit + 1e-3, `the pinned PNG vs the GeoTIFF: ${dhPng} m (half a unit ${halfUnit} m)`);
+  // A sketch PNG dropped: the sketch world, drawing that sketch, its terrain made.
+  const sketchFile = path.join(out, 'drop_sketch.png');
+  fs.copyFileSync(path.join(repo, 'src/sketch/examples/sthelens.png'), sketchFile);
+  await dropFile(fresh.page, sketchFile, 'drop_sketch.png');
+  s = await waitFor(fresh.page, (q) => q.stats.source === 'sketch' && /^Opened the sketch drop_sketch\.png/.test(q.message ?? '') && q.stats.sketch_shown > 0 && shownNow(q), 'the dropped sketch in the sketch world', 300_000);
+  const code = sketchCode(s.link);
+  if (code) assert.deepEqual(decodeSketch(code), pngSketch(fs.readFileSync(sketchFile)), 'the dropped sketch is not the one drawn');
+  report.world_bundle.sketch_dropped = { message: s.message, in_link: Boolean(code) };
   assert.deepEqual(errors, []);
   assert.deepEqual(fresh.errors, []);
   await fresh.page.close();

@@ -232,7 +232,8 @@ fn picked_files_become_sketches_or_clear_messages() {
 fn the_view_exports_as_png16_with_its_sidecar_and_as_glb() {
     use crate::dem::formats::Format;
     let (mut shell, platform, _runners) = page("#v=2&seed=7&src=procedural&cam=2048,2500,2048,0.9,-0.3&r=2&lod=6");
-    shell.export(Format::Png16);
+    let ask = |format| crate::ui::ExportAsk { format, level: None, pow2_plus_1: false };
+    shell.export(ask(Format::Png16));
     assert!(shell.core.message.take().unwrap_or_default().starts_with("Nothing to export yet"));
     let ctx = egui::Context::default();
     for _ in 0..200 {
@@ -241,11 +242,11 @@ fn the_view_exports_as_png16_with_its_sidecar_and_as_glb() {
             break;
         }
     }
-    shell.export(Format::Png16);
-    shell.export(Format::Glb);
+    shell.export(ask(Format::Png16));
+    shell.export(ask(Format::Glb));
     let downloads = platform.downloads.borrow().clone();
     let names: Vec<&str> = downloads.iter().map(|(n, _)| n.as_str()).collect();
-    assert_eq!(names, ["terrain-procedural-7.png", "terrain-procedural-7.png.json", "terrain-procedural-7.glb"], "{:?}", shell.core.message);
+    assert_eq!(names, ["terrain-procedural-7-32m.png", "terrain-procedural-7-32m.png.json", "terrain-procedural-7-32m.glb"], "{:?}", shell.core.message);
     let png = Heightfield::read_png(std::io::Cursor::new(platform.files.borrow()[0].clone()), crate::dem::PngScale::default(), 32.0).unwrap();
     assert_eq!((png.width, png.height), (5 * crate::grid::coord::TILE_SAMPLES, 5 * crate::grid::coord::TILE_SAMPLES));
     let side: serde_json::Value = serde_json::from_slice(&platform.files.borrow()[1]).unwrap();
