@@ -73,7 +73,7 @@ impl TerrainApp {
     /// must come back through [`coarse_done`](Self::coarse_done) or
     /// [`coarse_failed`](Self::coarse_failed).
     pub fn coarse_jobs(&mut self) -> Vec<Job<TileCoord>> {
-        if !self.learned_shown_ready() {
+        if !self.learned_shown_ready() || self.sketch_unsettled() {
             return Vec::new();
         }
         let eye = self.camera.position_m;

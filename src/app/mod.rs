@@ -114,6 +114,8 @@ pub struct TerrainApp {
     sketch_terrain: Option<(u64, Arc<Vec<f32>>)>,
     /// The canvas's code and the revision it was made at (share links).
     sketch_code: (u64, String),
+    /// When (app time, seconds) the sketch last changed: a stroke, or its terrain shown.
+    sketch_changed_s: f64,
     /// Terrain the user pinned into the learned world ([`set_user_pins`](Self::set_user_pins)).
     user_pins: Pins,
     /// The pins the world shown wants where its learned tiles are made, and their hash
@@ -128,6 +130,11 @@ pub struct TerrainApp {
 pub fn sketch_overview(relief_m: f64) -> ([f64; 3], f32, f32) {
     ([0.0, 0.5 * relief_m + 3700.0, 5200.0], 0.0, -0.61)
 }
+
+/// Seconds the learned world around a sketch waits after the sketch last changed before its
+/// tiles are asked for again: while the user draws, the worker makes strokes into terrain, not
+/// the surroundings (which a stroke changes anyway), and the old ones stand in.
+pub const SKETCH_SETTLE_S: f64 = 1.5;
 
 /// Sketch → terrain jobs in flight at most.
 pub const SKETCH_JOBS_IN_FLIGHT: usize = 1;
@@ -171,6 +178,7 @@ impl TerrainApp {
             sketch_rejected: None,
             sketch_terrain: None,
             sketch_code: (0, code),
+            sketch_changed_s: f64::NEG_INFINITY,
             user_pins: Pins::new(),
             worker_pins: Arc::new((String::new(), Pins::new())),
         };
@@ -272,6 +280,17 @@ impl TerrainApp {
         if pins != self.worker_pins.1 {
             self.worker_pins = Arc::new((pins.hash(), pins));
         }
+    }
+
+    /// Whether the learned world around the sketch waits for the user to stop drawing: a
+    /// stroke not yet made into terrain, a sketch job in flight, or the terrain shown less than
+    /// [`SKETCH_SETTLE_S`] ago ([`tile_jobs`](Self::tile_jobs) and the coarse jobs ask for
+    /// nothing meanwhile).
+    fn sketch_unsettled(&self) -> bool {
+        self.sketch_in_learned()
+            && (self.sketch_jobs.stats().in_flight > 0
+                || self.sketch_terrain.as_ref().is_some_and(|t| t.0 != self.canvas.revision() + 1)
+                || self.time_s - self.sketch_changed_s < SKETCH_SETTLE_S)
     }
 
     /// Whether the world shown is the sketch pinned into the learned world (the sketch world
@@ -418,6 +437,9 @@ impl TerrainApp {
     /// ready, or procedural and made elsewhere ([`set_procedural_elsewhere`](Self::set_procedural_elsewhere));
     /// the world's [`settings`](Self::settings) say which generator makes them.
     pub fn tile_jobs(&mut self) -> Vec<Job<TileCoord>> {
+        if self.sketch_unsettled() {
+            return Vec::new();
+        }
         let learned_ready = self.learned_shown_ready();
         let procedural = self.source() == SourceKind::Procedural && self.procedural_elsewhere;
         if !learned_ready && !procedural {
@@ -505,6 +527,7 @@ impl TerrainApp {
 
     fn show_sketch_terrain(&mut self, rev: u64, heights: Vec<f32>, ms: f64) {
         self.sketch_terrain = Some((rev, Arc::new(heights)));
+        self.sketch_changed_s = self.time_s;
         self.stats.sketch_ms = ms;
         self.stats.sketch_shown = rev;
         if self.settings.source == SourceKind::Sketch {

@@ -297,7 +297,9 @@ fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_fra
 /// sketch's four tiles are its terrain × relief / 255 bit for bit and the tile beside them is
 /// the learned source's with the sketch pinned. After a stroke, the frame that shows its
 /// terrain draws the sketch at once over the old surroundings (stale stand-ins, none of the
-/// previous world's picture), and the surroundings are made again for the new pins.
+/// previous world's picture), no tile is asked for while the sketch has just changed
+/// ([`SKETCH_SETTLE_S`](crate::app::SKETCH_SETTLE_S)), and then the surroundings are made
+/// again for the new pins.
 #[test]
 fn the_sketch_world_is_pinned_into_the_learned_world_which_grows_around_it_again_after_a_stroke() {
     use crate::world::sketched::{SKETCH_TILES, SketchSource};
@@ -351,6 +353,7 @@ fn the_sketch_world_is_pinned_into_the_learned_world_which_grows_around_it_again
     let drawable = core.app.drawable_tiles();
     assert!(SKETCH_TILES.iter().all(|c| drawable.contains(c)), "the sketch is drawable at once: {drawable:?}");
     assert!(s.tiles_stale > 0 && s.tiles_pending > 0 && s.nodes_drawn > 0 && !s.previous_world_shown, "{s:?}");
+    assert!(core.app.tile_jobs().is_empty() && core.app.coarse_jobs().is_empty(), "the surroundings wait while the user draws");
     eprintln!("after the stroke: {} stale tiles stand in, {} pending", s.tiles_stale, s.tiles_pending);
     settle(&mut core, &mut shell);
     check(&core);
