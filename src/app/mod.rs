@@ -639,6 +639,7 @@ impl TerrainApp {
         self.stats.tiles_cached = ws.cached;
         self.stats.tiles_capacity = self.world.capacity();
         self.stats.tiles_pending = ws.pending;
+        self.stats.tiles_uncovered = ws.uncovered;
         self.stats.tiles_evicted = ws.evicted;
         self.stats.ms_per_tile = ws.ms_per_tile();
         self.stats.nodes_drawn = nodes.len();

@@ -765,7 +765,9 @@ impl PageCore {
         self.now_ms = now_ms;
         self.check_worker(now_ms);
         self.start_refetches(now_ms);
-        if self.app.stats().tiles_pending == 0 {
+        // The first picture is whole once every wanted tile has something to draw (stale
+        // stand-ins of an earlier world count: a sketch's surroundings being made again).
+        if self.app.stats().tiles_uncovered == 0 {
             self.complete_epoch = Some(self.app.epoch());
         }
         self.rest_per_work = runtime::worker_rest_per_work(self.software_adapter, self.complete_epoch == Some(self.app.epoch()));

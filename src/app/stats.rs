@@ -16,6 +16,8 @@ pub struct AppStats {
     pub tiles_capacity: usize,
     /// Wanted tiles still missing (or only standing in from an earlier world).
     pub tiles_pending: usize,
+    /// Wanted tiles with nothing to draw yet, not even a stand-in of an earlier world.
+    pub tiles_uncovered: usize,
     /// Cached tiles of an earlier world drawn until this world's arrive (the surroundings of
     /// a sketch that changed, while the learned world grows around it again).
     pub tiles_stale: usize,

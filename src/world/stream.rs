@@ -56,8 +56,11 @@ pub struct StreamStats {
     pub generate_ms: f64,
     /// Tiles evicted from the cache.
     pub evicted: u64,
-    /// Wanted tiles still missing after the last update.
+    /// Wanted tiles still missing, or only standing in from an earlier world, after the last
+    /// update.
     pub pending: usize,
+    /// Wanted tiles with nothing to draw (not even a stale stand-in) after the last update.
+    pub uncovered: usize,
     /// Tiles in the cache after the last update.
     pub cached: usize,
 }
@@ -419,6 +422,7 @@ impl WorldStream {
             }
         }
         self.stats.pending = wanted.iter().filter(|c| !self.tiles.contains_key(c) || self.stale.contains(c)).count();
+        self.stats.uncovered = wanted.iter().filter(|c| !self.tiles.contains_key(c)).count();
         self.evict(x_m, z_m);
         self.stats.cached = self.tiles.len();
         made
@@ -596,6 +600,7 @@ mod tests {
         assert!(missing.contains(&TileCoord::new(1, 1)) && missing.contains(&TileCoord::new(-1, -1)));
         new.update(x, z, 0.0);
         assert_eq!(new.stats().pending, missing.len());
+        assert_eq!(new.stats().uncovered, 0, "every wanted tile has a stand-in");
         let jobs = new.start_jobs(x, z);
         assert_eq!(jobs.len(), TILE_JOBS_IN_FLIGHT);
         for job in &jobs {
