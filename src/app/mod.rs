@@ -306,7 +306,7 @@ impl TerrainApp {
     /// weights) is the same beyond the pins' reach: those tiles are kept as they are.
     fn take_over_sketch(&mut self, old: WorldStream, sketch: &SketchSource, pins: &Pins) {
         let same = old.seed() == self.world.seed() && old.source_name() == self.world.source_name();
-        let fixed = SKETCH_TILES.iter().map(|&c| Tile::new(c, pins.get(c).map(|p| p.fine.to_vec()).unwrap_or_default())).collect();
+        let fixed = SKETCH_TILES.iter().map(|&c| Tile::new(c, pins.get(c).expect("a sketch pins its four tiles").fine.to_vec())).collect();
         let beyond = |c: TileCoord| !pins.within(c, PIN_REACH_TILES);
         let coarse_beyond = |c: TileCoord| !pins.within(c, PIN_COARSE_REACH_TILES);
         self.world.take_over(old, fixed, same.then_some((&beyond as &dyn Fn(TileCoord) -> bool, &coarse_beyond as &dyn Fn(TileCoord) -> bool)));

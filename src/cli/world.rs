@@ -70,27 +70,30 @@ pub(crate) fn export(r: &RegionArgs, spacing_m: f64, format: Option<ExportFormat
         }
     }
     let base = terrain::grid::BASE_SPACING_M;
-    if spacing_m != base {
-        terrain::enhance::levels_for(base, spacing_m).map_err(|_| format!("--spacing must be 32, 16, 8, 4, 2 or 1 metres, not {spacing_m}"))?;
-    }
+    // The TEM levels from 32 m down to the spacing (none at 32 m), checked before any work.
+    let levels = (spacing_m != base)
+        .then(|| terrain::enhance::levels_for(base, spacing_m))
+        .transpose()
+        .map_err(|_| format!("--spacing must be 32, 16, 8, 4, 2 or 1 metres, not {spacing_m}"))?;
     let hf = region(r)?;
-    let hf = if spacing_m == base {
-        hf
-    } else {
-        terrain::enhance::output_size(hf.width, hf.height, terrain::enhance::levels_for(base, spacing_m).map(|(a, b)| b - a + 1).unwrap_or(0)).map_err(|e| e.to_string())?;
-        let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(r.weights.clone()), &terrain::models::tem::Exec::cpu())?;
-        let t = std::time::Instant::now();
-        let (refined, stats) = terrain::enhance::enhance(&hf, base, spacing_m, &tem, 4, &mut |_, _, _| {}).map_err(|e| e.to_string())?;
-        eprintln!(
-            "refined {}×{} at 32 m to {}×{} at {spacing_m} m: {} patches in {:.1} s",
-            hf.width,
-            hf.height,
-            refined.width,
-            refined.height,
-            stats.quads_made,
-            t.elapsed().as_secs_f64()
-        );
-        refined
+    let hf = match levels {
+        None => hf,
+        Some((first, last)) => {
+            terrain::enhance::output_size(hf.width, hf.height, last - first + 1).map_err(|e| e.to_string())?;
+            let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(r.weights.clone()), &terrain::models::tem::Exec::cpu())?;
+            let t = std::time::Instant::now();
+            let (refined, stats) = terrain::enhance::enhance(&hf, base, spacing_m, &tem, 4, &mut |_, _, _| {}).map_err(|e| e.to_string())?;
+            eprintln!(
+                "refined {}×{} at 32 m to {}×{} at {spacing_m} m: {} patches in {:.1} s",
+                hf.width,
+                hf.height,
+                refined.width,
+                refined.height,
+                stats.quads_made,
+                t.elapsed().as_secs_f64()
+            );
+            refined
+        }
     };
     write_region(hf, r)
 }
