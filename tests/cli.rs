@@ -304,6 +304,30 @@ fn export_writes_the_world_at_32_m_and_refined_to_8_m_as_enhance_does() {
     assert_eq!((side["width"].as_u64(), side["spacing_m"].as_f64()), (Some(512), Some(8.0)));
 }
 
+/// `terrain export --spacing 8` of a region with an 8 m GeoTIFF pinned on its second tile:
+/// that tile is the GeoTIFF's own samples bit for bit (its 8 m detail, not the TEM's), the
+/// first tile is the learned world refined, and the CLI says the detail is kept.
+#[test]
+fn export_at_8_m_keeps_a_pinned_8_m_geotiff_as_it_is() {
+    let (dem_path, out) = (tmp("p8_dem.tif"), tmp("p8_out.tif"));
+    let n = 520;
+    let dem = Heightfield::new(n, n, 8.0, (0..n * n).map(|k| 1200.0 + (k % n) as f32 * 0.3 + ((k % n) as f32 * 0.9).sin() * 6.0 + ((k / n) as f32 * 1.3).cos() * 4.0).collect());
+    dem.write_tiff(std::io::BufWriter::new(std::fs::File::create(&dem_path).unwrap())).unwrap();
+    let pin = format!("{}@1,-1", dem_path.to_str().unwrap());
+    let o = run(&["export", "--seed", "3", "--source", "tcm", "--tiles", "0", "-1", "2", "1", "--spacing", "8", "--pin", &pin, "--out", out.to_str().unwrap()]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{e}");
+    assert!(e.contains(": 1 tile from (1, -1); its own detail is kept to 8 m"), "{e}");
+    let got = read(&out);
+    assert_eq!((got.width, got.height, got.spacing_m), (1024, 512, 8.0));
+    for y in 0..512 {
+        for x in 0..512 {
+            assert_eq!(got.at(512 + x, y).to_bits(), dem.at(x, y).to_bits(), "({x}, {y})");
+        }
+    }
+    assert!(got.window(0, 0, 512, 512).data.iter().all(|v| v.is_finite()));
+}
+
 /// `terrain enhance` on a world export with a no-data hole, its spacing read from the file (a
 /// conflicting `--input-res 16` is refused): same extent, 4× the samples per side at 8 m, the
 /// hole kept as no-data, every 4×4 block within 0.25 m of its input sample (closer than

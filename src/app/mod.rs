@@ -277,6 +277,10 @@ impl TerrainApp {
             }
             None => self.user_pins.clone(),
         };
+        if self.source() == SourceKind::Learned {
+            // The user's terrain keeps its own detail where the TEM would refine it.
+            self.refine = PatchStore::new(0, epoch).with_pins(pins.clone(), TileCoord::new(0, 0));
+        }
         if pins != self.worker_pins.1 {
             self.worker_pins = Arc::new((pins.hash(), pins));
         }

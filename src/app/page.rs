@@ -25,6 +25,9 @@ use crate::world::pins::Pins;
 use crate::world::refine::INPUT_SIDE;
 use crate::world::{PatchKey, SourceKind};
 
+/// Largest GeoTIFF or PNG read for a pin (bytes): a 4096² float32 grid and its tags.
+pub const MAX_PIN_FILE_BYTES: f64 = 65.0 * 1024.0 * 1024.0;
+
 /// Who runs a request.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Target {
@@ -482,14 +485,16 @@ impl PageCore {
         let eye = self.app.camera.position_m;
         let at = TileCoord::containing(eye.x, eye.z).offset(-(cols - 1) / 2, -(rows - 1) / 2);
         let mut pins = Pins::new();
-        let tiles = pins.add(hf, at).map_err(|e| format!("{name}: {e}"))?;
-        self.pinned = Some((name.to_string(), tiles.len()));
+        let added = pins.add(hf, at).map_err(|e| format!("{name}: {e}"))?;
+        self.pinned = Some((name.to_string(), added.tiles.len()));
         self.app.set_user_pins(pins);
         Ok(format!(
-            "Pinned {name}: {} tiles from tile ({}, {}), the world grows around them. A link does not carry them: \"Save world\" makes a file with the link and your terrain.",
-            tiles.len(),
+            "Pinned {name}: {} tile{} from tile ({}, {}){}; the world grows around them. A link does not carry them: \"Save world\" makes a file with the link and your terrain.",
+            added.tiles.len(),
+            if added.tiles.len() == 1 { "" } else { "s" },
             at.i,
-            at.j
+            at.j,
+            added.detail_said()
         ))
     }
 
@@ -522,6 +527,10 @@ impl PageCore {
     /// exports gives them. Returns what to tell the user; anything else is refused with why,
     /// and nothing changes.
     pub fn open_file(&mut self, name: &str, bytes: Vec<u8>) -> Result<String, String> {
+        let gzip = bytes.starts_with(&[0x1f, 0x8b]);
+        if !gzip && bytes.len() as f64 > MAX_PIN_FILE_BYTES {
+            return Err(format!("{name} is {:.1} MB; terrain to pin is at most 65 MB (4096² float32 samples)", bytes.len() as f64 / 1024.0 / 1024.0));
+        }
         match bytes.get(..4) {
             Some([0x1f, 0x8b, ..]) => self.open_world(name, &bytes),
             Some(b"II*\0" | b"MM\0*") => self.pin_dem(name, bytes),

@@ -596,6 +596,58 @@ fn a_pinned_geotiff_becomes_the_tiles_around_the_eye_the_world_grows_around_it_a
     assert_eq!(core.app.tile_heights(pinned).expect("the tile made again"), &free[..]);
 }
 
+/// An 8 m GeoTIFF pinned in the page keeps its own detail: the message says so, and once the
+/// TEM refines the view low over it, the page's 8 m export there is the pin's own 8 m heights
+/// bit for bit (a whole patch at least), not the TEM's; its 16 m export is their 2 × 2 means.
+#[test]
+fn an_8_m_geotiff_pinned_in_the_page_is_its_own_detail_where_the_view_is_refined() {
+    use crate::grid::TileCoord;
+    let mut core = PageCore::new(ShareState { position_m: [2048.0, 2000.0, 2048.0], pitch: -0.6, radius_tiles: 1.0, ..ShareState::default() }, start(Ok(())));
+    let mut shell = Shell::new(&no_swap);
+    shell.frames(&mut core, 1);
+    let n = 520;
+    let dem = crate::dem::Heightfield::new(
+        n,
+        n,
+        8.0,
+        (0..n * n).map(|k| 1200.0 + (k % n) as f32 * 0.3 + ((k % n) as f32 * 0.9).sin() * 6.0 + ((k / n) as f32 * 1.3).cos() * 4.0).collect(),
+    );
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    dem.write_tiff(&mut bytes).unwrap();
+    let said = core.open_file("fine.tif", bytes.into_inner()).unwrap();
+    assert!(said.starts_with("Pinned fine.tif: 1 tile from tile (0, 0); its own detail is kept to 8 m"), "{said}");
+    let pin = core.app.user_pins().get(TileCoord::new(0, 0)).unwrap().clone();
+    let p = core.app.camera.position_m;
+    core.app.camera.position_m.y = 1400.0 + 60.0;
+    let (mut at8, mut at16) = (None, None);
+    for _ in 0..600 {
+        shell.frames(&mut core, 1);
+        core.app.camera.position_m = p.with_y(1460.0);
+        if let (Ok(a), Ok(b)) = (core.app.export_refined(1), core.app.export_refined(0)) {
+            (at8, at16) = (Some(a), Some(b));
+            break;
+        }
+    }
+    let check = |hf: crate::dem::Heightfield, level: usize| {
+        let (s, side) = (hf.spacing_m, crate::world::pins::detail_side(level) as i64);
+        let g = hf.geo.expect("placed in the world's frame");
+        let (px0, py0) = (((g.origin_m[0] + 16.0) / s).round() as i64, ((16.0 - g.origin_m[1]) / s).round() as i64);
+        let own = pin.detail(level).unwrap();
+        let mut matched = 0;
+        for (k, v) in hf.data.iter().enumerate() {
+            let (x, y) = (px0 + (k % hf.width) as i64, py0 + (k / hf.width) as i64);
+            if (0..side).contains(&x) && (0..side).contains(&y) {
+                assert_eq!(v.to_bits(), own[(y * side + x) as usize].to_bits(), "level {level} pixel ({x}, {y})");
+                matched += 1;
+            }
+        }
+        matched
+    };
+    let (m8, m16) = (check(at8.expect("refined to 8 m over the pin"), 1), check(at16.expect("refined to 16 m"), 0));
+    eprintln!("{m8} samples at 8 m and {m16} at 16 m exported over the pin are its own");
+    assert!(m8 >= 128 * 128 && m16 >= 128 * 128, "{m8}, {m16}");
+}
+
 /// A 16-bit heightmap PNG (this project's export) opened after its JSON sidecar waits with the
 /// sidecar's spacing and heights, and Pin pins it like the GeoTIFF of the same terrain: the
 /// eye's tile within half a PNG unit of it. Opened alone it waits with answers to give (and

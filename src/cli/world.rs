@@ -36,8 +36,9 @@ pub(crate) fn read_pins(args: &[String]) -> Result<terrain::world::pins::Pins, S
             return Err(format!("--pin {a}: tile coordinates must stay within ±{limit}"));
         }
         let hf = terrain::dem::Heightfield::read_user_path(std::path::Path::new(file), spacing, terrain::dem::PngScale::default()).map_err(|e| format!("--pin {file}: {e}"))?;
-        let tiles = pins.add(&hf, terrain::grid::TileCoord::new(i, j)).map_err(|e| format!("--pin {file}: {e}"))?;
-        eprintln!("pinned {file}: {} tiles from ({i}, {j})", tiles.len());
+        let added = pins.add(&hf, terrain::grid::TileCoord::new(i, j)).map_err(|e| format!("--pin {file}: {e}"))?;
+        let n = added.tiles.len();
+        eprintln!("pinned {file}: {n} tile{} from ({i}, {j}){}", if n == 1 { "" } else { "s" }, added.detail_said());
     }
     Ok(pins)
 }
@@ -48,7 +49,7 @@ pub(crate) fn read_pins(args: &[String]) -> Result<terrain::world::pins::Pins, S
 /// [`NativeRunner`]: terrain::jobs::native::NativeRunner
 pub(crate) fn world(r: &RegionArgs) -> Result<(), String> {
     terrain::dem::formats::Format::of(&r.out).map_err(|e| e.to_string())?;
-    let hf = region(r)?;
+    let (hf, _) = region(r)?;
     write_region(hf, r)
 }
 
@@ -75,14 +76,16 @@ pub(crate) fn export(r: &RegionArgs, spacing_m: f64, format: Option<ExportFormat
         .then(|| terrain::enhance::levels_for(base, spacing_m))
         .transpose()
         .map_err(|_| format!("--spacing must be 32, 16, 8, 4, 2 or 1 metres, not {spacing_m}"))?;
-    let hf = region(r)?;
+    let (hf, pins) = region(r)?;
     let hf = match levels {
         None => hf,
         Some((first, last)) => {
             terrain::enhance::output_size(hf.width, hf.height, last - first + 1).map_err(|e| e.to_string())?;
             let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(r.weights.clone()), &terrain::models::tem::Exec::cpu())?;
             let t = std::time::Instant::now();
-            let (refined, stats) = terrain::enhance::enhance(&hf, base, spacing_m, &tem, 4, &mut |_, _, _| {}).map_err(|e| e.to_string())?;
+            let (x0, y0, ..) = tile_rect(&r.tiles)?;
+            let origin = terrain::grid::TileCoord::new(x0, y0);
+            let (refined, stats) = terrain::enhance::enhance_pinned(&hf, base, spacing_m, &tem, 4, &pins, origin, &mut |_, _, _| {}).map_err(|e| e.to_string())?;
             eprintln!(
                 "refined {}×{} at 32 m to {}×{} at {spacing_m} m: {} patches in {:.1} s",
                 hf.width,
@@ -99,8 +102,8 @@ pub(crate) fn export(r: &RegionArgs, spacing_m: f64, format: Option<ExportFormat
 }
 
 /// The 32 m heights of `r`'s tiles, made by the page's worker procedure (with its pins and
-/// sketch).
-fn region(r: &RegionArgs) -> Result<terrain::dem::Heightfield, String> {
+/// sketch), and the pins.
+fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::pins::Pins), String> {
     use terrain::grid::TileCoord;
     use terrain::jobs::protocol::{Envelope, Reply, Request};
     let (x0, y0, w, h) = tile_rect(&r.tiles)?;
@@ -155,7 +158,7 @@ fn region(r: &RegionArgs) -> Result<terrain::dem::Heightfield, String> {
             };
         }
     }
-    Ok(export::from_tiles(x0, y0, w, h, |c| made.get(&c).cloned()).ok_or("a tile was not made")?)
+    Ok((export::from_tiles(x0, y0, w, h, |c| made.get(&c).cloned()).ok_or("a tile was not made")?, pins))
 }
 
 /// Writes `hf` to `r.out` (resampled to 2ⁿ+1 when asked) and says what was written.

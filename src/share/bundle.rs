@@ -4,10 +4,13 @@
 //! pins).
 //!
 //! Format: gzip of one JSON object,
-//! `{"format": "terrain-world-bundle", "version": 1, "link": FRAGMENT, "pins": [{"i": I, "j": J,
+//! `{"format": "terrain-world-bundle", "version": 2, "link": FRAGMENT, "pins": [{"i": I, "j": J,
 //! "heights": BASE64}, …]}`: the link's fragment (without `#`), and per pinned tile its tile
 //! coordinate and its 32 m heights ([`TILE_SAMPLES`]² little-endian float32, metres, row-major)
-//! in standard base64.
+//! in standard base64. A tile that keeps its own detail ([`crate::world::pins`]) has, instead
+//! of `heights`, `"level": K, "detail": BASE64`: its heights at TEM level K
+//! ([`detail_side`]`(K)`² float32), whose box means give the coarser levels and the 32 m tile.
+//! Version 1 (32 m heights only) is read too.
 
 use std::io::Read;
 
@@ -15,18 +18,21 @@ use base64::Engine;
 use base64::engine::general_purpose::STANDARD;
 
 use crate::grid::{TILE_SAMPLES, TileCoord};
-use crate::world::pins::{MAX_PINNED_TILES, Pins};
+use crate::world::pins::{MAX_DETAIL_SAMPLES, MAX_PINNED_TILES, PinnedTile, Pins, detail_side};
 
 /// The `format` a bundle states.
 pub const FORMAT: &str = "terrain-world-bundle";
-/// The bundle version this page writes and reads.
-pub const VERSION: u32 = 1;
+/// The bundle version this page writes (it reads 1 too).
+pub const VERSION: u32 = 2;
 /// The file name the page offers a bundle under.
 pub const FILE_NAME: &str = "terrain-world.json.gz";
-/// Largest bundle read (bytes of the file): the most pins a world holds compress to far less.
-pub const MAX_FILE_BYTES: f64 = 16.0 * 1024.0 * 1024.0;
-/// Largest inflated bundle (bytes): [`MAX_PINNED_TILES`] tiles in base64 and the link.
-const MAX_JSON_BYTES: u64 = (MAX_PINNED_TILES * TILE_SAMPLES * TILE_SAMPLES * 4 / 3 * 4 + 1024 * 1024) as u64;
+/// Largest bundle read (bytes of the file): 192 MiB. The most pins a world holds,
+/// [`MAX_PINNED_TILES`] tiles with [`MAX_DETAIL_SAMPLES`] of detail (133 MiB of float32),
+/// compress to less.
+pub const MAX_FILE_BYTES: f64 = 192.0 * 1024.0 * 1024.0;
+/// Largest inflated bundle (bytes): [`MAX_PINNED_TILES`] tiles and [`MAX_DETAIL_SAMPLES`] in
+/// base64, and the link.
+const MAX_JSON_BYTES: u64 = ((MAX_PINNED_TILES * TILE_SAMPLES * TILE_SAMPLES + MAX_DETAIL_SAMPLES) * 4 / 3 * 4 + 1024 * 1024) as u64;
 
 /// Why a file is not a world bundle this page can open.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -41,7 +47,7 @@ pub enum BundleError {
     #[error("it is not a world bundle ({0})")]
     Json(String),
     /// Another format or version.
-    #[error("it is a {format} file of version {version}; this page opens {FORMAT} version {VERSION}")]
+    #[error("it is a {format} file of version {version}; this page opens {FORMAT} versions 1 to {VERSION}")]
     Version {
         /// The format it states.
         format: String,
@@ -75,7 +81,17 @@ struct Json {
 struct JsonPin {
     i: i32,
     j: i32,
+    #[serde(default, skip_serializing_if = "String::is_empty")]
     heights: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    level: Option<usize>,
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    detail: String,
+}
+
+/// Little-endian float32 bytes in standard base64.
+fn encode(heights: &[f32]) -> String {
+    STANDARD.encode(heights.iter().flat_map(|h| h.to_le_bytes()).collect::<Vec<u8>>())
 }
 
 /// A link and the terrain pinned into its world.
@@ -90,7 +106,14 @@ pub struct WorldBundle {
 impl WorldBundle {
     /// The bundle as a file (gzip of its JSON).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let pins = self.pins.iter().map(|(c, t)| JsonPin { i: c.i, j: c.j, heights: STANDARD.encode(t.fine.iter().flat_map(|h| h.to_le_bytes()).collect::<Vec<u8>>()) }).collect();
+        let pins = self
+            .pins
+            .iter()
+            .map(|(c, t)| match t.detail.last() {
+                Some(d) => JsonPin { i: c.i, j: c.j, heights: String::new(), level: Some(t.detail.len() - 1), detail: encode(d) },
+                None => JsonPin { i: c.i, j: c.j, heights: encode(&t.fine), level: None, detail: String::new() },
+            })
+            .collect();
         let json = serde_json::to_vec(&Json { format: FORMAT.into(), version: VERSION, link: self.link.clone(), pins }).expect("a bundle is plain JSON");
         let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
         std::io::Write::write_all(&mut gz, &json).expect("writing to memory");
@@ -107,7 +130,7 @@ impl WorldBundle {
             return Err(BundleError::TooLarge(MAX_JSON_BYTES));
         }
         let parsed: Json = serde_json::from_slice(&json).map_err(|e| BundleError::Json(e.to_string()))?;
-        if parsed.format != FORMAT || parsed.version != VERSION {
+        if parsed.format != FORMAT || !(1..=VERSION).contains(&parsed.version) {
             return Err(BundleError::Version { format: parsed.format, version: parsed.version });
         }
         if parsed.pins.len() > MAX_PINNED_TILES {
@@ -120,12 +143,19 @@ impl WorldBundle {
             if pins.contains(c) {
                 return Err(BundleError::Pins(format!("tile {}, {} is pinned twice", p.i, p.j)));
             }
-            let raw = STANDARD.decode(p.heights.as_bytes()).map_err(|e| err(format!("its heights are not base64 ({e})")))?;
-            if raw.len() != TILE_SAMPLES * TILE_SAMPLES * 4 {
-                return Err(err(format!("{} bytes of heights, not {}", raw.len(), TILE_SAMPLES * TILE_SAMPLES * 4)));
-            }
-            let heights = raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
-            pins.insert(c, heights).map_err(err)?;
+            let floats = |b64: &str, what: &str, want: usize| -> Result<Vec<f32>, BundleError> {
+                let raw = STANDARD.decode(b64.as_bytes()).map_err(|e| err(format!("its {what} are not base64 ({e})")))?;
+                if raw.len() != want * 4 {
+                    return Err(err(format!("{} bytes of {what}, not {}", raw.len(), want * 4)));
+                }
+                Ok(raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+            };
+            let tile = match p.level {
+                None => PinnedTile::new(floats(&p.heights, "heights", TILE_SAMPLES * TILE_SAMPLES)?),
+                Some(k) if k < crate::models::tem::LEVELS => PinnedTile::with_detail(k, floats(&p.detail, "detail", detail_side(k).pow(2))?),
+                Some(k) => return Err(err(format!("detail level {k} is not a TEM level"))),
+            };
+            pins.insert_tile(c, tile.map_err(err)?).map_err(err)?;
         }
         Ok(Self { link: parsed.link, pins })
     }
@@ -190,6 +220,40 @@ mod tests {
         ];
         for (bytes, needle) in cases {
             let e = WorldBundle::from_bytes(&bytes).unwrap_err().to_string();
+            assert!(e.contains(needle), "{e} (wanted '{needle}')");
+        }
+    }
+
+    /// A pin with its own 8 m detail travels as that detail: read back, every level and the
+    /// 32 m tile are bit for bit the pin's; a version-1 bundle (32 m heights only) still opens;
+    /// detail of the wrong size or of a level the TEM lacks is refused with the reason.
+    #[test]
+    fn a_bundle_carries_a_pins_own_detail_and_version_1_bundles_still_open() {
+        let n = 520;
+        let dem = crate::dem::Heightfield::new(n, n, 8.0, (0..n * n).map(|k| 900.0 + ((k % n) as f32 * 0.7).sin() * 5.0 + (k / n) as f32 * 0.2).collect());
+        let mut pins = Pins::new();
+        pins.add(&dem, TileCoord::new(3, 4)).unwrap();
+        let b = WorldBundle { link: "v=2&seed=1".into(), pins };
+        let bytes = b.to_bytes();
+        eprintln!("one tile with 8 m detail: {} bytes", bytes.len());
+        let back = WorldBundle::from_bytes(&bytes).unwrap();
+        let (t, t2) = (b.pins.get(TileCoord::new(3, 4)).unwrap(), back.pins.get(TileCoord::new(3, 4)).unwrap());
+        assert_eq!(t2.detail.len(), 2);
+        let same = |a: &[f32], b: &[f32]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        assert!(same(&t.fine, &t2.fine) && same(&t.coarse, &t2.coarse));
+        assert!((0..2).all(|k| same(t.detail(k).unwrap(), t2.detail(k).unwrap())));
+        let gz = |json: String| {
+            let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+            std::io::Write::write_all(&mut e, json.as_bytes()).unwrap();
+            e.finish().unwrap()
+        };
+        let v1 = gz(format!(r#"{{"format":"terrain-world-bundle","version":1,"link":"seed=3","pins":[{{"i":0,"j":0,"heights":"{}"}}]}}"#, encode(&t.fine)));
+        let old = WorldBundle::from_bytes(&v1).unwrap();
+        assert!(same(&old.pins.get(TileCoord::new(0, 0)).unwrap().fine, &t.fine) && old.pins.get(TileCoord::new(0, 0)).unwrap().detail.is_empty());
+        for (pin, needle) in
+            [(format!(r#""level":1,"detail":"{}""#, encode(&t.fine)), "of detail, not 1048576"), (r#""level":7,"detail":"""#.to_string(), "level 7 is not a TEM level")]
+        {
+            let e = WorldBundle::from_bytes(&gz(format!(r#"{{"format":"terrain-world-bundle","version":2,"link":"","pins":[{{"i":0,"j":0,{pin}}}]}}"#))).unwrap_err().to_string();
             assert!(e.contains(needle), "{e} (wanted '{needle}')");
         }
     }

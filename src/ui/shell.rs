@@ -48,8 +48,7 @@ pub enum Refused {
 
 /// Largest sketch PNG read (bytes): a 256×256 PNG is far smaller.
 pub const MAX_SKETCH_FILE_BYTES: f64 = 2.0 * 1024.0 * 1024.0;
-/// Largest GeoTIFF read for a pin (bytes): a 4096² float32 grid and its tags.
-pub const MAX_PIN_FILE_BYTES: f64 = 65.0 * 1024.0 * 1024.0;
+pub use crate::app::page::MAX_PIN_FILE_BYTES;
 
 /// A picked file's name and bytes, or what to tell the user when they were not read (`limit`
 /// says how large such a file may be).
@@ -338,10 +337,12 @@ impl<P: Platform> PageShell<P> {
             self.core.message = Some(format!("No file dialog: {e}"));
         }
         for file in ctx.input(|i| i.raw.dropped_files.clone()) {
-            self.platform.read_dropped(file, MAX_PIN_FILE_BYTES, self.dropped.clone());
+            // A world bundle is the largest file a drop may be; PageCore::open_file holds
+            // terrain to pin to MAX_PIN_FILE_BYTES.
+            self.platform.read_dropped(file, bundle::MAX_FILE_BYTES, self.dropped.clone());
         }
-        let mut files: Vec<(Picked, &str)> = std::mem::take(&mut *self.dropped.borrow_mut()).into_iter().map(|f| (f, "a file dropped on the page is at most 65 MB")).collect();
-        files.extend(self.world_file.borrow_mut().take().map(|f| (f, "a world bundle is at most 16 MB")));
+        let mut files: Vec<(Picked, &str)> = std::mem::take(&mut *self.dropped.borrow_mut()).into_iter().map(|f| (f, "a file dropped on the page is at most 192 MB")).collect();
+        files.extend(self.world_file.borrow_mut().take().map(|f| (f, "a world bundle is at most 192 MB")));
         for (file, limit) in files {
             let said = picked_bytes(file, limit).and_then(|(name, bytes)| self.core.open_file(&name, bytes));
             self.core.message = Some(said.unwrap_or_else(|e| e));

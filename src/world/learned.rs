@@ -716,7 +716,7 @@ mod shipped_tests {
         {
             let dem = crate::dem::Heightfield::read_path(&root.join(format!("../shared/dem/{id}.tif")), Some(spacing), crate::dem::PngScale::default()).unwrap();
             let mut pins = Pins::new();
-            assert_eq!(pins.add(&dem.window(x0, y0, side, side), TileCoord::new(0, 0)).unwrap().len(), 4, "{id}");
+            assert_eq!(pins.add(&dem.window(x0, y0, side, side), TileCoord::new(0, 0)).unwrap().tiles.len(), 4, "{id}");
             pinned_region(&free, &pins, id, id == "glaciers_sthelens_10m");
         }
     }

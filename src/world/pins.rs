@@ -4,6 +4,12 @@
 //! mean, the tiles beside it take it as a given neighbour and are joined to its edges, and the
 //! drainage treats it as an outlet it never changes. A world with pins is a pure function of
 //! (seed, weights, pins).
+//!
+//! Detail. Terrain at 16 m or finer keeps its own samples for the TEM levels it covers (a 5 m
+//! DEM at 16 and 8 m, a 1 m DEM at every level): the refined patches over a pinned tile take
+//! them instead of the TEM's output ([`super::refine::PatchStore::with_pins`]), and the levels
+//! below the finest kept are refined from them. The levels form one ladder: each is the 2 × 2
+//! box mean of the level below, down to the 32 m tile, as the TEM's training pairs are.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -11,9 +17,22 @@ use std::sync::Arc;
 use crate::dem::Heightfield;
 use crate::grid::{BASE_SPACING_M, TILE_SAMPLES, TileCoord};
 use crate::models::tcm::TILE_PX;
+use crate::models::tem::{LEVEL_SPACING_M, LEVELS};
 
 /// Pinned tiles at most (each 64 KiB at 32 m and 4 KiB at 128 m): a 32 × 32 km import.
 pub const MAX_PINNED_TILES: usize = 64;
+
+/// Most detail samples the pins of a world keep, all levels together (2²⁵: 128 MiB of
+/// float32): a 4096² DEM at 8 m (64 tiles at 16 and 8 m, 21 M samples) or at 1 m (one tile at
+/// every level, 22 M) fits. An import whose finer levels would pass it keeps the coarser ones
+/// only ([`Pins::add`] says which).
+pub const MAX_DETAIL_SAMPLES: usize = 1 << 25;
+
+/// Side (samples) of a pinned tile's detail at TEM level `level` (spacing
+/// [`LEVEL_SPACING_M`]`[level]`): 256 at 16 m … 4,096 at 1 m.
+pub const fn detail_side(level: usize) -> usize {
+    TILE_SAMPLES << (level + 1)
+}
 
 /// One pinned tile.
 #[derive(Clone, Debug, PartialEq)]
@@ -22,6 +41,10 @@ pub struct PinnedTile {
     pub fine: Arc<Vec<f32>>,
     /// Its 128 m area means ([`TILE_PX`]², metres): the tile as the TCM sees it.
     pub coarse: Arc<Vec<f32>>,
+    /// Its own heights at TEM levels 0, 1, … (16 m, 8 m, …; [`detail_side`]² metres each,
+    /// row-major, the tile's north-west corner first) as far as the terrain is that fine; empty
+    /// for terrain coarser than 16 m.
+    pub detail: Vec<Arc<Vec<f32>>>,
 }
 
 impl PinnedTile {
@@ -38,7 +61,67 @@ impl PinnedTile {
         let tile = Heightfield::new(n, n, BASE_SPACING_M, fine);
         let coarse = tile.downsample2().downsample2();
         assert_eq!(coarse.width, TILE_PX, "a 32 m tile is {TILE_PX} samples at 128 m");
-        Ok(Self { fine: Arc::new(tile.data), coarse: Arc::new(coarse.data) })
+        Ok(Self { fine: Arc::new(tile.data), coarse: Arc::new(coarse.data), detail: Vec::new() })
+    }
+
+    /// A pinned tile from its heights at TEM level `finest` ([`detail_side`]`(finest)`²,
+    /// finite): the coarser levels and the 32 m tile are 2 × 2 box means of the level below.
+    pub fn with_detail(finest: usize, heights: Vec<f32>) -> Result<Self, String> {
+        if finest >= LEVELS {
+            return Err(format!("detail level {finest} is not one of the {LEVELS} TEM levels"));
+        }
+        let side = detail_side(finest);
+        if heights.len() != side * side {
+            return Err(format!("{} m detail has {} samples, not {}", LEVEL_SPACING_M[finest], heights.len(), side * side));
+        }
+        if let Some(p) = heights.iter().position(|v| !v.is_finite()) {
+            return Err(format!("a pinned tile's {} m height at sample {p} is {}", LEVEL_SPACING_M[finest], heights[p]));
+        }
+        let mut levels = vec![Heightfield::new(side, side, LEVEL_SPACING_M[finest], heights)];
+        while levels.len() <= finest {
+            let next = levels.last().expect("one level at least").downsample2();
+            levels.push(next);
+        }
+        let top = levels.last().expect("one level at least").downsample2();
+        let mut tile = Self::new(top.data)?;
+        tile.detail = levels.into_iter().rev().map(|l| Arc::new(l.data)).collect();
+        Ok(tile)
+    }
+
+    /// Its heights at TEM level `level` ([`detail_side`]² metres), where it keeps them.
+    pub fn detail(&self, level: usize) -> Option<&[f32]> {
+        self.detail.get(level).map(|d| d.as_slice())
+    }
+
+    /// Detail samples it keeps, all levels together.
+    pub fn detail_samples(&self) -> usize {
+        self.detail.iter().map(|d| d.len()).sum()
+    }
+}
+
+/// What [`Pins::add`] pinned.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Added {
+    /// The tiles pinned, in row order.
+    pub tiles: Vec<TileCoord>,
+    /// The finest detail kept (metres per sample; `None`: the 32 m tiles only).
+    pub detail_m: Option<f64>,
+    /// The finest TEM level's spacing the terrain reaches (metres; finer than `detail_m` when
+    /// the memory bound left levels out).
+    pub finest_m: Option<f64>,
+}
+
+impl Added {
+    /// What became of the terrain's detail, for a message after "N tiles pinned": "" for
+    /// terrain coarser than 16 m.
+    pub fn detail_said(&self) -> String {
+        match (self.detail_m, self.finest_m) {
+            (Some(d), Some(f)) if d > f => format!("; its detail is kept to {d} m (finer, to {f} m, would pass the {} MiB the pins may keep)", MAX_DETAIL_SAMPLES * 4 >> 20),
+            (Some(d), _) if d > LEVEL_SPACING_M[LEVELS - 1] => format!("; its own detail is kept to {d} m, the learned detail goes on below"),
+            (Some(d), _) => format!("; its own detail is kept to {d} m"),
+            (None, Some(f)) => format!("; its detail (to {f} m) would pass the {} MiB the pins may keep, so the TEM refines it", MAX_DETAIL_SAMPLES * 4 >> 20),
+            (None, None) => String::new(),
+        }
     }
 }
 
@@ -54,48 +137,85 @@ impl Pins {
         Self::default()
     }
 
-    /// Pins `hf` with its north-west sample on the north-west sample of tile `at`: area-averaged
-    /// to 32 m (a coarser DEM is refused: pins are never upsampled), no-data filled from the
-    /// nearest data, cut into the whole tiles it covers (its last partial row and column of
-    /// tiles are left out). Returns the tiles pinned; on an error nothing is pinned.
-    pub fn add(&mut self, hf: &Heightfield, at: TileCoord) -> Result<Vec<TileCoord>, String> {
+    /// Pins `hf` with its north-west sample on the north-west sample of tile `at`, cut into
+    /// the whole tiles it covers (its last partial row and column of tiles are left out),
+    /// no-data filled from the nearest data. Terrain at 16 m or finer keeps its detail: it is
+    /// area-averaged to the finest TEM level its spacing reaches (within
+    /// [`MAX_DETAIL_SAMPLES`] for all pins together), and that level's 2 × 2 box means give
+    /// the coarser levels and the 32 m tiles; coarser terrain is area-averaged to 32 m (a DEM
+    /// coarser than 32 m is refused: pins are never upsampled). On an error nothing is pinned.
+    pub fn add(&mut self, hf: &Heightfield, at: TileCoord) -> Result<Added, String> {
         if hf.spacing_m > BASE_SPACING_M * 1.0001 {
             return Err(format!("pinned terrain must be {BASE_SPACING_M} m or finer; this is {} m", hf.spacing_m));
         }
-        let grid = hf.resample_area(BASE_SPACING_M).map_err(|e| e.to_string())?;
-        let grid = grid.fill_nodata().ok_or("the pinned terrain has no data")?;
         let n = TILE_SAMPLES;
-        let (w, h) = (grid.width / n, grid.height / n);
+        // Whole tiles across and down: the 32 m grid's size, as area resampling rounds it, over 128.
+        let tiles_of = |len: usize| (len as f64 / (BASE_SPACING_M / hf.spacing_m)).floor() as usize / n;
+        let (w, h) = (tiles_of(hf.width), tiles_of(hf.height));
         if w == 0 || h == 0 {
             return Err(format!(
                 "pinned terrain covers {:.1} × {:.1} km; a pin needs at least one whole tile ({:.1} km square)",
-                grid.width as f64 * BASE_SPACING_M / 1000.0,
-                grid.height as f64 * BASE_SPACING_M / 1000.0,
+                hf.width as f64 * hf.spacing_m / 1000.0,
+                hf.height as f64 * hf.spacing_m / 1000.0,
                 n as f64 * BASE_SPACING_M / 1000.0
             ));
         }
         if self.tiles.len() + w * h > MAX_PINNED_TILES {
             return Err(format!("{} tiles pinned with this one, more than {MAX_PINNED_TILES}", self.tiles.len() + w * h));
         }
+        // The finest TEM level the terrain reaches, then the finest the memory allows.
+        let reach = (0..LEVELS).take_while(|&k| hf.spacing_m <= LEVEL_SPACING_M[k] * 1.0001).last();
+        let room = MAX_DETAIL_SAMPLES.saturating_sub(self.detail_samples());
+        let levels_samples = |k: usize| w * h * (0..=k).map(|l| detail_side(l).pow(2)).sum::<usize>();
+        let kept = reach.and_then(|r| (0..=r).rev().find(|&k| levels_samples(k) <= room));
+        let (spacing_m, cut) = match kept {
+            Some(k) => (LEVEL_SPACING_M[k], detail_side(k)),
+            None => (BASE_SPACING_M, n),
+        };
+        let grid = if (hf.spacing_m - spacing_m).abs() < 1e-9 { hf.window(0, 0, w * cut, h * cut) } else { hf.resample_area(spacing_m).map_err(|e| e.to_string())? };
+        let grid = grid.fill_nodata().ok_or("the pinned terrain has no data")?;
+        if grid.width < w * cut || grid.height < h * cut {
+            return Err(format!("the terrain at {spacing_m} m is {} × {} samples, short of {} × {} whole tiles", grid.width, grid.height, w, h));
+        }
         let mut new = Vec::new();
         for j in 0..h {
             for i in 0..w {
-                let tile = PinnedTile::new(grid.window(i * n, j * n, n, n).data)?;
+                let heights = grid.window(i * cut, j * cut, cut, cut).data;
+                let tile = match kept {
+                    Some(k) => PinnedTile::with_detail(k, heights)?,
+                    None => PinnedTile::new(heights)?,
+                };
                 new.push((at.offset(i as i32, j as i32), tile));
             }
         }
-        let coords = new.iter().map(|(c, _)| *c).collect();
+        let tiles = new.iter().map(|(c, _)| *c).collect();
         self.tiles.extend(new);
-        Ok(coords)
+        Ok(Added { tiles, detail_m: kept.map(|k| LEVEL_SPACING_M[k]), finest_m: reach.map(|k| LEVEL_SPACING_M[k]) })
+    }
+
+    /// Detail samples the pins keep, all tiles and levels together (at most
+    /// [`MAX_DETAIL_SAMPLES`] through [`Self::add`]).
+    pub fn detail_samples(&self) -> usize {
+        self.tiles.values().map(PinnedTile::detail_samples).sum()
+    }
+
+    /// Pins a tile made elsewhere (a bundle's), replacing any pin there; at most
+    /// [`MAX_PINNED_TILES`] tiles and [`MAX_DETAIL_SAMPLES`] detail samples.
+    pub fn insert_tile(&mut self, c: TileCoord, tile: PinnedTile) -> Result<(), String> {
+        if !self.tiles.contains_key(&c) && self.tiles.len() >= MAX_PINNED_TILES {
+            return Err(format!("at most {MAX_PINNED_TILES} tiles can be pinned"));
+        }
+        let others = self.detail_samples() - self.tiles.get(&c).map_or(0, PinnedTile::detail_samples);
+        if others + tile.detail_samples() > MAX_DETAIL_SAMPLES {
+            return Err(format!("the pins' detail would pass {MAX_DETAIL_SAMPLES} samples"));
+        }
+        self.tiles.insert(c, tile);
+        Ok(())
     }
 
     /// Pins one tile's 32 m heights ([`TILE_SAMPLES`]², finite), replacing any pin there.
     pub fn insert(&mut self, c: TileCoord, fine: Vec<f32>) -> Result<(), String> {
-        if !self.tiles.contains_key(&c) && self.tiles.len() >= MAX_PINNED_TILES {
-            return Err(format!("at most {MAX_PINNED_TILES} tiles can be pinned"));
-        }
-        self.tiles.insert(c, PinnedTile::new(fine)?);
-        Ok(())
+        self.insert_tile(c, PinnedTile::new(fine)?)
     }
 
     /// The pinned tile at `c`, if any.
@@ -159,7 +279,7 @@ mod tests {
         let hf = Heightfield::new(1000, 900, 10.0, (0..1000 * 900).map(|k| plane(k % 1000, k / 1000)).collect());
         let mut pins = Pins::new();
         let got = pins.add(&hf, TileCoord::new(-1, 3)).unwrap();
-        assert_eq!(got, vec![TileCoord::new(-1, 3), TileCoord::new(0, 3), TileCoord::new(-1, 4), TileCoord::new(0, 4)]);
+        assert_eq!(got.tiles, vec![TileCoord::new(-1, 3), TileCoord::new(0, 3), TileCoord::new(-1, 4), TileCoord::new(0, 4)]);
         // Sample (u, v) of tile (0, 4) covers DEM samples 3.2·(128 + u) … 3.2·(129 + u): its
         // mean is the plane at the centre.
         let t = pins.get(TileCoord::new(0, 4)).unwrap();
@@ -177,5 +297,50 @@ mod tests {
         assert_eq!(pins, before);
         assert_eq!(pins.hash().len(), 8);
         assert_eq!(Pins::new().hash(), "");
+    }
+
+    /// A 5 m DEM keeps its own heights at the TEM levels it reaches (16 and 8 m): the 8 m
+    /// level is the DEM's area mean (a plane: to 2 cm), the 16 m level and the 32 m tile the
+    /// 2 × 2 box means of the level below, bit for bit; the message says so. A 10 m DEM keeps
+    /// 16 m only, a 20 m DEM none. A second 1 m tile after a first (22.4 M detail samples)
+    /// keeps only what fits in [`MAX_DETAIL_SAMPLES`] (to 2 m), and says what was left out.
+    #[test]
+    fn terrain_finer_than_16_m_keeps_its_own_detail_at_the_levels_it_reaches() {
+        let plane = |x: f64, y: f64| (700.0 + x * 0.02 - y * 0.01) as f32;
+        let dem = |spacing: f64, n: usize| Heightfield::new(n, n, spacing, (0..n * n).map(|k| plane((k % n) as f64 * spacing, (k / n) as f64 * spacing)).collect());
+        let mut pins = Pins::new();
+        let added = pins.add(&dem(5.0, 830), TileCoord::new(2, -1)).unwrap();
+        assert_eq!((added.tiles.clone(), added.detail_m, added.finest_m), (vec![TileCoord::new(2, -1)], Some(8.0), Some(8.0)));
+        assert!(added.detail_said().contains("kept to 8 m"), "{}", added.detail_said());
+        let t = pins.get(TileCoord::new(2, -1)).unwrap();
+        assert_eq!(t.detail.len(), 2);
+        let d8 = t.detail(1).unwrap();
+        assert_eq!(d8.len(), 512 * 512);
+        // Sample (u, v) at 8 m covers [8u, 8u + 8) m: the plane at its centre.
+        for (u, v) in [(0, 0), (511, 3), (100, 400)] {
+            let want = plane(8.0 * u as f64 + 4.0 - 2.5, 8.0 * v as f64 + 4.0 - 2.5);
+            assert!((d8[v * 512 + u] - want).abs() < 0.02, "({u}, {v}): {} vs {want}", d8[v * 512 + u]);
+        }
+        let halve = |d: &[f32], side: usize| Heightfield::new(side, side, 1.0, d.to_vec()).downsample2().data;
+        assert!(halve(d8, 512).iter().zip(t.detail(0).unwrap()).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert!(halve(t.detail(0).unwrap(), 256).iter().zip(t.fine.iter()).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert_eq!(t.detail(2), None);
+        assert_eq!(pins.detail_samples(), 512 * 512 + 256 * 256);
+        let mut ten = Pins::new();
+        assert_eq!(ten.add(&dem(10.0, 420), TileCoord::new(0, 0)).unwrap().detail_m, Some(16.0));
+        let mut twenty = Pins::new();
+        let a = twenty.add(&dem(20.0, 210), TileCoord::new(0, 0)).unwrap();
+        assert_eq!((a.detail_m, a.finest_m, a.detail_said()), (None, None, String::new()));
+        assert!(twenty.get(TileCoord::new(0, 0)).unwrap().detail.is_empty());
+        // Two 1 m tiles: the first keeps every level, the second what is left of the bound.
+        let mut lidar = Pins::new();
+        let one_m = dem(1.0, 4096);
+        assert_eq!(lidar.add(&one_m, TileCoord::new(0, 0)).unwrap().detail_m, Some(1.0));
+        let second = lidar.add(&one_m, TileCoord::new(1, 0)).unwrap();
+        assert_eq!((second.detail_m, second.finest_m), (Some(2.0), Some(1.0)));
+        assert!(second.detail_said().contains("kept to 2 m (finer, to 1 m, would pass the 128 MiB"), "{}", second.detail_said());
+        assert!(lidar.detail_samples() <= MAX_DETAIL_SAMPLES);
+        let t0 = lidar.get(TileCoord::new(0, 0)).unwrap();
+        assert!(t0.detail(4).unwrap().iter().zip(&one_m.data).all(|(a, b)| a.to_bits() == b.to_bits()), "a 1 m tile at 1 m is the DEM itself");
     }
 }

@@ -18,6 +18,7 @@
 use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 
+use super::pins::{Pins, detail_side};
 use super::stream::WorldStream;
 use crate::grid::coord::TileCoord;
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, QUAD, RECEPTIVE_OUT_PX};
@@ -146,6 +147,9 @@ pub struct PatchStore {
     /// The jobs in flight, of the store's world epoch.
     jobs: JobQueue<PatchKey>,
     stats: RefineStats,
+    /// Pinned terrain whose own detail replaces the TEM's output, and the tile whose
+    /// north-west corner is pixel (0, 0) of every level ([`Self::with_pins`]).
+    pins: Option<(Pins, TileCoord)>,
 }
 
 impl PatchStore {
@@ -153,7 +157,40 @@ impl PatchStore {
     /// reads the 32 m world; the CLI may start lower for finer input).
     pub fn new(first_level: usize, epoch: u64) -> Self {
         let jobs = JobQueue::at_epoch(usize::MAX, epoch);
-        Self { first_level: first_level.min(LEVELS - 1), patches: HashMap::new(), requests: HashMap::new(), jobs, stats: RefineStats::default() }
+        Self { first_level: first_level.min(LEVELS - 1), patches: HashMap::new(), requests: HashMap::new(), jobs, stats: RefineStats::default(), pins: None }
+    }
+
+    /// The store with pinned terrain: wherever a pinned tile keeps its own heights at a level
+    /// ([`PinnedTile::detail`](crate::world::pins::PinnedTile::detail)), a stored patch of
+    /// that level takes them instead of the TEM's output, margins included, so patches still
+    /// agree wherever they overlap and the levels below refine the pin's own heights. `origin`
+    /// is the tile whose north-west corner is pixel (0, 0) of every level: tile (0, 0) in the
+    /// world, the region's first tile where a region is refined alone.
+    pub fn with_pins(mut self, pins: Pins, origin: TileCoord) -> Self {
+        self.pins = (pins.detail_samples() > 0).then_some((pins, origin));
+        self
+    }
+
+    /// Writes the pins' own heights over the stored patch `key` (STORED_SIDE²) where they
+    /// have that level.
+    fn overlay_pins(&self, key: PatchKey, out: &mut [f32]) {
+        let Some((pins, origin)) = &self.pins else { return };
+        let level = key.level as usize;
+        let per = detail_side(level) as i64;
+        let (x0, y0) = (key.x * PATCH as i64 - PATCH_MARGIN as i64, key.y * PATCH as i64 - PATCH_MARGIN as i64);
+        let (x1, y1) = (x0 + STORED_SIDE as i64, y0 + STORED_SIDE as i64);
+        for tj in y0.div_euclid(per)..=(y1 - 1).div_euclid(per) {
+            for ti in x0.div_euclid(per)..=(x1 - 1).div_euclid(per) {
+                let Some(d) = pins.get(origin.offset(ti as i32, tj as i32)).and_then(|t| t.detail(level)) else { continue };
+                let (ax, bx) = (x0.max(ti * per), x1.min((ti + 1) * per));
+                for y in y0.max(tj * per)..y1.min((tj + 1) * per) {
+                    let src = ((y - tj * per) * per + ax - ti * per) as usize;
+                    let dst = ((y - y0) * STORED_SIDE as i64 + ax - x0) as usize;
+                    let len = (bx - ax) as usize;
+                    out[dst..dst + len].copy_from_slice(&d[src..src + len]);
+                }
+            }
+        }
     }
 
     /// The world epoch its jobs are tagged with.
@@ -292,6 +329,7 @@ impl PatchStore {
             for y in o..o + STORED_SIDE {
                 out.extend_from_slice(&raw[y * side + o..y * side + o + STORED_SIDE]);
             }
+            self.overlay_pins(key, &mut out);
             self.patches.insert(key, Arc::new(out));
             self.stats.quads_made += 1;
             self.stats.inference_ms += ms / keys.len() as f64;
