@@ -116,10 +116,10 @@ impl Added {
     /// terrain coarser than 16 m.
     pub fn detail_said(&self) -> String {
         match (self.detail_m, self.finest_m) {
-            (Some(d), Some(f)) if d > f => format!("; its detail is kept to {d} m (finer, to {f} m, would pass the {} MiB the pins may keep)", MAX_DETAIL_SAMPLES * 4 >> 20),
+            (Some(d), Some(f)) if d > f => format!("; its detail is kept to {d} m (finer, to {f} m, would pass the {} MiB the pins may keep)", (MAX_DETAIL_SAMPLES * 4) >> 20),
             (Some(d), _) if d > LEVEL_SPACING_M[LEVELS - 1] => format!("; its own detail is kept to {d} m, the learned detail goes on below"),
             (Some(d), _) => format!("; its own detail is kept to {d} m"),
-            (None, Some(f)) => format!("; its detail (to {f} m) would pass the {} MiB the pins may keep, so the TEM refines it", MAX_DETAIL_SAMPLES * 4 >> 20),
+            (None, Some(f)) => format!("; its detail (to {f} m) would pass the {} MiB the pins may keep, so the TEM refines it", (MAX_DETAIL_SAMPLES * 4) >> 20),
             (None, None) => String::new(),
         }
     }
