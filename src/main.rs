@@ -374,9 +374,21 @@ enum Command {
         /// Sketch PNG.
         #[arg(long)]
         input: PathBuf,
-        /// Output 16-bit PNG.
+        /// Output: without --format a 16-bit PNG of relative heights; with it, the file --format
+        /// names.
         #[arg(long)]
         out: PathBuf,
+        /// Write the sketch's terrain in metres as the page's sketch world has it (256² samples
+        /// at 32 m, 8.2 km square, the relief of --relief) in this format, with the same options
+        /// as `export` (.png and .raw with a JSON sidecar); the --out file's extension must agree.
+        #[arg(long, value_enum)]
+        format: Option<ExportFormat>,
+        /// Relief (metres) from the sketch's lowest to its highest point, with --format.
+        #[arg(long, default_value_t = terrain::world::sketched::DEFAULT_RELIEF_M)]
+        relief: f64,
+        /// With --format: resample to a 2ⁿ+1 square (257²; Unity, Unreal).
+        #[arg(long)]
+        pow2_plus_1: bool,
         /// Folder of the sketch generator's weights (default: ./weights, else the crate's).
         #[arg(long)]
         weights: Option<PathBuf>,
@@ -653,7 +665,7 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
         Command::EvalSketch { pairs, weights, views } => eval_sketch(&pairs, weights, views.count as usize),
-        Command::Sketch { input, out, weights, views } => sketch(&input, &out, weights, views.count as usize),
+        Command::Sketch { input, out, weights, views, format, relief, pow2_plus_1 } => sketch(&input, &out, weights, views.count as usize, format.map(|f| (f, relief, pow2_plus_1))),
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
         Command::TrainSketch {

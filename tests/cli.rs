@@ -304,6 +304,38 @@ fn export_writes_the_world_at_32_m_and_refined_to_8_m_as_enhance_does() {
     assert_eq!((side["width"].as_u64(), side["spacing_m"].as_f64()), (Some(512), Some(8.0)));
 }
 
+/// `terrain sketch --format tif --views 1` writes the sketch's terrain in metres as the page's
+/// sketch world has it: 256² samples at 32 m in the world's frame, bit for bit the four tiles
+/// `terrain world --sketch` pins (same relief, one view); `--format png16` adds the sidecar
+/// with its metres, `--pow2-plus-1` makes 257²; a format the file's extension disagrees with
+/// and a relief out of range are refused before any work.
+#[test]
+fn sketch_writes_its_terrain_in_metres_in_the_export_formats() {
+    let input = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/sketch/examples/montblanc.png");
+    let input = input.to_str().unwrap();
+    let (tif, world, png) = (tmp("skf.tif"), tmp("skf_world.tif"), tmp("skf.png"));
+    let o = run(&["sketch", "--input", input, "--out", tif.to_str().unwrap(), "--format", "tif", "--relief", "1200", "--views", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run(&["world", "--seed", "1", "--source", "tcm", "--sketch", input, "--relief", "1200", "--tiles", "-1", "-1", "2", "2", "--out", world.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, b) = (read(&tif), read(&world));
+    assert_eq!((a.width, a.height, a.spacing_m, a.geo), (256, 256, 32.0, b.geo));
+    assert_eq!(a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+    let (lo, hi) = a.data.iter().fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    assert!(lo >= 0.0 && hi <= 1200.0 && hi - lo > 600.0, "{lo}..{hi} m");
+    let o = run(&["sketch", "--input", input, "--out", png.to_str().unwrap(), "--format", "png16", "--pow2-plus-1", "--views", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let side: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tmp("skf.png.json")).unwrap()).unwrap();
+    assert_eq!(side["width"].as_u64(), Some(257));
+    assert!(side["max_m"].as_f64().unwrap() > 500.0, "{side}");
+    for (args, needle) in [(vec!["--format", "glb"], "--format glb writes a .glb file"), (vec!["--format", "tif", "--relief", "5"], "--relief must be between")] {
+        let mut all = vec!["sketch", "--input", input, "--out", tif.to_str().unwrap()];
+        all.extend(args);
+        let e = String::from_utf8_lossy(&run(&all).stderr).to_string();
+        assert!(e.contains(needle), "{e}");
+    }
+}
+
 /// `terrain export --spacing 8` of a region with an 8 m GeoTIFF pinned on its second tile:
 /// that tile is the GeoTIFF's own samples bit for bit (its 8 m detail, not the TEM's), the
 /// first tile is the learned world refined, and the CLI says the detail is kept.

@@ -56,13 +56,31 @@ pub(crate) fn sketch_bench(repeats: usize, threads: Option<u32>, weights: Option
     Ok(())
 }
 
-pub(crate) fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
+pub(crate) fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBuf>, views: usize, metres: Option<(ExportFormat, f64, bool)>) -> Result<(), String> {
     use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
+    if let Some((format, relief_m, _)) = metres {
+        format_agrees(out, format)?;
+        let range = terrain::world::sketched::RELIEF_M;
+        if !range.contains(&relief_m) {
+            return Err(format!("--relief must be between {} and {} metres, not {relief_m}", range.start(), range.end()));
+        }
+    }
     let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
     let generator = sketch_generator(weights)?;
     let t = std::time::Instant::now();
     let h = generator.generate_views(&sk, views, &mut Default::default(), terrain::models::cpu::default_threads());
     let ms = t.elapsed().as_secs_f64() * 1e3;
+    if let Some((_, relief_m, pow2_plus_1)) = metres {
+        use terrain::world::sketched::{SKETCH_TILES, SketchSource};
+        let world = SketchSource::new(std::sync::Arc::new(h), relief_m);
+        let [first, ..] = SKETCH_TILES;
+        let hf = export::from_tiles(first.i, first.j, 2, 2, |c| Some(std::sync::Arc::new(world.tile(c)))).ok_or("the sketch's tiles")?;
+        let hf = if pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
+        let sidecar = hf.export_path(out).map_err(|e| save_error(out, e))?;
+        let said = sidecar.map_or(String::new(), |s| format!("; 0 = {:.2} m, 65535 = {:.2} m, and its .json", s.min_m, s.max_m));
+        eprintln!("wrote {}: {}×{} samples at {} m, {relief_m} m relief ({views} views, {ms:.0} ms){said}", out.display(), hf.width, hf.height, hf.spacing_m);
+        return Ok(());
+    }
     let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     write_dem_png16(std::io::BufWriter::new(file), SKETCH_PX, &h).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
     eprintln!("wrote {}: {SKETCH_PX}×{SKETCH_PX} 16-bit relative heights ({views} views, {ms:.0} ms)", out.display());

@@ -57,18 +57,9 @@ pub(crate) fn world(r: &RegionArgs) -> Result<(), String> {
 /// TEM as `terrain enhance` refines a DEM; `format`, when given, must agree with the --out
 /// file's extension.
 pub(crate) fn export(r: &RegionArgs, spacing_m: f64, format: Option<ExportFormat>) -> Result<(), String> {
-    use terrain::dem::formats::Format;
-    let of_file = Format::of(&r.out).map_err(|e| e.to_string())?;
+    terrain::dem::formats::Format::of(&r.out).map_err(|e| e.to_string())?;
     if let Some(f) = format {
-        let (want, name, ext) = match f {
-            ExportFormat::Png16 => (Format::Png16, "png16", ".png"),
-            ExportFormat::Raw => (Format::Raw16, "raw", ".raw"),
-            ExportFormat::Tif => (Format::GeoTiff, "tif", ".tif"),
-            ExportFormat::Glb => (Format::Glb, "glb", ".glb"),
-        };
-        if want != of_file {
-            return Err(format!("--format {name} writes a {ext} file; --out {} is another format", r.out.display()));
-        }
+        format_agrees(&r.out, f)?;
     }
     let base = terrain::grid::BASE_SPACING_M;
     // The TEM levels from 32 m down to the spacing (none at 32 m), checked before any work.
@@ -99,6 +90,22 @@ pub(crate) fn export(r: &RegionArgs, spacing_m: f64, format: Option<ExportFormat
         }
     };
     write_region(hf, r)
+}
+
+/// Whether `out`'s extension is the file `format` writes (an error says which it should be).
+pub(crate) fn format_agrees(out: &std::path::Path, format: ExportFormat) -> Result<(), String> {
+    use terrain::dem::formats::Format;
+    let of_file = Format::of(out).map_err(|e| e.to_string())?;
+    let (want, name, ext) = match format {
+        ExportFormat::Png16 => (Format::Png16, "png16", ".png"),
+        ExportFormat::Raw => (Format::Raw16, "raw", ".raw"),
+        ExportFormat::Tif => (Format::GeoTiff, "tif", ".tif"),
+        ExportFormat::Glb => (Format::Glb, "glb", ".glb"),
+    };
+    if want != of_file {
+        return Err(format!("--format {name} writes a {ext} file; --out {} is another format", out.display()));
+    }
+    Ok(())
 }
 
 /// The 32 m heights of `r`'s tiles, made by the page's worker procedure (with its pins and

@@ -694,6 +694,50 @@ test('a panic on the main thread is shown in the page with a reload button, and 
   await page.close();
 });
 
+/**
+ * Flies away from `tiles` and back as a user would, by the link's camera: with a relevance
+ * radius of 1 tile (a cache of 121 tiles), 3 tiles (12.3 km) east at a time, each view made
+ * before the next, until the first of `tiles` has left the page's tile cache; then home again.
+ * Returns the heights of `tiles` made again at home and how many steps it took.
+ */
+/** Whether the page's tile cache holds tile [i, j] now. */
+async function cachedTile(page, [i, j]) {
+  await page.evaluate(([i, j]) => window.wasmBindings.terrain_request_tile(i, j), [i, j]);
+  await page.waitForTimeout(100);
+  return JSON.parse(await page.evaluate(() => window.wasmBindings.terrain_tile_heights())) !== null;
+}
+
+async function flyAwayAndBack(page, tiles) {
+  const home = new URLSearchParams((await stats(page)).link);
+  home.set('r', '1');
+  const cam = home.get('cam').split(',');
+  const at = (k) => {
+    const p = new URLSearchParams(home);
+    p.set('cam', [(Number(cam[0]) + k * 3 * 4096).toFixed(2), ...cam.slice(1)].join(','));
+    return p.toString();
+  };
+  const go = async (k, what) => {
+    const want = Number(new URLSearchParams(at(k)).get('cam').split(',')[0]);
+    await page.evaluate((f) => { location.hash = f; }, at(k));
+    // Every wanted tile made (tiles_pending counts stand-ins of an earlier world too).
+    return waitFor(page, (q) => Math.abs(Number(new URLSearchParams(q.link).get('cam').split(',')[0]) - want) < 1 && q.stats.tiles_pending === 0, what, 300_000, 200);
+  };
+  // At home with the small cache first (a new radius makes the world again): the tile is there.
+  await go(0, 'the view at home with a radius of 1 tile');
+  assert.ok(await cachedTile(page, tiles[0]), `tile ${tiles[0]} is not made at home`);
+  let steps = 0;
+  for (let k = 1; k <= 40 && !steps; k++) {
+    const s = await go(k, `the view ${k * 12.3} km east`);
+    if (!(await cachedTile(page, tiles[0]))) steps = k;
+    else assert.ok(s.stats.tiles_cached <= s.stats.tiles_capacity);
+  }
+  assert.ok(steps > 0, `tile ${tiles[0]} never left the cache`);
+  await go(0, 'the view at home again');
+  const again = [];
+  for (const [i, j] of tiles) again.push(await tileHeights(page, i, j));
+  return { again, steps, km: steps * 12.3 };
+}
+
 test('your terrain pinned in the page: a GeoTIFF chosen with "Pin a GeoTIFF…" becomes the tiles around the eye bit for bit, and the learned world beside it is what the native CLI makes with the same pin (within 0.05 m)', async () => {
   // A 2 × 2-tile GeoTIFF at 32 m (a procedural world's, by the CLI) as the user's terrain.
   const tif = path.join(out, 'pin.tif');
@@ -721,6 +765,11 @@ test('your terrain pinned in the page: a GeoTIFF chosen with "Pin a GeoTIFF…" 
   await page.screenshot({ path: path.join(out, 'pinned.png') });
   report.pin = { message: s.message, beside_max_dh_vs_native_m: dh };
   assert.ok(dh < 0.05, `page vs native beside the pin: ${dh} m`);
+  // Away until the pin has left the page's cache, and back: made again, the same bit for bit.
+  const back = await flyAwayAndBack(page, [[0, 0], [-1, 0]]);
+  report.pin.fly_away_and_back = { km: back.km, steps: back.steps };
+  assert.ok(back.again[0].every((h, k) => Object.is(h, pinned[k])), 'the pinned tile changed on the second visit');
+  assert.ok(back.again[1].every((h, k) => Object.is(h, beside[k])), 'the tile beside the pin changed on the second visit');
   assert.deepEqual(errors, []);
   await page.close();
 });
@@ -797,9 +846,68 @@ test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world
   const code = sketchCode(s.link);
   if (code) assert.deepEqual(decodeSketch(code), pngSketch(fs.readFileSync(sketchFile)), 'the dropped sketch is not the one drawn');
   report.world_bundle.sketch_dropped = { message: s.message, in_link: Boolean(code) };
+  // The learned world grown around the dropped sketch, away until the sketch has left the
+  // cache and back: the sketch's tile (0, 0) and the eye's tile south of it the same bit for
+  // bit, and the eye's tile what the native CLI makes with that sketch pinned.
+  s = await waitFor(fresh.page, (q) => /^sketch in the learned world/.test(q.source) && q.stats.tiles_pending === 0 && q.stats.tiles_stale === 0, 'the learned world around the dropped sketch', 400_000, 200);
+  const sketchFirst = [await tileHeights(fresh.page, 0, 0), await tileHeights(fresh.page, 0, 1)];
+  const sketchBack = await flyAwayAndBack(fresh.page, [[0, 0], [0, 1]]);
+  const nativeTif = path.join(out, 'drop_sketch_beside_native.tif');
+  const q = new URLSearchParams(s.link);
+  execFileSync(nativeBin, ['world', '--seed', q.get('seed'), '--tiles', '0', '1', '1', '1', '--source', 'tcm', '--weights', path.join(repo, 'weights'), '--sketch', sketchFile, '--relief', q.get('relief'), '--out', nativeTif]);
+  const native = readTiff(fs.readFileSync(nativeTif)).data;
+  const dhSketch = sketchBack.again[1].reduce((m, h, k) => Math.max(m, Math.abs(h - native[k])), 0);
+  report.world_bundle.sketch_dropped.fly_away_and_back = { km: sketchBack.km, steps: sketchBack.steps, beside_max_dh_vs_native_m: dhSketch };
+  assert.ok(sketchBack.again.every((t, n) => t.every((h, k) => Object.is(h, sketchFirst[n][k]))), 'the sketch or the tile beside it changed on the second visit');
+  assert.ok(dhSketch < 0.05, `beside the dropped sketch after the flight, page vs native CLI: ${dhSketch} m`);
   assert.deepEqual(errors, []);
   assert.deepEqual(fresh.errors, []);
   await fresh.page.close();
+});
+
+test('a 4096² GeoTIFF (8 m, 64 MiB) pinned in the page becomes 64 tiles with their own 16 and 8 m detail, the eye\'s tile the 4 × 4 means of the file\'s samples bit for bit; time to the first complete view and wasm memory reported (a benchmark)', async () => {
+  const tif = path.join(out, 'big8.tif');
+  execFileSync(nativeBin, ['export', '--seed', '79', '--tiles', '0', '0', '8', '8', '--spacing', '8', '--out', tif]);
+  const bytes = fs.statSync(tif).size;
+  const { page, errors } = await open('', '', BIG);
+  let s = await waitFor(page, (q) => /^learned \(TCM/.test(q.source) && q.stats.tiles_pending === 0 && q.overlay_buttons?.pin_dem, 'the learned world loaded');
+  let last = null;
+  s = await waitFor(page, (q) => { const r = JSON.stringify(q.overlay_buttons.pin_dem); const same = r === last; last = r; return same; }, 'the pin button settled', 30_000, 500);
+  const memBefore = await page.evaluate(() => window.wasmBindings.terrain_wasm_memory_bytes());
+  await page.mouse.click(...centre(s.overlay_buttons.pin_dem));
+  await page.waitForSelector('#terrain_sketch_file', { state: 'attached', timeout: 30_000 });
+  const t0 = Date.now();
+  await page.setInputFiles('#terrain_sketch_file', tif);
+  s = await waitFor(page, (q) => /^Pinned big8\.tif/.test(q.message ?? ''), 'the pin message', 300_000, 100);
+  const pinnedS = (Date.now() - t0) / 1000;
+  const m = /^Pinned big8\.tif: 64 tiles from tile \((-?\d+), (-?\d+)\); its own detail is kept to 8 m/.exec(s.message);
+  assert.ok(m, s.message);
+  const [i0, j0] = [Number(m[1]), Number(m[2])];
+  const [ex, , ez] = s.stats.eye_m;
+  const [ei, ej] = [Math.floor((ex + 16) / 4096), Math.floor((ez + 16) / 4096)];
+  // First view: the eye's (pinned) tile made and terrain drawn; then the complete view.
+  while (!(await cachedTile(page, [ei, ej])) || !((await stats(page)).stats.nodes_drawn > 0)) assert.ok(Date.now() - t0 < 300_000, 'the eye\'s tile never came');
+  const firstViewS = (Date.now() - t0) / 1000;
+  s = await waitFor(page, (q) => q.stats.tiles_pending === 0 && q.stats.nodes_drawn > 0, 'the first complete view with the pin', 300_000, 100);
+  const viewS = (Date.now() - t0) / 1000;
+  const memAfter = await page.evaluate(() => window.wasmBindings.terrain_wasm_memory_bytes());
+  // The eye's tile: the pin's tile (ei, ej) is the file's 512² samples there, halved twice by
+  // 2 × 2 means in float32 (as the page computes them).
+  const { width, data } = readTiff(fs.readFileSync(tif));
+  const f = Math.fround;
+  const halve = (g, side) => Array.from({ length: (side / 2) ** 2 }, (_, k) => {
+    const [x, y] = [2 * (k % (side / 2)), 2 * Math.floor(k / (side / 2))];
+    return f(f(f(f(g[y * side + x] + g[y * side + x + 1]) + g[(y + 1) * side + x]) + g[(y + 1) * side + x + 1]) * 0.25);
+  });
+  const own = Array.from({ length: 512 * 512 }, (_, k) => data[((ej - j0) * 512 + Math.floor(k / 512)) * width + (ei - i0) * 512 + (k % 512)]);
+  const want = halve(halve(own, 512), 256);
+  const got = await tileHeights(page, ei, ej);
+  report.pin_4096 = { file_mb: bytes / 2 ** 20, pinned_s: pinnedS, first_view_s: firstViewS, first_complete_view_s: viewS, wasm_mb_before: memBefore / 2 ** 20, wasm_mb_after: memAfter / 2 ** 20, eye_tile: [ei, ej] };
+  // The hook's JSON gives float32 heights in their shortest decimal form.
+  assert.ok(got.every((h, k) => Math.fround(h) === want[k]), 'the eye\'s tile is not the file\'s 4 × 4 means');
+  assert.ok(memAfter < 2 ** 31, `wasm memory ${memAfter / 2 ** 20} MiB`);
+  assert.deepEqual(errors, []);
+  await page.close();
 });
 
 test('without WebGPU the page says so instead of failing silently', async () => {
