@@ -463,9 +463,17 @@ impl Heightfield {
     /// distance). `None` if there is no valid sample at all.
     pub fn fill_nodata(&self) -> Option<Heightfield> {
         let mut data = self.data.clone();
-        let mut queue: std::collections::VecDeque<usize> = (0..data.len()).filter(|&i| !data[i].is_nan()).collect();
+        let (w, h) = (self.width, self.height);
+        let nan = |i: usize| data[i].is_nan();
+        let beside_nodata = |i: usize| {
+            let (x, y) = (i % w, i / w);
+            (x > 0 && nan(i - 1)) || (x + 1 < w && nan(i + 1)) || (y > 0 && nan(i - w)) || (y + 1 < h && nan(i + w))
+        };
+        // Only valid samples beside no-data ever fill one; in index order, as the search from
+        // every valid sample would meet them (a 4096² DEM without no-data queues nothing).
+        let mut queue: std::collections::VecDeque<usize> = (0..data.len()).filter(|&i| !nan(i) && beside_nodata(i)).collect();
         if queue.is_empty() {
-            return None;
+            return data.iter().any(|v| !v.is_nan()).then(|| Heightfield::new(w, h, self.spacing_m, data));
         }
         while let Some(i) = queue.pop_front() {
             let (x, y) = (i % self.width, i / self.width);

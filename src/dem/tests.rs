@@ -266,3 +266,31 @@ fn non_square_projected_pixels_are_refused() {
     let e = Heightfield::read_tiff(buf, f64::NAN).unwrap_err().to_string();
     assert!(e.contains("10 × 12") && e.contains("square pixels"), "{e}");
 }
+
+/// No-data filling gives every NaN sample the value of its nearest valid sample (4-neighbour
+/// steps; ties to the first in row order), the same as a search started from every valid
+/// sample (the reference here), on a grid with holes of all shapes and at the borders; a grid
+/// without no-data comes back unchanged, one with nothing but no-data is `None`.
+#[test]
+fn no_data_takes_the_nearest_valid_sample() {
+    let (w, h) = (37, 23);
+    let data: Vec<f32> = (0..w * h).map(|k| if (k * 7919 % 13 < 6) || (k % w > 20 && k / w < 9) || k % w == 0 { f32::NAN } else { k as f32 }).collect();
+    let hf = Heightfield::new(w, h, 5.0, data.clone());
+    let mut want = data.clone();
+    let mut queue: std::collections::VecDeque<usize> = (0..w * h).filter(|&i| !data[i].is_nan()).collect();
+    while let Some(i) = queue.pop_front() {
+        let (x, y) = (i % w, i / w);
+        for (ok, j) in [(x > 0, i.wrapping_sub(1)), (x + 1 < w, i + 1), (y > 0, i.wrapping_sub(w)), (y + 1 < h, i + w)] {
+            if ok && want[j].is_nan() {
+                want[j] = want[i];
+                queue.push_back(j);
+            }
+        }
+    }
+    let got = hf.fill_nodata().unwrap();
+    assert!(data.iter().filter(|v| v.is_nan()).count() > 200);
+    assert_eq!(got.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+    let full = Heightfield::new(w, h, 5.0, (0..w * h).map(|k| k as f32).collect());
+    assert_eq!(full.fill_nodata().unwrap().data, full.data);
+    assert!(Heightfield::new(w, h, 5.0, vec![f32::NAN; w * h]).fill_nodata().is_none());
+}

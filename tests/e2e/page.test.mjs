@@ -700,10 +700,11 @@ test('a panic on the main thread is shown in the page with a reload button, and 
  * before the next, until the first of `tiles` has left the page's tile cache; then home again.
  * Returns the heights of `tiles` made again at home and how many steps it took.
  */
-/** Whether the page's tile cache holds tile [i, j] now. */
+/** Whether the page's tile cache holds tile [i, j] now (the hook answers at the next frame). */
 async function cachedTile(page, [i, j]) {
+  const f0 = (await stats(page)).stats.frames;
   await page.evaluate(([i, j]) => window.wasmBindings.terrain_request_tile(i, j), [i, j]);
-  await page.waitForTimeout(100);
+  await waitFor(page, (q) => q.stats.frames >= f0 + 2, 'two frames', 60_000, 50);
   return JSON.parse(await page.evaluate(() => window.wasmBindings.terrain_tile_heights())) !== null;
 }
 
@@ -718,9 +719,12 @@ async function flyAwayAndBack(page, tiles) {
   };
   const go = async (k, what) => {
     const want = Number(new URLSearchParams(at(k)).get('cam').split(',')[0]);
+    const f0 = (await stats(page)).stats.frames;
     await page.evaluate((f) => { location.hash = f; }, at(k));
-    // Every wanted tile made (tiles_pending counts stand-ins of an earlier world too).
-    return waitFor(page, (q) => Math.abs(Number(new URLSearchParams(q.link).get('cam').split(',')[0]) - want) < 1 && q.stats.tiles_pending === 0, what, 300_000, 200);
+    // Every wanted tile made (tiles_pending counts stand-ins of an earlier world too), in
+    // statistics of frames after the move.
+    const moved = (q) => Math.abs(Number(new URLSearchParams(q.link).get('cam').split(',')[0]) - want) < 1 && new URLSearchParams(q.link).get('r') === '1';
+    return waitFor(page, (q) => moved(q) && q.stats.frames >= f0 + 3 && q.stats.tiles_pending === 0, what, 300_000, 200);
   };
   // At home with the small cache first (a new radius makes the world again): the tile is there.
   await go(0, 'the view at home with a radius of 1 tile');
