@@ -665,7 +665,9 @@ fn main() -> ExitCode {
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
         Command::EvalSketch { pairs, weights, views } => eval_sketch(&pairs, weights, views.count as usize),
-        Command::Sketch { input, out, weights, views, format, relief, pow2_plus_1 } => sketch(&input, &out, weights, views.count as usize, format.map(|f| (f, relief, pow2_plus_1))),
+        Command::Sketch { input, out, weights, views, format, relief, pow2_plus_1 } => {
+            sketch(&input, &out, weights, views.count as usize, format.map(|f| (f, relief, pow2_plus_1)))
+        }
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
         Command::TrainSketch {
