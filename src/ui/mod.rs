@@ -329,9 +329,9 @@ impl Overlay {
             });
             ui.horizontal_wrapped(|ui| {
                 ui.label("Your terrain");
-                let pin = ui
-                    .small_button("Pin a GeoTIFF…")
-                    .on_hover_text("a DEM (GeoTIFF stating its pixel size, 32 m or finer) placed where you are in the learned world, which grows around it");
+                let pin = ui.small_button("Pin terrain…").on_hover_text(
+                    "a DEM placed where you are in the learned world, which grows around it: a GeoTIFF stating its pixel size (32 m or finer), or a heightmap PNG (16/8-bit grey or terrain-RGB; its spacing and heights are asked)",
+                );
                 self.buttons.insert("pin_dem", pin.rect);
                 if pin.clicked() {
                     act.pin_dem = true;

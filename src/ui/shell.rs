@@ -306,15 +306,16 @@ impl<P: Platform> PageShell<P> {
         }
     }
 
-    /// Your terrain: a GeoTIFF to pick, and one picked, pinned into the learned world.
+    /// Your terrain: a file to pick, and one picked, opened by the core as a dropped file is
+    /// (a GeoTIFF is pinned, a heightmap PNG waits for its answers, a sidecar gives them).
     fn pin_files(&mut self, asks: BrowserAsks) {
         if asks.pin_dem
-            && let Err(e) = self.platform.pick_file(".tif,.tiff,image/tiff", MAX_PIN_FILE_BYTES, self.pin_file.clone())
+            && let Err(e) = self.platform.pick_file(".tif,.tiff,.png,.json,image/tiff,image/png", MAX_PIN_FILE_BYTES, self.pin_file.clone())
         {
             self.core.message = Some(format!("No file dialog: {e}"));
         }
         let Some(file) = self.pin_file.borrow_mut().take() else { return };
-        let said = picked_bytes(file, "a GeoTIFF to pin is at most 65 MB (4096² float32 samples)").and_then(|(name, bytes)| self.core.pin_dem(&name, bytes));
+        let said = picked_bytes(file, "terrain to pin is at most 65 MB (4096² float32 samples)").and_then(|(name, bytes)| self.core.open_file(&name, bytes));
         self.core.message = Some(said.unwrap_or_else(|e| e));
     }
 

@@ -742,7 +742,7 @@ async function flyAwayAndBack(page, tiles) {
   return { again, steps, km: steps * 12.3 };
 }
 
-test('your terrain pinned in the page: a GeoTIFF chosen with "Pin a GeoTIFF…" becomes the tiles around the eye bit for bit, and the learned world beside it is what the native CLI makes with the same pin (within 0.05 m)', async () => {
+test('your terrain pinned in the page: a GeoTIFF chosen with "Pin terrain…" becomes the tiles around the eye bit for bit, and the learned world beside it is what the native CLI makes with the same pin (within 0.05 m)', async () => {
   // A 2 × 2-tile GeoTIFF at 32 m (a procedural world's, by the CLI) as the user's terrain.
   const tif = path.join(out, 'pin.tif');
   execFileSync(nativeBin, ['world', '--seed', '77', '--tiles', '0', '0', '2', '2', '--out', tif]);
