@@ -681,11 +681,11 @@ mod shipped_tests {
         }
     }
 
-    /// Per tile edge (128 samples) of the `m`×`m` field `h`: the mean |step| across it divided
-    /// by the mean |step| between the rows (or columns) 1–4 inside the two tiles on either
-    /// side; `vertical` edges lie between columns `e − 1` and `e`, rows `from..from + 128`.
-    fn edge_ratio(h: &[f32], m: usize, vertical: bool, e: usize, from: usize) -> f64 {
-        let n = TILE_SAMPLES;
+    /// Per tile edge (`n` samples: a tile's side at the field's spacing) of the `m`×`m` field
+    /// `h`: the mean |step| across it divided by the mean |step| between the rows (or columns)
+    /// 1–4 inside the two tiles on either side; `vertical` edges lie between columns `e − 1`
+    /// and `e`, rows `from..from + n`.
+    fn edge_ratio(h: &[f32], m: usize, n: usize, vertical: bool, e: usize, from: usize) -> f64 {
         let get = |a: usize, c: usize| if vertical { h[a * m + c] } else { h[c * m + a] } as f64;
         let (mut across, mut inside) = (0.0, 0.0);
         for a in from..from + n {
@@ -743,7 +743,7 @@ mod shipped_tests {
         for vertical in [true, false] {
             for e in 1..k {
                 for r in 0..k {
-                    let ratio = edge_ratio(&h, m, vertical, e * n, r * n);
+                    let ratio = edge_ratio(&h, m, n, vertical, e * n, r * n);
                     let on_pin_rows = (2..4).contains(&r);
                     match e {
                         2 | 4 if on_pin_rows => border.push(ratio),
@@ -775,17 +775,7 @@ mod shipped_tests {
         let region = crate::dem::Heightfield::new(m, m, 32.0, h.clone());
         let (fine, _) = crate::enhance::enhance_pinned(&region, 32.0, 16.0, &tem, 8, pins, TileCoord::new(-2, -2), &mut |_, _, _| ()).unwrap();
         let (m2, n2) = (2 * m, 2 * n);
-        let ratio16 = |vertical: bool, e: usize, from: usize| {
-            let get = |a: usize, c: usize| if vertical { fine.data[a * m2 + c] } else { fine.data[c * m2 + a] } as f64;
-            let (mut across, mut inside) = (0.0, 0.0);
-            for a in from..from + n2 {
-                across += (get(a, e) - get(a, e - 1)).abs();
-                for k in 1..=4 {
-                    inside += (get(a, e + k) - get(a, e + k - 1)).abs() + (get(a, e - k) - get(a, e - k - 1)).abs();
-                }
-            }
-            (across / n2 as f64) / (inside / (8 * n2) as f64)
-        };
+        let ratio16 = |vertical: bool, e: usize, from: usize| edge_ratio(&fine.data, m2, n2, vertical, e, from);
         let (mut border16, mut world16) = (Vec::new(), Vec::new());
         for vertical in [true, false] {
             for e in 1..k {
