@@ -327,7 +327,9 @@ impl Overlay {
                 self.buttons.insert("export_spacing", combo.response.rect);
                 ui.checkbox(&mut self.export_pow2, "2ⁿ+1").on_hover_text("resampled to a square of 2ⁿ+1 samples a side, as Unity and Unreal terrains want");
             });
-            ui.horizontal_wrapped(|ui| {
+            // Rows that never wrap: a wrapped row's buttons would move as the overlay's width
+            // follows a progress note.
+            ui.horizontal(|ui| {
                 ui.label("Your terrain");
                 let pin = ui.small_button("Pin terrain…").on_hover_text(
                     "a DEM placed where you are in the learned world, which grows around it: a GeoTIFF stating its pixel size (32 m or finer), or a heightmap PNG (16/8-bit grey or terrain-RGB; its spacing and heights are asked)",
@@ -343,7 +345,9 @@ impl Overlay {
                 if open.clicked() {
                     act.open_world = true;
                 }
-                if let Some((name, tiles)) = &env.pinned {
+            });
+            if let Some((name, tiles)) = &env.pinned {
+                ui.horizontal(|ui| {
                     let unpin = ui.small_button("Unpin").on_hover_text(format!("{name} ({tiles} tiles) is pinned: take it out and make the world again without it"));
                     self.buttons.insert("unpin", unpin.rect);
                     if unpin.clicked() {
@@ -356,8 +360,8 @@ impl Overlay {
                         act.save_world = true;
                     }
                     ui.label(egui::RichText::new(format!("{name} · {tiles} tiles")).small());
-                }
-            });
+                });
+            }
             if self.show_settings
                 && let Some(s) = self.settings_ui(ui)
             {
