@@ -265,7 +265,6 @@ impl TerrainApp {
         self.coarse_nodes.clear();
         let (last, at) = std::mem::take(&mut self.last_nodes);
         self.stand_in = (!last.is_empty()).then_some((last, at));
-        self.refine = PatchStore::new(0, epoch);
         let pins = match self.sketch_terrain.as_ref().filter(|_| self.sketch_in_learned()) {
             Some((_, h)) => {
                 let sketch = SketchSource::new(h.clone(), self.settings.relief_m);
@@ -277,10 +276,10 @@ impl TerrainApp {
             }
             None => self.user_pins.clone(),
         };
-        if self.source() == SourceKind::Learned {
-            // The user's terrain keeps its own detail where the TEM would refine it.
-            self.refine = PatchStore::new(0, epoch).with_pins(pins.clone(), TileCoord::new(0, 0));
-        }
+        // The user's terrain keeps its own detail where the TEM refines the learned world
+        // (another world shown does not hold the pins).
+        let detail = if self.source() == SourceKind::Learned { pins.clone() } else { Pins::new() };
+        self.refine = PatchStore::new(0, epoch).with_pins(detail, TileCoord::new(0, 0));
         if pins != self.worker_pins.1 {
             self.worker_pins = Arc::new((pins.hash(), pins));
         }

@@ -60,10 +60,7 @@ pub(crate) fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Op
     use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
     if let Some((format, relief_m, _)) = metres {
         format_agrees(out, format)?;
-        let range = terrain::world::sketched::RELIEF_M;
-        if !range.contains(&relief_m) {
-            return Err(format!("--relief must be between {} and {} metres, not {relief_m}", range.start(), range.end()));
-        }
+        check_relief(relief_m)?;
     }
     let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
     let generator = sketch_generator(weights)?;
@@ -75,11 +72,8 @@ pub(crate) fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Op
         let world = SketchSource::new(std::sync::Arc::new(h), relief_m);
         let [first, ..] = SKETCH_TILES;
         let hf = export::from_tiles(first.i, first.j, 2, 2, |c| Some(std::sync::Arc::new(world.tile(c)))).ok_or("the sketch's tiles")?;
-        let hf = if pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
-        let sidecar = hf.export_path(out).map_err(|e| save_error(out, e))?;
-        let said = sidecar.map_or(String::new(), |s| format!("; 0 = {:.2} m, 65535 = {:.2} m, and its .json", s.min_m, s.max_m));
-        eprintln!("wrote {}: {}×{} samples at {} m, {relief_m} m relief ({views} views, {ms:.0} ms){said}", out.display(), hf.width, hf.height, hf.spacing_m);
-        return Ok(());
+        eprintln!("the sketch's terrain: {relief_m} m relief ({views} views, {ms:.0} ms)");
+        return write_heights(hf, out, pow2_plus_1);
     }
     let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     write_dem_png16(std::io::BufWriter::new(file), SKETCH_PX, &h).map_err(|e| format!("cannot write {}: {e}", out.display()))?;

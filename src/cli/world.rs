@@ -49,8 +49,8 @@ pub(crate) fn read_pins(args: &[String]) -> Result<terrain::world::pins::Pins, S
 /// [`NativeRunner`]: terrain::jobs::native::NativeRunner
 pub(crate) fn world(r: &RegionArgs) -> Result<(), String> {
     terrain::dem::formats::Format::of(&r.out).map_err(|e| e.to_string())?;
-    let (hf, _) = region(r)?;
-    write_region(hf, r)
+    let (hf, ..) = region(r)?;
+    write_heights(hf, &r.out, r.pow2_plus_1)
 }
 
 /// `terrain export`: the region of [`world`] at `spacing_m`: the 32 m tiles, or refined by the
@@ -67,15 +67,13 @@ pub(crate) fn export(r: &RegionArgs, spacing_m: f64, format: Option<ExportFormat
         .then(|| terrain::enhance::levels_for(base, spacing_m))
         .transpose()
         .map_err(|_| format!("--spacing must be 32, 16, 8, 4, 2 or 1 metres, not {spacing_m}"))?;
-    let (hf, pins) = region(r)?;
+    let (hf, pins, origin) = region(r)?;
     let hf = match levels {
         None => hf,
         Some((first, last)) => {
             terrain::enhance::output_size(hf.width, hf.height, last - first + 1).map_err(|e| e.to_string())?;
             let tem = terrain::models::tem::TemSet::load_dir(&weights_dir(r.weights.clone()), &terrain::models::tem::Exec::cpu())?;
             let t = std::time::Instant::now();
-            let (x0, y0, ..) = tile_rect(&r.tiles)?;
-            let origin = terrain::grid::TileCoord::new(x0, y0);
             let (refined, stats) = terrain::enhance::enhance_pinned(&hf, base, spacing_m, &tem, 4, &pins, origin, &mut |_, _, _| {}).map_err(|e| e.to_string())?;
             eprintln!(
                 "refined {}×{} at 32 m to {}×{} at {spacing_m} m: {} patches in {:.1} s",
@@ -89,7 +87,7 @@ pub(crate) fn export(r: &RegionArgs, spacing_m: f64, format: Option<ExportFormat
             refined
         }
     };
-    write_region(hf, r)
+    write_heights(hf, &r.out, r.pow2_plus_1)
 }
 
 /// Whether `out`'s extension is the file `format` writes (an error says which it should be).
@@ -108,9 +106,18 @@ pub(crate) fn format_agrees(out: &std::path::Path, format: ExportFormat) -> Resu
     Ok(())
 }
 
+/// Why `relief_m` is not a sketch's relief (`--relief`), if it is not.
+pub(crate) fn check_relief(relief_m: f64) -> Result<(), String> {
+    let range = terrain::world::sketched::RELIEF_M;
+    if !range.contains(&relief_m) {
+        return Err(format!("--relief must be between {} and {} metres, not {relief_m}", range.start(), range.end()));
+    }
+    Ok(())
+}
+
 /// The 32 m heights of `r`'s tiles, made by the page's worker procedure (with its pins and
-/// sketch), and the pins.
-fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::pins::Pins), String> {
+/// sketch), the pins, and the region's first tile (its north-west sample is the heights' first).
+fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::pins::Pins, terrain::grid::TileCoord), String> {
     use terrain::grid::TileCoord;
     use terrain::jobs::protocol::{Envelope, Reply, Request};
     let (x0, y0, w, h) = tile_rect(&r.tiles)?;
@@ -121,10 +128,8 @@ fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::
     }
     let mut pins = read_pins(&r.pin)?;
     if let Some((file, relief_m)) = sketch {
-        use terrain::world::sketched::{RELIEF_M, SKETCH_TILES, SketchSource};
-        if !RELIEF_M.contains(&relief_m) {
-            return Err(format!("--relief must be between {} and {} metres, not {relief_m}", RELIEF_M.start(), RELIEF_M.end()));
-        }
+        use terrain::world::sketched::{SKETCH_TILES, SketchSource};
+        check_relief(relief_m)?;
         let sk = terrain::sketch::Sketch::read_path(file).map_err(|e| format!("--sketch {}: {e}", file.display()))?;
         let heights = sketch_generator(weights.clone())?.generate(&sk, &mut Default::default(), terrain::models::cpu::default_threads());
         let sketched = SketchSource::new(std::sync::Arc::new(heights), relief_m).pins();
@@ -165,13 +170,13 @@ fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::
             };
         }
     }
-    Ok((export::from_tiles(x0, y0, w, h, |c| made.get(&c).cloned()).ok_or("a tile was not made")?, pins))
+    Ok((export::from_tiles(x0, y0, w, h, |c| made.get(&c).cloned()).ok_or("a tile was not made")?, pins, TileCoord::new(x0, y0)))
 }
 
-/// Writes `hf` to `r.out` (resampled to 2ⁿ+1 when asked) and says what was written.
-fn write_region(hf: terrain::dem::Heightfield, r: &RegionArgs) -> Result<(), String> {
-    let out = &r.out;
-    let hf = if r.pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
+/// Writes `hf` to `out` in the format of its extension (resampled to 2ⁿ+1 when asked) and
+/// says what was written.
+pub(crate) fn write_heights(hf: terrain::dem::Heightfield, out: &std::path::Path, pow2_plus_1: bool) -> Result<(), String> {
+    let hf = if pow2_plus_1 { hf.to_pow2_plus_1() } else { hf };
     let sidecar = hf.export_path(out).map_err(|e| save_error(out, e))?;
     match sidecar {
         Some(s) => eprintln!("wrote {} ({}×{} samples at {:.3} m; 0 = {:.2} m, 65535 = {:.2} m) and its .json", out.display(), s.width, s.height, s.spacing_m, s.min_m, s.max_m),
