@@ -528,6 +528,11 @@ enum Command {
         weights: Option<PathBuf>,
         #[command(flatten)]
         views: Views,
+        /// Also make N variants of each pair's sketch (seed 1) and measure their terrain's
+        /// largest and 99th-percentile neighbour step (0–255 scale) against the sketch's own,
+        /// and their band islands under 20 px, as the VAE's edit makes them and tidied.
+        #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=16))]
+        variants: u32,
     },
     /// Evaluate the TEM on the held-out east third of every DEM (feature `train`).
     #[cfg(feature = "train")]
@@ -664,7 +669,7 @@ fn main() -> ExitCode {
         }
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
-        Command::EvalSketch { pairs, weights, views } => eval_sketch(&pairs, weights, views.count as usize),
+        Command::EvalSketch { pairs, weights, views, variants } => eval_sketch(&pairs, weights, views.count as usize, variants as usize),
         Command::Sketch { input, out, weights, views, format, relief, pow2_plus_1 } => {
             sketch(&input, &out, weights, views.count as usize, format.map(|f| (f, relief, pow2_plus_1)))
         }

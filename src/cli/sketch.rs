@@ -314,8 +314,8 @@ pub(crate) fn sketch_extract(dem: &std::path::Path, window: &[u32], out: &std::p
     Ok(())
 }
 
-pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views: usize) -> Result<(), String> {
-    use terrain::sketch::{self, baseline, extract, score};
+pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views: usize, variants: usize) -> Result<(), String> {
+    use terrain::sketch::{self, baseline, extract, score, tidy};
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| format!("{}: {e}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -325,10 +325,23 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
     if files.is_empty() {
         return Err(format!("no .png pairs in {}", dir.display()));
     }
+    let vae = if variants > 0 {
+        let path = weights_dir(weights.clone()).join(terrain::models::sketch_vae::WEIGHT_FILE);
+        let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        Some(terrain::models::sketch_vae::SketchVaeCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", path.display()))?)
+    } else {
+        None
+    };
     let generator = sketch_generator(weights)?;
     let mut scratch = Default::default();
     let threads = terrain::models::cpu::default_threads();
     let mut rows = Vec::new();
+    // Per pair: the sketch's own terrain's (largest, p99) neighbour step and band islands,
+    // then the same for its variants as made and tidied (largest over the variants, mean p99,
+    // islands summed).
+    let mut variant_rows = Vec::new();
+    const ISLAND_PX: usize = 20;
+    let v_px = terrain::sketch::SKETCH_PX * terrain::sketch::SKETCH_PX;
     let mut ms = Vec::new();
     println!("{:36} {:>8} {:>8} {:>9} {:>9} {:>6} {:>8} {:>9}", "pair", "RMSE", "PSNR", "base RMSE", "base PSNR", "bands", "ridge F1", "valley F1");
     for f in &files {
@@ -340,12 +353,32 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
         let ours = generator.generate_views(&sk, views, &mut scratch, threads);
         ms.push(t.elapsed().as_secs_f64() * 1e3);
         let e = score::rmse(&ours, &target);
+        let measured = if let Some(vae) = &vae {
+            let mut vs = Default::default();
+            let made = vae.untidied_variants(&sk, variants, 1, &mut vs, threads);
+            let tidied: Vec<sketch::Sketch> = made.iter().map(|v| tidy::tidy(v, &[&sk])).collect();
+            let mut measure = |set: &[sketch::Sketch]| {
+                let steps: Vec<(f32, f32)> = set.iter().map(|v| score::neighbour_steps(&generator.generate_views(v, views, &mut scratch, threads), sketch::SKETCH_PX)).collect();
+                let islands: usize = set.iter().map(|v| tidy::band_islands(v, ISLAND_PX)).sum();
+                let changed = set.iter().map(|v| v.band.iter().zip(&sk.band).filter(|(a, b)| a != b).count()).sum::<usize>() as f64 / (set.len() * v_px) as f64;
+                serde_json::json!({ "max_step": steps.iter().map(|s| s.0).fold(0.0, f32::max), "p99_step": steps.iter().map(|s| s.1 as f64).sum::<f64>() / steps.len() as f64, "islands_under_20px": islands, "band_changed_fraction": changed })
+            };
+            let (own_max, own_p99) = score::neighbour_steps(&ours, sketch::SKETCH_PX);
+            let own = serde_json::json!({ "max_step": own_max, "p99_step": own_p99, "islands_under_20px": tidy::band_islands(&sk, ISLAND_PX), "band_changed_fraction": 0.0 });
+            variant_rows.push(serde_json::json!({ "own": own, "made": measure(&made), "tidied": measure(&tidied) }));
+            variant_rows.last().cloned()
+        } else {
+            None
+        };
         let ex = extract::extract(&target).ok_or_else(|| format!("{}: flat DEM half", f.display()))?;
         let ag = score::Agreement::between(&ex.sketch, &sk);
         let name = f.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
         println!("{name:36} {e:8.3} {:8.2} {rmse:9.3} {:9.2} {:6.3} {:8.3} {:9.3}", score::psnr(e), score::psnr(rmse), ag.band, ag.ridge_f1(), ag.valley_f1());
         rows.push(serde_json::json!({ "pair": name, "rmse": e, "psnr": score::psnr(e), "rmse_baseline": rmse, "psnr_baseline": score::psnr(rmse), "extractor": {
             "band_agreement": ag.band, "ridge_precision": ag.ridge_precision, "ridge_recall": ag.ridge_recall, "valley_precision": ag.valley_precision, "valley_recall": ag.valley_recall } }));
+        if let Some(v) = measured {
+            rows.last_mut().expect("just pushed")["variants"] = v;
+        }
     }
     let mean = |k: &str| rows.iter().map(|r| r[k].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / rows.len() as f64;
     let mean_ex = |k: &str| rows.iter().map(|r| r["extractor"][k].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / rows.len() as f64;
@@ -362,6 +395,19 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
         f1(mean_ex("valley_precision"), mean_ex("valley_recall"))
     );
     ms.sort_by(f64::total_cmp);
+    if !variant_rows.is_empty() {
+        println!(
+            "variants ({variants} a sketch, seed 1): neighbour step of the terrain (0–255), largest / mean p99; band islands under {ISLAND_PX} px; pixels whose band differs from the sketch's"
+        );
+        for (k, name) in ["own", "made", "tidied"].iter().enumerate() {
+            let largest = variant_rows.iter().map(|r| r[name]["max_step"].as_f64().unwrap_or(f64::NAN)).fold(0.0, f64::max);
+            let p99 = variant_rows.iter().map(|r| r[name]["p99_step"].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / variant_rows.len() as f64;
+            let islands: u64 = variant_rows.iter().map(|r| r[name]["islands_under_20px"].as_u64().unwrap_or(0)).sum();
+            let changed = variant_rows.iter().map(|r| r[name]["band_changed_fraction"].as_f64().unwrap_or(f64::NAN)).sum::<f64>() / variant_rows.len() as f64;
+            let what = ["the sketches' own terrain", "variants as the VAE's edit makes them", "variants tidied (as the page and CLI give them)"][k];
+            println!("  {what:48} largest {largest:6.2}  p99 {p99:5.2}  islands {islands:4}  changed {:5.1} %", 100.0 * changed);
+        }
+    }
     println!(
         "{}",
         serde_json::json!({ "pairs": rows.len(), "mean": { "rmse": mean("rmse"), "psnr": mean("psnr"), "rmse_baseline": mean("rmse_baseline"), "psnr_baseline": mean("psnr_baseline"),

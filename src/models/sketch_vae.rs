@@ -18,6 +18,7 @@ use burn::tensor::{Device, Tensor};
 use crate::grid::mix64;
 use crate::models::cpu::{self, Conv3, Map, Post};
 use crate::models::tcm::{pool2, up2};
+use crate::sketch::tidy::tidy;
 use crate::sketch::{BANDS, INPUT_CHANNELS, SKETCH_PX, Sketch};
 
 /// Side of the code's grid (pixels).
@@ -221,9 +222,16 @@ impl SketchVaeCpu {
     /// `n` variants of `sketch`: codes around its own (its mean plus [`VARIANT_SPREAD`] ×
     /// seeded normal noise), each applied as the change the decoder sees between the new code
     /// and the sketch's own ([`edit`]), so a variant keeps the sketch's detail — its strokes
-    /// and band borders — wherever the code's change does not reach. The same seed gives the
-    /// same variants.
+    /// and band borders — wherever the code's change does not reach; then tidied
+    /// ([`crate::sketch::tidy::tidy`]): no band island or stroke speck the sketch does not
+    /// have. The same seed gives the same variants.
     pub fn variants(&self, sketch: &Sketch, n: usize, seed: u64, s: &mut VaeScratch, threads: usize) -> Vec<Sketch> {
+        self.untidied_variants(sketch, n, seed, s, threads).iter().map(|v| tidy(v, &[sketch])).collect()
+    }
+
+    /// [`Self::variants`] as the edit makes them, before tidying (to measure what tidying
+    /// changes).
+    pub fn untidied_variants(&self, sketch: &Sketch, n: usize, seed: u64, s: &mut VaeScratch, threads: usize) -> Vec<Sketch> {
         let (mu, _) = self.encode(sketch, s, threads);
         let own = self.soft(&mu, s, threads);
         (0..n)
@@ -236,14 +244,15 @@ impl SketchVaeCpu {
 
     /// The sketch between `a` (α = 1, exactly `a`) and `b` (α = 0, exactly `b`): the
     /// α-blend of the two sketches plus the change the decoder sees between the code
-    /// α·z_a + (1 − α)·z_b and the α-blend of the two codes' own readings ([`edit`]).
+    /// α·z_a + (1 − α)·z_b and the α-blend of the two codes' own readings ([`edit`]), tidied
+    /// ([`crate::sketch::tidy::tidy`]): no band island or stroke speck that neither has.
     pub fn interpolate(&self, a: &Sketch, b: &Sketch, alpha: f32, s: &mut VaeScratch, threads: usize) -> Sketch {
         let alpha = alpha.clamp(0.0, 1.0);
         let (za, _) = self.encode(a, s, threads);
         let (zb, _) = self.encode(b, s, threads);
         let z: Code = za.iter().zip(&zb).map(|(x, y)| alpha * x + (1.0 - alpha) * y).collect();
         let (ra, rb, rz) = (self.soft(&za, s, threads), self.soft(&zb, s, threads), self.soft(&z, s, threads));
-        edit(&[(a, alpha), (b, 1.0 - alpha)], &[(&rz, 1.0), (&ra, -alpha), (&rb, alpha - 1.0)])
+        tidy(&edit(&[(a, alpha), (b, 1.0 - alpha)], &[(&rz, 1.0), (&ra, -alpha), (&rb, alpha - 1.0)]), &[a, b])
     }
 }
 

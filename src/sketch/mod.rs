@@ -14,6 +14,7 @@ pub mod distance;
 pub mod examples;
 pub mod extract;
 pub mod score;
+pub mod tidy;
 
 use std::io::{BufRead, Seek, Write};
 

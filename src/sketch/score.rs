@@ -14,6 +14,30 @@ pub fn psnr(rmse: f64) -> f64 {
     20.0 * (255.0 / rmse.max(1e-9)).log10()
 }
 
+/// The largest and the 99th-percentile step between 4-neighbouring samples of an `n`×`n`
+/// height field (its units; on the format's 0–255 scale the authors' targets reach ~7).
+pub fn neighbour_steps(h: &[f32], n: usize) -> (f32, f32) {
+    let mut steps: Vec<f32> = Vec::with_capacity(2 * n * n);
+    for y in 0..n {
+        for x in 0..n {
+            let p = y * n + x;
+            if x + 1 < n {
+                steps.push((h[p + 1] - h[p]).abs());
+            }
+            if y + 1 < n {
+                steps.push((h[p + n] - h[p]).abs());
+            }
+        }
+    }
+    if steps.is_empty() {
+        return (0.0, 0.0);
+    }
+    let k = ((steps.len() - 1) as f64 * 0.99).round() as usize;
+    let (_, p99, _) = steps.select_nth_unstable_by(k, f32::total_cmp);
+    let p99 = *p99;
+    (steps.iter().copied().fold(0.0, f32::max), p99)
+}
+
 /// How closely one sketch follows another (e.g. extracted vs drawn by the authors).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Agreement {
@@ -74,6 +98,17 @@ fn overlap(a: &[bool], b: &[bool]) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn neighbour_steps_of_a_ramp_with_one_spike_are_the_spike_and_the_ramps_step() {
+        // A 20 × 20 ramp rising 2 per column, one sample raised by 50: 760 steps, 4 touch it.
+        let n = 20;
+        let mut h: Vec<f32> = (0..n * n).map(|p| 2.0 * (p % n) as f32).collect();
+        h[5 * n + 5] += 50.0;
+        let (max, p99) = neighbour_steps(&h, n);
+        assert_eq!(max, 52.0);
+        assert_eq!(p99, 2.0);
+    }
 
     #[test]
     fn rmse_and_psnr_of_a_constant_offset_of_5_are_5_and_34_15_db() {

@@ -163,8 +163,10 @@ test('first impressions: the page at +2 s, the statistics view, a new seed by ed
   await page.screenshot({ path: path.join(out, 'startup_2s.png') });
   const early = await stats(page);
   report.startup_2s = { nodes_drawn: early?.stats?.nodes_drawn ?? 0, coarse_drawn: early?.stats?.coarse_drawn ?? 0 };
-  let s = await waitFor(page, (q) => q.stats.tiles_pending === 0 && q.stats.far_pending === 0 && q.stats.far_drawn > 0 && q.stats.frames > 20, 'the default view and its far field', 400_000);
-  report.startup_complete_with_far_field_s = (Date.now() - t0) / 1000;
+  // The view's own tiles, not its far field: the far field's completion is timed in
+  // 'terrain to the horizon' (waiting for it here cost CI ~1.5 min).
+  let s = await waitFor(page, (q) => q.stats.tiles_pending === 0 && q.stats.frames > 20, 'the default view', 400_000);
+  report.startup_complete_s = (Date.now() - t0) / 1000;
   // The numbers are one click away, and away again.
   assert.equal(s.statistics_shown, false, 'the overlay opens without the statistics');
   await page.mouse.click(...centre(s.overlay_buttons.statistics));
@@ -188,11 +190,11 @@ test('first impressions: the page at +2 s, the statistics view, a new seed by ed
       if (q.stats.nodes_drawn === 0) blank++;
       if (q.stats.previous_world_shown) kept++;
       if (!first && !q.stats.previous_world_shown && q.stats.nodes_drawn > 0) first = (Date.now() - t1) / 1000;
-      if (first && q.stats.tiles_pending === 0 && q.stats.far_pending === 0 && q.stats.far_drawn > 0) break;
+      if (first && q.stats.tiles_pending === 0) break;
     }
     await page.waitForTimeout(100);
   }
-  report.new_seed = { own_terrain_s: first, complete_s: (Date.now() - t1) / 1000, polls_with_old_picture: kept, polls_blank: blank };
+  report.new_seed = { own_terrain_s: first, view_tiles_s: (Date.now() - t1) / 1000, polls_with_old_picture: kept, polls_blank: blank };
   await page.screenshot({ path: path.join(out, 'new_seed.png') });
   assert.ok(first !== null, `the new seed's world was never drawn: ${JSON.stringify(report.new_seed)}`);
   assert.equal(blank, 0, 'a frame after the new seed drew nothing');
@@ -209,12 +211,12 @@ test('first impressions: the page at +2 s, the statistics view, a new seed by ed
   const [ex, ey, ez] = s.stats.eye_m;
   assert.ok(Math.abs(ex) < 500 && ez > 4000 && ez < 6500 && ey > 3000, `the camera does not frame the sketch: ${s.stats.eye_m}`);
   assert.ok(imageSpread(shot, 380).sd > 8, 'the sketch world looks uniform');
-  // The learned world grows around the sketch (its tiles pinned): every stand-in replaced,
+  // The learned world grows around the sketch (its tiles pinned): every stand-in in the view replaced,
   // and the tile east of the sketch is what the native CLI makes with the same sketch pinned.
-  s = await waitFor(page, (q) => /^sketch in the learned world/.test(q.source) && q.stats.tiles_pending === 0 && q.stats.tiles_stale === 0 && q.stats.far_pending === 0 && q.stats.far_drawn > 0, 'the learned world around the sketch and its far field', 400_000, 100);
+  s = await waitFor(page, (q) => /^sketch in the learned world/.test(q.source) && q.stats.tiles_pending === 0 && q.stats.tiles_stale === 0, 'the learned world around the sketch', 400_000, 100);
   report.sketch_world.learned_around_s = (Date.now() - t2) / 1000;
   report.sketch_world.far_drawn = s.stats.far_drawn;
-  await page.screenshot({ path: path.join(out, 'sketch_world_far_field.png') });
+  await page.screenshot({ path: path.join(out, 'sketch_world_learned_around.png') });
   const seed = new URLSearchParams(s.link).get('seed');
   const relief = new URLSearchParams(s.link).get('relief');
   const beside = await tileHeights(page, 1, 0);
