@@ -144,9 +144,29 @@ const _: () = {
     }
 };
 
-/// `convs` (in [`conv_layers`] order) widened to [`KERNEL_WIDTHS`]: the same function on the
-/// vectorised kernels.
-fn widened_for_kernels(convs: &[Conv3]) -> Vec<Conv3> {
+/// `convs` (in [`conv_layers`] order) widened for the vectorised kernels: the same function.
+/// - Where the kernels run any number of channels (AVX-512, [`cpu::runs_any_channels`]):
+///   every layer as trained but the last decoder layer run (`dec.0.b`), widened to 16
+///   outputs (4 zero), and the output layer to 16 inputs, for the vectorised one-channel kernel, which takes
+///   multiples of 8. A padded input channel costs as much as a real one (12 → 16 is a third
+///   more work in the full-size layers), a padded output lane of the masked AVX-512 vector
+///   nothing.
+/// - Elsewhere: every width rounded up to [`KERNEL_WIDTHS`].
+///
+/// Both give the same heights: a zero-weighted channel adds exact zeros to every sum, in the
+/// same order.
+fn widened_for_kernels(convs: &[Conv3], any_channels: bool) -> Vec<Conv3> {
+    if any_channels {
+        return conv_layers()
+            .iter()
+            .zip(convs)
+            .map(|((name, _, _), c)| match name.as_str() {
+                "dec.0.b" => c.widened(c.cout().next_multiple_of(8), c.cin()),
+                "out" => c.widened(1, c.cin().next_multiple_of(8)),
+                _ => c.clone(),
+            })
+            .collect();
+    }
     conv_layers_of(KERNEL_WIDTHS).into_iter().zip(convs).map(|((_, cout, cin), c)| c.widened(cout, cin)).collect()
 }
 
@@ -161,9 +181,16 @@ pub struct SketchGenCpu {
 }
 
 impl SketchGenCpu {
-    /// The generator with these layers ([`conv_layers`] order).
+    /// The generator with these layers ([`conv_layers`] order), widened as this machine's
+    /// kernels run them best.
     fn new(convs: Vec<Conv3>) -> Self {
-        let run = widened_for_kernels(&convs);
+        Self::with_widths(convs, cpu::runs_any_channels())
+    }
+
+    /// The generator with these layers, widened for kernels that run any number of channels
+    /// or only multiples of 8 ([`widened_for_kernels`]).
+    fn with_widths(convs: Vec<Conv3>, any_channels: bool) -> Self {
+        let run = widened_for_kernels(&convs, any_channels);
         Self { convs, run }
     }
 
@@ -205,7 +232,7 @@ impl SketchGenCpu {
             let src = if k == 0 {
                 &s.input
             } else {
-                cpu::pool2(&s.skips[k - 1], &mut s.pooled);
+                cpu::pool2(&s.skips[k - 1], &mut s.pooled, threads);
                 &s.pooled
             };
             cpu::conv(&c[2 * k], src, &mut s.t, Post::Relu, threads);
@@ -215,7 +242,7 @@ impl SketchGenCpu {
         let d = 2 * SCALES;
         for k in (0..SCALES - 1).rev() {
             let side_k = s.skips[k].height();
-            cpu::up2_concat(&s.h, &s.skips[k], side_k, &mut s.cat);
+            cpu::up2_concat(&s.h, &s.skips[k], side_k, &mut s.cat, threads);
             cpu::conv(&c[d + 2 * k], &s.cat, &mut s.t, Post::Relu, threads);
             cpu::conv(&c[d + 2 * k + 1], &s.t, &mut s.h, Post::Relu, threads);
         }
@@ -339,18 +366,45 @@ mod tests {
         }
     }
 
-    /// The layers the CPU kernels run all have a multiple of 8 outputs (the vectorised
-    /// kernels), but the single-output last one, which reads a multiple of 8 inputs; the full
-    /// size stage is 16 wide where the trained one is 12.
+    /// Widened for kernels of multiples of 8 channels, every layer the CPU runs has a multiple
+    /// of 8 outputs, but the single-output last one, which reads a multiple of 8 inputs (the
+    /// full-size stage 16 wide where the trained one is 12). Widened for AVX-512, which runs
+    /// any count, every layer is as trained but the last two run (12 → 16 outputs, 16 → 1).
     #[test]
-    fn every_layer_the_cpu_runs_has_channels_in_blocks_of_eight() {
-        let g = SketchGenCpu::randomized(3, 0.1);
+    fn every_layer_the_cpu_runs_has_channels_in_blocks_of_eight_or_as_trained_on_avx512() {
+        let convs = cpu::random_convs(&conv_layers(), 3, 0.1);
+        let g = SketchGenCpu::with_widths(convs.clone(), false);
         assert_eq!(g.run.len(), g.convs.len());
         for ((name, _, _), c) in conv_layers().iter().zip(&g.run) {
             let blocks = if c.cout() == 1 { c.cin() % 8 == 0 } else { c.cout() % 8 == 0 };
             assert!(blocks, "{name}: {} → {} channels", c.cin(), c.cout());
         }
         assert_eq!((g.convs[0].cout(), g.run[0].cout()), (12, 16));
+        let g = SketchGenCpu::with_widths(convs, true);
+        let n = g.run.len();
+        let shapes: Vec<(usize, usize)> = g.run.iter().map(|c| (c.cin(), c.cout())).collect();
+        let trained: Vec<(usize, usize)> = conv_layers().iter().map(|&(_, cout, cin)| (cin, cout)).collect();
+        // dec.0.b, the full-size decoder's second layer, runs last before the output layer.
+        let d = 2 * SCALES + 1;
+        assert_eq!(conv_layers()[d].0, "dec.0.b");
+        for k in (0..n).filter(|&k| k != d && k != n - 1) {
+            assert_eq!(shapes[k], trained[k], "{}", conv_layers()[k].0);
+        }
+        assert_eq!((shapes[d], shapes[n - 1]), ((12, 16), (16, 1)));
+    }
+
+    /// The generator widened for kernels of multiples of 8 and widened for AVX-512 gives the
+    /// same heights for the same sketch (random weights; within 1e-6 of the 0–1 scale, the
+    /// only difference being the order-free sign of a zero).
+    #[test]
+    fn both_widenings_give_the_same_heights() {
+        let convs = cpu::random_convs(&conv_layers(), 5, 0.1);
+        let (a, b) = (SketchGenCpu::with_widths(convs.clone(), false), SketchGenCpu::with_widths(convs, true));
+        let x = assemble_input(&lopsided_sketch()).0;
+        let (ha, hb) = (a.forward(&x, SKETCH_PX, &mut Default::default(), 2), b.forward(&x, SKETCH_PX, &mut Default::default(), 2));
+        let worst = ha.iter().zip(&hb).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
+        assert!(worst <= 1e-6, "{worst}");
+        assert!(ha.iter().any(|&v| v != ha[0]), "a flat output tests nothing");
     }
 
     /// A sketch that no rotation or flip maps to itself: bands rising to the east, a ridge

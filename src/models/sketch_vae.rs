@@ -178,7 +178,7 @@ impl SketchVaeCpu {
         s.a.set_chw(&sketch.channels(), INPUT_CHANNELS, SKETCH_PX, SKETCH_PX);
         for k in 0..6 {
             cpu::conv(&self.convs[k], &s.a, &mut s.b, Post::Relu, threads);
-            cpu::pool2(&s.b, &mut s.a);
+            cpu::pool2(&s.b, &mut s.a, threads);
         }
         cpu::conv(&self.convs[6], &s.a, &mut s.b, Post::None, threads);
         let out = s.b.to_chw();

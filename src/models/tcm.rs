@@ -373,7 +373,7 @@ impl TcmCpu {
             let src = if k == 0 {
                 &s.input
             } else {
-                cpu::pool2(&s.skips[k - 1], &mut s.pooled);
+                cpu::pool2(&s.skips[k - 1], &mut s.pooled, threads);
                 &s.pooled
             };
             cpu::conv(&c[2 * k], src, &mut s.t, Post::Relu, threads);
@@ -382,7 +382,7 @@ impl TcmCpu {
         }
         // Decoder: upsample, take the centre crop beside the skip's, two convolutions.
         for k in (0..4).rev() {
-            cpu::up2_concat(&s.h, &s.skips[k], DECODER_CROP[k], &mut s.cat);
+            cpu::up2_concat(&s.h, &s.skips[k], DECODER_CROP[k], &mut s.cat, threads);
             cpu::conv(&c[10 + 2 * k], &s.cat, &mut s.t, Post::Relu, threads);
             cpu::conv(&c[11 + 2 * k], &s.t, &mut s.h, Post::Relu, threads);
         }

@@ -166,22 +166,26 @@ pub struct Map {
 }
 
 impl Map {
-    /// Reshapes the map to `h`×`w`×`c`, reusing its buffer: the border is zero; the interior
-    /// is zero too unless the shape is unchanged (then it keeps old values, for callers
-    /// that overwrite every pixel).
+    /// Reshapes the map to `h`×`w`×`c`, reusing its buffer: the border and the slack are zero;
+    /// the interior holds whatever the buffer held (every caller overwrites every pixel).
+    /// Clearing the whole buffer on every change of shape was 2–5 % of the sketch generator's
+    /// time (perf): a UNet's maps change shape at every layer.
     pub fn reset(&mut self, h: usize, w: usize, c: usize) {
-        if (h, w, c) == (self.h, self.w, self.c) && !self.data.is_empty() {
-            // Every value is about to be overwritten but the border and the slack, which
-            // nothing writes: no need to clear.
-            self.data[(h + 1) * (w + 2) * c..].fill(0.0);
-            return;
-        }
-        self.h = h;
-        self.w = w;
-        self.c = c;
         let len = ((h + 2) * (w + 2) + SLACK_PX) * c;
-        self.data.clear();
-        self.data.resize(len, 0.0);
+        if (h, w, c) != (self.h, self.w, self.c) || self.data.len() != len {
+            self.h = h;
+            self.w = w;
+            self.c = c;
+            // Shrinking keeps the buffer; growing zero-fills only the new part.
+            self.data.resize(len, 0.0);
+        }
+        let row = (w + 2) * c;
+        self.data[..row].fill(0.0);
+        self.data[(h + 1) * row..].fill(0.0);
+        for y in 1..=h {
+            self.data[y * row..][..c].fill(0.0);
+            self.data[(y + 1) * row - c..][..c].fill(0.0);
+        }
     }
 
     /// Height (pixels).
@@ -351,6 +355,26 @@ fn has_avx512() -> bool {
     std::arch::is_x86_feature_detected!("avx512f")
 }
 
+/// Whether `kernels` run any number of output channels (2 and more) vectorised here: the
+/// AVX-512 kernel masks its last vector, where the AVX2 and the page's kernels take multiples
+/// of 8 only (others run on the scalar kernel, ~7× slower).
+fn any_channels(kernels: Kernels) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return kernels == Kernels::Best && has_avx512();
+    #[allow(unreachable_code)]
+    {
+        let _ = kernels;
+        false
+    }
+}
+
+/// Whether [`conv`] runs layers of any number of output channels (2 and more) on vectorised
+/// kernels on this machine (AVX-512 chosen): a network need not be widened to multiples of 8
+/// channels, whose zero channels cost as much as real ones.
+pub fn runs_any_channels() -> bool {
+    any_channels(Kernels::chosen())
+}
+
 /// Output rows `y0..y0 + n` (`out` holds exactly those padded rows).
 #[allow(clippy::too_many_arguments)]
 fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post, kernels: Kernels) {
@@ -365,13 +389,19 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
     }
     if layer.cout == 1 && layer.cin.is_multiple_of(8) {
         #[cfg(target_arch = "x86_64")]
-        if !portable && has_avx2_fma() && layer.cin == 8 {
+        if !portable && has_avx2_fma() {
             // SAFETY: the CPU has AVX2 and FMA (checked just above).
-            unsafe { x86::rows_dot8(layer, src, out, y0, n, w, post) };
+            unsafe {
+                if layer.cin == 8 {
+                    x86::rows_dot8(layer, src, out, y0, n, w, post);
+                } else {
+                    x86::rows_dot(layer, src, out, y0, n, w, post);
+                }
+            }
             return;
         }
         rows_dot(layer, src, out, y0, n, w, post);
-    } else if layer.cout.is_multiple_of(ROWS8_CH) {
+    } else if layer.cout.is_multiple_of(ROWS8_CH) || any_channels(kernels) {
         #[cfg(target_arch = "x86_64")]
         if kernels == Kernels::Best && has_avx512() {
             // SAFETY: the CPU has AVX-512F (checked just above).
@@ -554,21 +584,45 @@ pub fn pixel_shuffle2(src: &Map, dst: &mut Map) {
     }
 }
 
-/// 2×2 mean pooling: `dst` becomes `src` at half the size (odd last rows/columns dropped).
-pub fn pool2(src: &Map, dst: &mut Map) {
+/// 2×2 mean pooling: `dst` becomes `src` at half the size (odd last rows/columns dropped),
+/// rows split between up to `threads` threads.
+pub fn pool2(src: &Map, dst: &mut Map, threads: usize) {
     let (h, w, c) = (src.h / 2, src.w / 2, src.c);
     dst.reset(h, w, c);
-    for y in 0..h {
+    let row_len = (w + 2) * c;
+    for_rows(&mut dst.data[row_len..row_len * (h + 1)], row_len, threads, |y, row| {
         for x in 0..w {
-            let o = dst.at(y, x);
+            let o = (x + 1) * c;
             let (a, b, d, e) = (src.at(2 * y, 2 * x), src.at(2 * y, 2 * x + 1), src.at(2 * y + 1, 2 * x), src.at(2 * y + 1, 2 * x + 1));
             for k in 0..c {
                 // The same order as a mean over a [2, 2] block: the pair of each row, then rows.
                 let top = (src.data[a + k] + src.data[b + k]) * 0.5;
                 let bottom = (src.data[d + k] + src.data[e + k]) * 0.5;
-                dst.data[o + k] = (top + bottom) * 0.5;
+                row[o + k] = (top + bottom) * 0.5;
             }
         }
+    });
+}
+
+/// Calls `f(y, row)` for every padded row of `rows` (interior rows 0.., each `row_len` values
+/// including its two border pixels, which `f` leaves alone), on up to `threads` threads of the
+/// kernels' pool natively (rows split in runs), one after the other in the page.
+fn for_rows(rows: &mut [f32], row_len: usize, threads: usize, f: impl Fn(usize, &mut [f32]) + Sync) {
+    let h = rows.len() / row_len.max(1);
+    let threads = threads.clamp(1, h.max(1));
+    #[cfg(not(target_arch = "wasm32"))]
+    if threads > 1 {
+        use rayon::prelude::*;
+        let per = h.div_ceil(threads);
+        rows.par_chunks_mut(per * row_len).enumerate().for_each(|(k, chunk)| {
+            for (i, row) in chunk.chunks_exact_mut(row_len).enumerate() {
+                f(k * per + i, row);
+            }
+        });
+        return;
+    }
+    for (y, row) in rows.chunks_exact_mut(row_len).enumerate() {
+        f(y, row);
     }
 }
 
@@ -585,20 +639,21 @@ pub fn up2(src: &Map, dst: &mut Map) {
 }
 
 /// The `side`² centre of `coarse` upsampled ×2 (nearest) followed by the `side`² centre of
-/// `skip`, as one map of `coarse.c + skip.c` channels (a UNet decoder's input).
-pub fn up2_concat(coarse: &Map, skip: &Map, side: usize, dst: &mut Map) {
+/// `skip`, as one map of `coarse.c + skip.c` channels (a UNet decoder's input), rows split
+/// between up to `threads` threads.
+pub fn up2_concat(coarse: &Map, skip: &Map, side: usize, dst: &mut Map, threads: usize) {
     let (cu, cs) = (coarse.c, skip.c);
     dst.reset(side, side, cu + cs);
     let (ou, os) = ((2 * coarse.h - side) / 2, (skip.h - side) / 2);
-    for y in 0..side {
-        for x in 0..side {
-            let o = dst.at(y, x);
+    let row_len = (side + 2) * (cu + cs);
+    for_rows(&mut dst.data[row_len..row_len * (side + 1)], row_len, threads, |y, row| {
+        for (x, o) in row.chunks_exact_mut(cu + cs).skip(1).take(side).enumerate() {
             let u = coarse.at((y + ou) / 2, (x + ou) / 2);
-            dst.data[o..o + cu].copy_from_slice(&coarse.data[u..u + cu]);
+            o[..cu].copy_from_slice(&coarse.data[u..u + cu]);
             let k = skip.at(y + os, x + os);
-            dst.data[o + cu..o + cu + cs].copy_from_slice(&skip.data[k..k + cs]);
+            o[cu..].copy_from_slice(&skip.data[k..k + cs]);
         }
-    }
+    });
 }
 
 mod weights;
