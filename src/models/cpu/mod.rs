@@ -608,12 +608,13 @@ pub fn pool2(src: &Map, dst: &mut Map, threads: usize) {
 /// including its two border pixels, which `f` leaves alone), on up to `threads` threads of the
 /// kernels' pool natively (rows split in runs), one after the other in the page.
 fn for_rows(rows: &mut [f32], row_len: usize, threads: usize, f: impl Fn(usize, &mut [f32]) + Sync) {
-    let h = rows.len() / row_len.max(1);
-    let threads = threads.clamp(1, h.max(1));
+    #[cfg(target_arch = "wasm32")]
+    let _ = threads;
     #[cfg(not(target_arch = "wasm32"))]
-    if threads > 1 {
+    if threads > 1 && rows.len() >= row_len && row_len > 0 {
         use rayon::prelude::*;
-        let per = h.div_ceil(threads);
+        let h = rows.len() / row_len;
+        let per = h.div_ceil(threads.min(h));
         rows.par_chunks_mut(per * row_len).enumerate().for_each(|(k, chunk)| {
             for (i, row) in chunk.chunks_exact_mut(row_len).enumerate() {
                 f(k * per + i, row);

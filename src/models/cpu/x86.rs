@@ -213,7 +213,7 @@ const DOT_PX: usize = 8;
 pub(super) unsafe fn rows_dot(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
     let cin = layer.cin;
     let sw = src.w + 2;
-    assert!(cin % 8 == 0 && layer.cout == 1 && layer.w.len() == 9 * cin);
+    assert!(cin.is_multiple_of(8) && layer.cout == 1 && layer.w.len() == 9 * cin);
     assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + DOT_PX) * cin && out.len() == n * sw);
     let blocks = cin / 8;
     // SAFETY: AVX is present (the caller's contract); loads stay inside the bound asserted
