@@ -197,7 +197,8 @@ enum Command {
         out: PathBuf,
     },
     /// Time the sketch generator on the CPU: prints JSON with the median milliseconds of one
-    /// forward pass (one view of a 256² sketch, without the input's baseline).
+    /// forward pass (one view: a 256² sketch with its 8 px mirrored margin, 272², without the
+    /// input's baseline).
     SketchBench {
         /// Threads (default: every core).
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]

@@ -180,8 +180,9 @@ fn tem_export_and_bench_describe_the_network() {
 }
 
 /// `terrain sketch-export` writes the generator's 19 convolutions in their trained shapes
-/// (enc.0.a 4→12 … out 12→1) and a probe whose output, put on the 0–255 scale by the sketch's
-/// bands, is what `terrain sketch --views 1` makes of the same example sketch (within 0.01);
+/// (enc.0.a 4→12 … out 12→1) and a probe (272², the sketch with its 8 px margin) whose output's
+/// centre, put on the 0–255 scale by the sketch's bands, is what `terrain sketch --views 1`
+/// makes of the same example sketch (within 0.01);
 /// `terrain sketch-bench` prints a positive time per sketch.
 #[test]
 fn sketch_export_and_bench_describe_the_generator() {
@@ -190,15 +191,17 @@ fn sketch_export_and_bench_describe_the_generator() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
     let (side, cin) = (v["side"].as_u64().unwrap() as usize, v["in_channels"].as_u64().unwrap() as usize);
-    assert_eq!((side, cin), (256, 4));
+    // 256² and the 8 px mirrored margin on each side: what one view runs.
+    assert_eq!((side, cin, v["margin"].as_u64()), (272, 4, Some(8)));
     assert_eq!(v["layers"].as_array().unwrap().len(), 19);
     assert_eq!(v["convs"]["enc.0.a"]["shape"], serde_json::json!([12, 4, 3, 3]));
     assert_eq!(v["convs"]["dec.0.a"]["shape"], serde_json::json!([12, 36, 3, 3]));
     assert_eq!(v["convs"]["out"]["shape"], serde_json::json!([1, 12, 3, 3]));
     assert_eq!(v["probe_input"].as_array().unwrap().len(), cin * side * side);
-    let mut probe: Vec<f32> = v["probe_output"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap() as f32 * 255.0).collect();
+    let padded: Vec<f32> = v["probe_output"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap() as f32 * 255.0).collect();
+    let mut probe: Vec<f32> = (8..side - 8).flat_map(|y| padded[y * side + 8..y * side + side - 8].to_vec()).collect();
     let (name, sketch) = terrain::sketch::examples::first();
-    terrain::sketch::calibrate::to_band_scale(&mut probe, &sketch.band, side);
+    terrain::sketch::calibrate::to_band_scale(&mut probe, &sketch.band, 256);
     let (input, out) = (tmp("export_probe_sketch.png"), tmp("export_probe_dem.png"));
     sketch.write_png(std::fs::File::create(&input).unwrap()).unwrap();
     let o = run(&["sketch", "--input", input.to_str().unwrap(), "--out", out.to_str().unwrap(), "--views", "1"]);

@@ -4,8 +4,8 @@
 Builds the generator's UNet (3x3 convolutions + ReLU, 2x2 mean pooling, nearest x2 upsampling,
 skip concatenation, output = baseline channel + correction) in ONNX from the shipped weights
 (exported by `terrain sketch-export`), checks that ONNX Runtime gives our output on the probe
-(an example sketch; max difference < 1e-4 of the 0-1 height scale), then times one 256x256
-sketch (one view) with 1 thread and all threads in ONNX Runtime and in ours
+(an example sketch; max difference < 1e-4 of the 0-1 height scale), then times one view (a 256x256
+sketch with its 8 px mirrored margin: 272x272) with 1 thread and all threads in ONNX Runtime and in ours
 (`terrain sketch-bench`, the same thread counts), and prints ms per sketch and ours/reference.
 
     pip install onnxruntime onnx numpy

@@ -12,20 +12,20 @@ pub(crate) fn sketch_generator(weights: Option<PathBuf>) -> Result<terrain::mode
     SketchGenCpu::from_burnpack(&bytes).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-/// The probe of `sketch-export` and `sketch-bench`: the first example sketch's network input.
+/// The probe of `sketch-export` and `sketch-bench`: the first example sketch's network input
+/// with its mirrored margin ([`terrain::models::sketch::PADDED_PX`]², what one view runs).
 pub(crate) fn sketch_probe() -> Vec<f32> {
-    terrain::models::sketch::assemble_input(&terrain::sketch::examples::first().1).0
+    terrain::models::sketch::with_margin(&terrain::models::sketch::assemble_input(&terrain::sketch::examples::first().1).0)
 }
 
 pub(crate) fn sketch_export(weights: Option<PathBuf>, out: &std::path::Path) -> Result<(), String> {
-    use terrain::models::sketch::{IN_CHANNELS, SketchScratch, WIDTHS, conv_layers};
-    use terrain::sketch::SKETCH_PX;
+    use terrain::models::sketch::{IN_CHANNELS, MARGIN_PX, PADDED_PX, SketchScratch, WIDTHS, conv_layers};
     let generator = sketch_generator(weights)?;
     let input = sketch_probe();
-    let output = generator.forward(&input, SKETCH_PX, &mut SketchScratch::default(), 1);
+    let output = generator.forward(&input, PADDED_PX, &mut SketchScratch::default(), 1);
     let layers: Vec<String> = conv_layers().into_iter().map(|(name, _, _)| name).collect();
     let json = serde_json::json!({
-        "side": SKETCH_PX, "in_channels": IN_CHANNELS, "widths": WIDTHS, "layers": layers,
+        "side": PADDED_PX, "margin": MARGIN_PX, "in_channels": IN_CHANNELS, "widths": WIDTHS, "layers": layers,
         "convs": generator.convs_json(), "probe_input": input, "probe_output": output,
     });
     std::fs::write(out, json.to_string()).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
@@ -34,17 +34,16 @@ pub(crate) fn sketch_export(weights: Option<PathBuf>, out: &std::path::Path) -> 
 }
 
 pub(crate) fn sketch_bench(repeats: usize, threads: Option<u32>, weights: Option<PathBuf>) -> Result<(), String> {
-    use terrain::models::sketch::SketchScratch;
-    use terrain::sketch::SKETCH_PX;
+    use terrain::models::sketch::{PADDED_PX, SketchScratch};
     let generator = sketch_generator(weights)?;
     let threads = threads.map_or_else(terrain::models::cpu::default_threads, |t| t as usize);
     let input = sketch_probe();
     let mut scratch = SketchScratch::default();
-    generator.forward(&input, SKETCH_PX, &mut scratch, threads);
+    generator.forward(&input, PADDED_PX, &mut scratch, threads);
     let mut ms: Vec<f64> = (0..repeats)
         .map(|_| {
             let t = std::time::Instant::now();
-            std::hint::black_box(generator.forward(&input, SKETCH_PX, &mut scratch, threads));
+            std::hint::black_box(generator.forward(&input, PADDED_PX, &mut scratch, threads));
             t.elapsed().as_secs_f64() * 1e3
         })
         .collect();
