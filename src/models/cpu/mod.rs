@@ -500,6 +500,18 @@ fn rows8(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usiz
     }
 }
 
+/// A one-channel output of pixel (`y`, `x`) from its 8 partial sums `l`: the bias `b` plus
+/// the sums added up in the one fixed order every one-channel kernel uses, then `post`.
+#[inline(always)]
+fn dot_output(b: f32, l: &[f32; 8], post: Post, y: usize, x: usize) -> f32 {
+    let v = b + ((l[0] + l[4]) + (l[1] + l[5])) + ((l[2] + l[6]) + (l[3] + l[7]));
+    match post {
+        Post::None => v,
+        Post::Relu => v.max(0.0),
+        Post::Add(s) => v + s.pixel(y, x)[0],
+    }
+}
+
 /// One output channel from a multiple of 8 input channels (the TEM's 8 → 1 tail): per pixel,
 /// 8 partial sums over the taps, added up in a fixed order.
 #[inline(always)]
@@ -520,12 +532,7 @@ fn rows_dot(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: u
                     }
                 }
             }
-            let a = layer.b[0] + ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
-            out[r * sw + x + 1] = match post {
-                Post::None => a,
-                Post::Relu => a.max(0.0),
-                Post::Add(s) => a + s.pixel(y, x)[0],
-            };
+            out[r * sw + x + 1] = dot_output(layer.b[0], &acc, post, y, x);
         }
     }
 }

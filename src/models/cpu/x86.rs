@@ -1,4 +1,4 @@
-use super::{BLOCK, Conv3, LANES, Map, Post, ROWS8_PX};
+use super::{BLOCK, Conv3, LANES, Map, Post, ROWS8_PX, dot_output};
 use std::arch::x86_64::*;
 
 /// Any multiple of 8 output channels with AVX2 + FMA: blocks of 4 pixels × 16 channels
@@ -184,12 +184,7 @@ pub(super) unsafe fn rows_dot8(layer: &Conv3, src: &Map, out: &mut [f32], y0: us
                 for (p, a) in acc.iter().enumerate().take(4.min(w - x0)) {
                     let mut l = [0f32; 8];
                     _mm256_storeu_ps(l.as_mut_ptr(), *a);
-                    let v = layer.b[0] + ((l[0] + l[4]) + (l[1] + l[5])) + ((l[2] + l[6]) + (l[3] + l[7]));
-                    out[r * sw + x0 + p + 1] = match post {
-                        Post::None => v,
-                        Post::Relu => v.max(0.0),
-                        Post::Add(s) => v + s.pixel(y, x0 + p)[0],
-                    };
+                    out[r * sw + x0 + p + 1] = dot_output(layer.b[0], &l, post, y, x0 + p);
                 }
                 x0 += 4;
             }
@@ -239,12 +234,7 @@ pub(super) unsafe fn rows_dot(layer: &Conv3, src: &Map, out: &mut [f32], y0: usi
                 for (p, a) in acc.iter().enumerate().take(DOT_PX.min(w - x0)) {
                     let mut l = [0f32; 8];
                     _mm256_storeu_ps(l.as_mut_ptr(), *a);
-                    let v = layer.b[0] + ((l[0] + l[4]) + (l[1] + l[5])) + ((l[2] + l[6]) + (l[3] + l[7]));
-                    out[r * sw + x0 + p + 1] = match post {
-                        Post::None => v,
-                        Post::Relu => v.max(0.0),
-                        Post::Add(s) => v + s.pixel(y, x0 + p)[0],
-                    };
+                    out[r * sw + x0 + p + 1] = dot_output(layer.b[0], &l, post, y, x0 + p);
                 }
                 x0 += DOT_PX;
             }
