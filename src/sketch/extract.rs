@@ -80,7 +80,7 @@ fn lines(acc: &[f32], keep: impl Fn(usize) -> bool, share: f64) -> Vec<bool> {
     }
     .max(MIN_CATCHMENT_PX);
     let mask: Vec<bool> = (0..acc.len()).map(|p| keep(p) && acc[p] >= threshold).collect();
-    drop_small(&mask, SKETCH_PX, MIN_FRAGMENT_PX)
+    drop_small(&mask, MIN_FRAGMENT_PX)
 }
 
 /// D8 flow accumulation (pixels, each counting itself): every pixel drains to its steepest
@@ -164,40 +164,13 @@ pub fn dilate(mask: &[bool], side: usize, r: usize) -> Vec<bool> {
     out
 }
 
-/// The mask without its 8-connected components of fewer than `min` pixels.
-pub fn drop_small(mask: &[bool], side: usize, min: usize) -> Vec<bool> {
+/// The mask (a [`SKETCH_PX`]² grid) without its 8-connected components of fewer than `min`
+/// pixels.
+pub fn drop_small(mask: &[bool], min: usize) -> Vec<bool> {
+    assert_eq!(mask.len(), SKETCH_PX * SKETCH_PX, "a sketch-sized mask");
     let mut out = vec![false; mask.len()];
-    let mut seen = vec![false; mask.len()];
-    let mut stack = Vec::new();
-    for start in 0..mask.len() {
-        if !mask[start] || seen[start] {
-            continue;
-        }
-        let mut comp = vec![start];
-        seen[start] = true;
-        stack.push(start);
-        while let Some(p) = stack.pop() {
-            let (x, y) = ((p % side) as i64, (p / side) as i64);
-            for dy in -1..=1i64 {
-                for dx in -1..=1i64 {
-                    let (u, v) = (x + dx, y + dy);
-                    if u < 0 || v < 0 || u >= side as i64 || v >= side as i64 {
-                        continue;
-                    }
-                    let q = v as usize * side + u as usize;
-                    if mask[q] && !seen[q] {
-                        seen[q] = true;
-                        comp.push(q);
-                        stack.push(q);
-                    }
-                }
-            }
-        }
-        if comp.len() >= min {
-            for p in comp {
-                out[p] = true;
-            }
-        }
+    for comp in super::regions::Components::of_mask(mask).members().into_iter().filter(|c| c.len() >= min) {
+        comp.into_iter().for_each(|p| out[p] = true);
     }
     out
 }

@@ -13,6 +13,7 @@ pub mod code;
 pub mod distance;
 pub mod examples;
 pub mod extract;
+mod regions;
 pub mod score;
 pub mod tidy;
 

@@ -1,13 +1,14 @@
-//! Tidying a made sketch (a VAE variant or blend) into one a person could have drawn: no
-//! band islands smaller than a brush dot and no stroke specks, unless the sketch it was made
-//! from has exactly that region or stroke.
+//! Tidying a made sketch (a VAE variant or blend) into one a person could have drawn: changed
+//! parts rounded to brush-sized blobs, no band islands smaller than a brush dot, a strip of the
+//! band between where two bands that are not neighbours meet, and no stroke specks — unless the
+//! sketch it was made from has exactly that region, border or stroke.
 //!
 //! The VAE's edit ([`crate::models::sketch_vae::edit`]) rounds a soft change per pixel, and so
-//! leaves specks: islands of another band a few pixels wide and stray stroke pixels. The
-//! generator raises a spike or digs a pit on each (issue 35: neighbour steps of 66 on the
-//! 0–255 scale where the targets' largest is 7). [`tidy`] merges each such island into the
-//! band it borders most and drops each such stroke speck.
+//! leaves specks: islands of another band a few pixels wide, borders of bands two apart and
+//! stray stroke pixels. The generator raises a spike, a cliff or a pit on each (issue 35:
+//! neighbour steps of 66 on the 0–255 scale where the targets' largest is 7).
 
+use super::regions::{Components, neighbours};
 use super::{SKETCH_PX, Sketch};
 
 /// The smallest band region a made sketch keeps (pixels): the area of a dot of the canvas's
@@ -19,83 +20,6 @@ pub const MIN_REGION_PX: usize = 113;
 /// sketch drew every pixel of them.
 pub const MIN_STROKE_PX: usize = 18;
 
-/// Connected components of a [`SKETCH_PX`]² grid: a label per pixel (`usize::MAX` outside
-/// every component) and each label's size.
-struct Components {
-    label: Vec<usize>,
-    size: Vec<usize>,
-}
-
-impl Components {
-    /// Components of the pixels where `inside` holds, joined where `same(p, q)` holds for
-    /// neighbours p and q (4-neighbours, or 8 with `diagonal`).
-    fn of(inside: impl Fn(usize) -> bool, same: impl Fn(usize, usize) -> bool, diagonal: bool) -> Self {
-        let n = SKETCH_PX;
-        let mut label = vec![usize::MAX; n * n];
-        let mut size = Vec::new();
-        let mut stack = Vec::new();
-        for start in 0..n * n {
-            if label[start] != usize::MAX || !inside(start) {
-                continue;
-            }
-            let id = size.len();
-            let mut count = 0;
-            label[start] = id;
-            stack.push(start);
-            while let Some(p) = stack.pop() {
-                count += 1;
-                for q in neighbours(p, diagonal) {
-                    if label[q] == usize::MAX && inside(q) && same(p, q) {
-                        label[q] = id;
-                        stack.push(q);
-                    }
-                }
-            }
-            size.push(count);
-        }
-        Self { label, size }
-    }
-
-    /// Band regions: 4-connected pixels of one band.
-    fn bands(s: &Sketch) -> Self {
-        Self::of(|_| true, |p, q| s.band[p] == s.band[q], false)
-    }
-
-    /// Strokes: 8-connected pixels of one stroke mask.
-    fn strokes(mask: &[bool]) -> Self {
-        Self::of(|p| mask[p], |_, _| true, true)
-    }
-
-    /// The pixels of each component, by label.
-    fn members(&self) -> Vec<Vec<usize>> {
-        let mut m = vec![Vec::new(); self.size.len()];
-        for (p, &l) in self.label.iter().enumerate() {
-            if l != usize::MAX {
-                m[l].push(p);
-            }
-        }
-        m
-    }
-
-    /// Whether `pixels` are exactly one whole component here.
-    fn is_whole(&self, pixels: &[usize]) -> bool {
-        let l = self.label[pixels[0]];
-        l != usize::MAX && self.size[l] == pixels.len() && pixels.iter().all(|&p| self.label[p] == l)
-    }
-}
-
-/// The 4- (or 8-) neighbours of pixel `p` inside the sketch.
-fn neighbours(p: usize, diagonal: bool) -> impl Iterator<Item = usize> {
-    let n = SKETCH_PX as i64;
-    let (y, x) = ((p / SKETCH_PX) as i64, (p % SKETCH_PX) as i64);
-    const STEPS: [(i64, i64); 8] = [(0, 1), (1, 0), (0, -1), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1)];
-    STEPS[..if diagonal { 8 } else { 4 }]
-        .iter()
-        .map(move |(dy, dx)| (y + dy, x + dx))
-        .filter(move |&(y, x)| y >= 0 && x >= 0 && y < n && x < n)
-        .map(move |(y, x)| (y * n + x) as usize)
-}
-
 /// The ridge (or valley) mask of `s`.
 fn strokes_of(s: &Sketch, ridge: bool) -> &[bool] {
     if ridge { &s.ridge } else { &s.valley }
@@ -103,7 +27,7 @@ fn strokes_of(s: &Sketch, ridge: bool) -> &[bool] {
 
 /// Band regions (4-connected pixels of one band) smaller than `below_px` pixels.
 pub fn band_islands(s: &Sketch, below_px: usize) -> usize {
-    Components::bands(s).size.iter().filter(|&&c| c < below_px).count()
+    Components::of_bands(s).size.iter().filter(|&&c| c < below_px).count()
 }
 
 /// Merges every band island of `out` smaller than [`MIN_REGION_PX`] that is not a whole region
@@ -111,7 +35,7 @@ pub fn band_islands(s: &Sketch, below_px: usize) -> usize {
 /// small island into a neighbour, so the number of regions falls.
 fn merge_islands(out: &mut Sketch, sources: &[&Sketch], source_bands: &[Components]) {
     loop {
-        let regions = Components::bands(out);
+        let regions = Components::of_bands(out);
         let mut small: Vec<Vec<usize>> = regions
             .members()
             .into_iter()
@@ -225,23 +149,22 @@ fn widen_jumps(out: &mut Sketch, sources: &[&Sketch]) {
     }
 }
 
-/// `made` as a person could have drawn it:
-/// - where two bands that are not next to each other meet (0 and 2, 1 and 3, 0 and 3: a cliff
-///   of half the relief in the terrain), a strip of the band between, [`JUMP_STRIP_PX`] wide,
-///   half on each side ([`widen_jumps`]);
+/// `made` as a person could have drawn it, in this order:
+/// - every pixel whose band no source has takes the most common band around it
+///   ([`round_changes`]);
 /// - every band island smaller than [`MIN_REGION_PX`] merged into the band it borders most
-///   (ties: the band nearest its own, then the lower);
+///   (ties: the band nearest its own, then the lower), then where two bands that are not next
+///   to each other meet (0 and 2, 1 and 3, 0 and 3: a cliff of half the relief in the
+///   terrain), a strip of the band between, [`JUMP_STRIP_PX`] wide, half on each side
+///   ([`widen_jumps`]); both again until neither changes anything;
 /// - every ridge or valley component smaller than [`MIN_STROKE_PX`] dropped.
 ///
 /// What one of the `sources` (the sketches `made` came from) has — exactly a whole region, the
 /// same two bands on both sides of a border, a stroke every pixel of which it drew — stays as
-/// it is. A sketch with
-/// nothing to tidy comes back unchanged.
+/// it is. A sketch with nothing to tidy comes back unchanged.
 pub fn tidy(made: &Sketch, sources: &[&Sketch]) -> Sketch {
     let mut out = made.clone();
-    let source_bands: Vec<Components> = sources.iter().map(|s| Components::bands(s)).collect();
-    // Widening a jump can leave an island, and merging an island can make a jump: both until
-    // neither changes anything (a few rounds; bounded in case they ever trade pixels).
+    let source_bands: Vec<Components> = sources.iter().map(|s| Components::of_bands(s)).collect();
     round_changes(&mut out, sources);
     // Islands first (a speck must not be widened into a ring), then jumps; widening a jump
     // can leave an island, and merging an island can make a jump: both until neither changes
@@ -259,7 +182,7 @@ pub fn tidy(made: &Sketch, sources: &[&Sketch]) -> Sketch {
     for ridge in [true, false] {
         let mask = strokes_of(&out, ridge).to_vec();
         let mut keep = mask.clone();
-        for m in Components::strokes(&mask).members().into_iter().filter(|m| m.len() < MIN_STROKE_PX) {
+        for m in Components::of_mask(&mask).members().into_iter().filter(|m| m.len() < MIN_STROKE_PX) {
             if !sources.iter().any(|s| m.iter().all(|&p| strokes_of(s, ridge)[p])) {
                 m.iter().for_each(|&p| keep[p] = false);
             }
@@ -296,7 +219,7 @@ mod tests {
     /// [`merge_islands`] with the sources' regions.
     fn merged(s: &Sketch, sources: &[&Sketch]) -> Sketch {
         let mut out = s.clone();
-        merge_islands(&mut out, sources, &sources.iter().map(|s| Components::bands(s)).collect::<Vec<_>>());
+        merge_islands(&mut out, sources, &sources.iter().map(|s| Components::of_bands(s)).collect::<Vec<_>>());
         out
     }
 
