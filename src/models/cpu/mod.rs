@@ -324,23 +324,7 @@ fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize
     let (h, w) = (src.h, src.w);
     // Output rows 0..h are padded rows 1..=h of dst.
     let rows = &mut dst.data[row_len..row_len * (h + 1)];
-    let threads = threads.clamp(1, h.max(1));
-    if threads == 1 {
-        conv_rows(layer, src, rows, 0, h, w, post, kernels);
-        return;
-    }
-    #[cfg(target_arch = "wasm32")]
-    {
-        conv_rows(layer, src, rows, 0, h, w, post, kernels);
-    }
-    #[cfg(not(target_arch = "wasm32"))]
-    {
-        // On rayon's pool: its threads stay awake between the layers of a network, where
-        // starting threads per layer cost ~70 µs a layer and half the second core's gain.
-        use rayon::prelude::*;
-        let per = h.div_ceil(threads);
-        rows.par_chunks_mut(per * row_len).enumerate().for_each(|(k, chunk)| conv_rows(layer, src, chunk, k * per, chunk.len() / row_len, w, post, kernels));
-    }
+    for_row_runs(rows, row_len, threads, |y0, run| conv_rows(layer, src, run, y0, run.len() / row_len, w, post, kernels));
 }
 
 /// Whether this CPU runs the AVX2 + FMA kernels.
@@ -597,41 +581,43 @@ pub fn pool2(src: &Map, dst: &mut Map, threads: usize) {
     let (h, w, c) = (src.h / 2, src.w / 2, src.c);
     dst.reset(h, w, c);
     let row_len = (w + 2) * c;
-    for_rows(&mut dst.data[row_len..row_len * (h + 1)], row_len, threads, |y, row| {
-        for x in 0..w {
-            let o = (x + 1) * c;
-            let (a, b, d, e) = (src.at(2 * y, 2 * x), src.at(2 * y, 2 * x + 1), src.at(2 * y + 1, 2 * x), src.at(2 * y + 1, 2 * x + 1));
-            for k in 0..c {
-                // The same order as a mean over a [2, 2] block: the pair of each row, then rows.
-                let top = (src.data[a + k] + src.data[b + k]) * 0.5;
-                let bottom = (src.data[d + k] + src.data[e + k]) * 0.5;
-                row[o + k] = (top + bottom) * 0.5;
+    for_row_runs(&mut dst.data[row_len..row_len * (h + 1)], row_len, threads, |y0, run| {
+        for (y, row) in run.chunks_exact_mut(row_len).enumerate().map(|(i, row)| (y0 + i, row)) {
+            for x in 0..w {
+                let o = (x + 1) * c;
+                let (a, b, d, e) = (src.at(2 * y, 2 * x), src.at(2 * y, 2 * x + 1), src.at(2 * y + 1, 2 * x), src.at(2 * y + 1, 2 * x + 1));
+                for k in 0..c {
+                    // The same order as a mean over a [2, 2] block: the pair of each row, then rows.
+                    let top = (src.data[a + k] + src.data[b + k]) * 0.5;
+                    let bottom = (src.data[d + k] + src.data[e + k]) * 0.5;
+                    row[o + k] = (top + bottom) * 0.5;
+                }
             }
         }
     });
 }
 
-/// Calls `f(y, row)` for every padded row of `rows` (interior rows 0.., each `row_len` values
-/// including its two border pixels, which `f` leaves alone), on up to `threads` threads of the
-/// kernels' pool natively (rows split in runs), one after the other in the page.
-fn for_rows(rows: &mut [f32], row_len: usize, threads: usize, f: impl Fn(usize, &mut [f32]) + Sync) {
-    #[cfg(target_arch = "wasm32")]
-    let _ = threads;
+/// Calls `f(y0, run)` for runs of consecutive padded rows of `rows` (interior rows from 0, each
+/// `row_len` values including its two border pixels, which `f` leaves alone; `y0` the first
+/// row of the run): the whole of `rows` on the calling thread where `threads` is 1 and in the
+/// page, else up to `threads` runs side by side on rayon's pool, whose threads stay awake
+/// between the layers of a network (starting threads per layer cost ~70 µs a layer and half
+/// the second core's gain).
+fn for_row_runs(rows: &mut [f32], row_len: usize, threads: usize, f: impl Fn(usize, &mut [f32]) + Sync) {
     #[cfg(not(target_arch = "wasm32"))]
-    if threads > 1 && rows.len() >= row_len && row_len > 0 {
-        use rayon::prelude::*;
-        let h = rows.len() / row_len;
-        let per = h.div_ceil(threads.min(h));
-        rows.par_chunks_mut(per * row_len).enumerate().for_each(|(k, chunk)| {
-            for (i, row) in chunk.chunks_exact_mut(row_len).enumerate() {
-                f(k * per + i, row);
-            }
-        });
-        return;
+    {
+        let h = rows.len().checked_div(row_len).unwrap_or(0);
+        let threads = threads.clamp(1, h.max(1));
+        if threads > 1 {
+            use rayon::prelude::*;
+            let per = h.div_ceil(threads);
+            rows.par_chunks_mut(per * row_len).enumerate().for_each(|(k, run)| f(k * per, run));
+            return;
+        }
     }
-    for (y, row) in rows.chunks_exact_mut(row_len).enumerate() {
-        f(y, row);
-    }
+    #[cfg(target_arch = "wasm32")]
+    let _ = (row_len, threads);
+    f(0, rows);
 }
 
 /// `src` upsampled ×2 (nearest): `dst` becomes twice the size with the same channels.
@@ -654,12 +640,14 @@ pub fn up2_concat(coarse: &Map, skip: &Map, side: usize, dst: &mut Map, threads:
     dst.reset(side, side, cu + cs);
     let (ou, os) = ((2 * coarse.h - side) / 2, (skip.h - side) / 2);
     let row_len = (side + 2) * (cu + cs);
-    for_rows(&mut dst.data[row_len..row_len * (side + 1)], row_len, threads, |y, row| {
-        for (x, o) in row.chunks_exact_mut(cu + cs).skip(1).take(side).enumerate() {
-            let u = coarse.at((y + ou) / 2, (x + ou) / 2);
-            o[..cu].copy_from_slice(&coarse.data[u..u + cu]);
-            let k = skip.at(y + os, x + os);
-            o[cu..].copy_from_slice(&skip.data[k..k + cs]);
+    for_row_runs(&mut dst.data[row_len..row_len * (side + 1)], row_len, threads, |y0, run| {
+        for (y, row) in run.chunks_exact_mut(row_len).enumerate().map(|(i, row)| (y0 + i, row)) {
+            for (x, o) in row.chunks_exact_mut(cu + cs).skip(1).take(side).enumerate() {
+                let u = coarse.at((y + ou) / 2, (x + ou) / 2);
+                o[..cu].copy_from_slice(&coarse.data[u..u + cu]);
+                let k = skip.at(y + os, x + os);
+                o[cu..].copy_from_slice(&skip.data[k..k + cs]);
+            }
         }
     });
 }
