@@ -199,7 +199,7 @@ fn sketch_export_and_bench_describe_the_generator() {
     assert_eq!(v["convs"]["out"]["shape"], serde_json::json!([1, 12, 3, 3]));
     assert_eq!(v["probe_input"].as_array().unwrap().len(), cin * side * side);
     let padded: Vec<f32> = v["probe_output"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap() as f32 * 255.0).collect();
-    let mut probe: Vec<f32> = (8..side - 8).flat_map(|y| padded[y * side + 8..y * side + side - 8].to_vec()).collect();
+    let mut probe = terrain::models::sketch::crop_margin(&padded);
     let (name, sketch) = terrain::sketch::examples::first();
     terrain::sketch::calibrate::to_band_scale(&mut probe, &sketch.band, 256);
     let (input, out) = (tmp("export_probe_sketch.png"), tmp("export_probe_dem.png"));

@@ -335,10 +335,9 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
     let mut scratch = Default::default();
     let threads = terrain::models::cpu::default_threads();
     let mut rows = Vec::new();
-    // Per pair: the sketch's own terrain's (largest, p99) neighbour step and band islands,
-    // then the same for its variants as made and tidied (largest over the variants, mean p99,
-    // islands summed).
-    let mut variant_rows = Vec::new();
+    // Per pair (its row's "variants"): the sketch's own terrain's (largest, p99) neighbour
+    // step and band islands, then the same for its variants as made and tidied (largest over
+    // the variants, mean p99, islands summed).
     const ISLAND_PX: usize = 20;
     let v_px = terrain::sketch::SKETCH_PX * terrain::sketch::SKETCH_PX;
     let mut ms = Vec::new();
@@ -364,8 +363,7 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
             };
             let (own_max, own_p99) = score::neighbour_steps(&ours, sketch::SKETCH_PX);
             let own = serde_json::json!({ "max_step": own_max, "p99_step": own_p99, "islands_under_20px": tidy::band_islands(&sk, ISLAND_PX), "band_changed_fraction": 0.0 });
-            variant_rows.push(serde_json::json!({ "own": own, "made": measure(&made), "tidied": measure(&tidied) }));
-            variant_rows.last().cloned()
+            Some(serde_json::json!({ "own": own, "made": measure(&made), "tidied": measure(&tidied) }))
         } else {
             None
         };
@@ -394,6 +392,7 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
         f1(mean_ex("valley_precision"), mean_ex("valley_recall"))
     );
     ms.sort_by(f64::total_cmp);
+    let variant_rows: Vec<&serde_json::Value> = rows.iter().filter_map(|r| r.get("variants")).collect();
     if !variant_rows.is_empty() {
         println!(
             "variants ({variants} a sketch, seed 1): neighbour step of the terrain (0–255), largest / mean p99; band islands under {ISLAND_PX} px; pixels whose band differs from the sketch's"

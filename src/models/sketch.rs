@@ -73,8 +73,9 @@ pub fn with_margin(x: &[f32]) -> Vec<f32> {
     out
 }
 
-/// The `SKETCH_PX`² centre of a [`PADDED_PX`]² row-major field.
-fn crop_margin(o: &[f32]) -> Vec<f32> {
+/// The `SKETCH_PX`² centre of a [`PADDED_PX`]² row-major field (the network's output for an
+/// input [`with_margin`]).
+pub fn crop_margin(o: &[f32]) -> Vec<f32> {
     (0..SKETCH_PX).flat_map(|y| o[(y + MARGIN_PX) * PADDED_PX + MARGIN_PX..][..SKETCH_PX].iter().copied()).collect()
 }
 
@@ -190,8 +191,8 @@ const _: () = {
 /// `convs` (in [`conv_layers`] order) widened for the vectorised kernels: the same function.
 /// - Where the kernels run any number of channels (AVX-512, [`cpu::runs_any_channels`]):
 ///   every layer as trained but the last decoder layer run (`dec.0.b`), widened to 16
-///   outputs (4 zero), and the output layer to 16 inputs, for the vectorised one-channel kernel, which takes
-///   multiples of 8. A padded input channel costs as much as a real one (12 → 16 is a third
+///   outputs (4 zero), and the output layer to 16 inputs, for the vectorised one-channel
+///   kernel, which takes multiples of 8. A padded input channel costs as much as a real one (12 → 16 is a third
 ///   more work in the full-size layers), a padded output lane of the masked AVX-512 vector
 ///   nothing.
 /// - Elsewhere: every width rounded up to [`KERNEL_WIDTHS`].
