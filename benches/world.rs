@@ -25,6 +25,22 @@ fn world(c: &mut Criterion) {
     c.bench_function("node gather (depth 2)", |b| b.iter(|| black_box(NodeData::from_world(id, &w))));
     let node = NodeData::from_world(id, &w).unwrap();
     c.bench_function("node mesh 33x33 + skirts", |b| b.iter(|| black_box(node_vertices(&node))));
+    // One block of the learned world's 128 m field (4×4 tiles, 128² samples) eroded as each of
+    // its two stages does it: bumps on a slope.
+    let n = terrain::world::learned::EROSION_BLOCK_TILES as usize * terrain::models::tcm::TILE_PX;
+    let field: Vec<f32> = (0..n * n)
+        .map(|p| {
+            let (x, y) = ((p % n) as f32, (p / n) as f32);
+            500.0 + 200.0 * (x * 0.3).sin() * (y * 0.27).cos() + 3.0 * x
+        })
+        .collect();
+    c.bench_function("erosion of one 128 m block (4x4 tiles, learned::EROSION)", |b| {
+        b.iter(|| {
+            let mut h = field.clone();
+            terrain::world::erosion::erode(&mut h, n, None, &terrain::world::learned::EROSION);
+            black_box(h)
+        })
+    });
 }
 
 /// TEM inference per refined quad on the CPU (the project's kernels, shipped weights): one
@@ -105,9 +121,11 @@ fn learned(c: &mut Criterion) {
         let models = Arc::new(LearnedModels::from_parts(tcm.clone(), up.clone(), "bench"));
         let mut seed = 0;
         // A tile is drained over its second-stage block of 2×2 tiles, each drained before over
-        // its first-stage block: the first tile of a fresh world makes the 4×4 network tiles
-        // under them and both stages (its neighbours then mostly come from the caches).
-        g.bench_function(format!("first 32 m tile in a fresh world (4x4 network tiles, two drainage stages), {threads} thread(s)"), |b| {
+        // its first-stage block: the first tile of a fresh world makes the 4×4 ×4 steps under
+        // them, the eroded 128 m tiles around those (two erosion stages over the network tiles
+        // under them) and both drainage stages (its neighbours then mostly come from the
+        // caches).
+        g.bench_function(format!("first 32 m tile in a fresh world (4x4 x4 steps, two erosion and two drainage stages), {threads} thread(s)"), |b| {
             b.iter(|| {
                 seed += 1;
                 let src = LearnedSource::new(models.clone(), threads);

@@ -25,7 +25,7 @@ use crate::render::gpu::{FrameParams, sun_direction};
 use crate::share::ShareState;
 use crate::sketch::canvas::Canvas;
 use crate::sketch::{SKETCH_PX, Sketch};
-use crate::world::learned::{PIN_COARSE_REACH_TILES, PIN_REACH_TILES};
+use crate::world::learned::{PIN_ERODED_REACH_TILES, PIN_REACH_TILES};
 use crate::world::pins::Pins;
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
 use crate::world::refine::{PatchKey, PatchStore, RefineJob};
@@ -311,7 +311,7 @@ impl TerrainApp {
         let same = old.seed() == self.world.seed() && old.source_name() == self.world.source_name();
         let fixed = SKETCH_TILES.iter().map(|&c| Tile::new(c, pins.get(c).expect("a sketch pins its four tiles").fine.to_vec())).collect();
         let beyond = |c: TileCoord| !pins.within(c, PIN_REACH_TILES);
-        let coarse_beyond = |c: TileCoord| !pins.within(c, PIN_COARSE_REACH_TILES);
+        let coarse_beyond = |c: TileCoord| !pins.within(c, PIN_ERODED_REACH_TILES);
         self.world.take_over(old, fixed, same.then_some((&beyond as &dyn Fn(TileCoord) -> bool, &coarse_beyond as &dyn Fn(TileCoord) -> bool)));
         for c in SKETCH_TILES.iter().flat_map(|c| c.window3x3()) {
             if !self.world.contains(c) {

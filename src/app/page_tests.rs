@@ -435,7 +435,7 @@ fn the_learned_world_draws_coarse_stand_ins_before_its_tiles_and_only_undrawable
     assert!(s.coarse_drawn > 0 && s.coarse_drawn == s.nodes_drawn, "{s:?}");
     let eye = crate::grid::TileCoord::new(0, 0);
     let models = std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap());
-    let want = LearnedSource::new(models, 1).coarse_tile(core.app.settings().seed, eye);
+    let want = LearnedSource::new(models, 1).eroded_tile(core.app.settings().seed, eye);
     let node = crate::world::quadtree::NodeData::from_coarse(eye, &core.app.world, 1).expect("the eye's stand-in");
     let n = crate::world::stream::COARSE_SAMPLES;
     assert!((0..n * n).all(|p| node.at((p % n) as i32, (p / n) as i32) == want[p]));

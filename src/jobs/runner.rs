@@ -214,7 +214,7 @@ impl Runner {
             }
             Request::Coarse { seed, tile } => {
                 let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
-                Ok(Reply::Heights { heights: world.coarse_tile(seed, tile).to_vec(), ms: 0.0 })
+                Ok(Reply::Heights { heights: world.eroded_tile(seed, tile).to_vec(), ms: 0.0 })
             }
             Request::Sketch { sketch: s } => {
                 let s = sketch_of(&s)?;
@@ -399,7 +399,7 @@ mod tests {
 
         let c = TileCoord::new(1, -1);
         let learned = LearnedSource::new(Arc::new(models), 1);
-        let want = learned.coarse_tile(42, c.offset(1, 0)).to_vec();
+        let want = learned.eroded_tile(42, c.offset(1, 0)).to_vec();
         assert_eq!(want.len(), crate::world::stream::COARSE_SAMPLES.pow(2));
         assert_eq!(heights(r.call(&env(16, 0, Request::Coarse { seed: 42, tile: c.offset(1, 0) })).unwrap()), want);
         let want = learned.generate(42, c, &Neighbourhood::default()).heights;

@@ -96,7 +96,7 @@ pub fn fill_depressions(h: &mut [f32], n: usize, gradient_m: f32) -> usize {
 
 /// [`fill_depressions`] with the `fixed` samples (`n`², true: fixed) kept as they are and
 /// draining like the border: outlets.
-fn fill_around(h: &mut [f32], n: usize, fixed: Option<&[bool]>, gradient_m: f32) -> usize {
+pub(super) fn fill_around(h: &mut [f32], n: usize, fixed: Option<&[bool]>, gradient_m: f32) -> usize {
     assert_eq!(h.len(), n * n, "a {n}×{n} field has {} samples, not {}", n * n, h.len());
     let mut flood = Flood::from_outlets(h, n, fixed);
     let mut raised = 0;

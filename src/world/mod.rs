@@ -4,6 +4,7 @@
 //! rendering.
 
 pub mod drainage;
+pub mod erosion;
 pub mod export;
 pub mod learned;
 pub mod noise;
