@@ -25,7 +25,7 @@ fn world(c: &mut Criterion) {
     c.bench_function("node gather (depth 2)", |b| b.iter(|| black_box(NodeData::from_world(id, &w))));
     let node = NodeData::from_world(id, &w).unwrap();
     c.bench_function("node mesh 33x33 + skirts", |b| b.iter(|| black_box(node_vertices(&node))));
-    // One block of the learned world's 128 m field (4×4 tiles, 128² samples) eroded as each of
+    // One block of the learned world's 128 m field (EROSION_BLOCK_TILES² tiles) eroded as each of
     // its two stages does it: bumps on a slope.
     let n = terrain::world::learned::EROSION_BLOCK_TILES as usize * terrain::models::tcm::TILE_PX;
     let field: Vec<f32> = (0..n * n)
@@ -34,7 +34,7 @@ fn world(c: &mut Criterion) {
             500.0 + 200.0 * (x * 0.3).sin() * (y * 0.27).cos() + 3.0 * x
         })
         .collect();
-    c.bench_function("erosion of one 128 m block (4x4 tiles, learned::EROSION)", |b| {
+    c.bench_function("erosion of one 128 m block (learned::EROSION_BLOCK_TILES squared, learned::EROSION)", |b| {
         b.iter(|| {
             let mut h = field.clone();
             terrain::world::erosion::erode(&mut h, n, None, &terrain::world::learned::EROSION);

@@ -971,7 +971,10 @@ async function click(page, s, name) {
 const shownNow = (s) => s.stats.sketch_shown === s.stats.sketch_revision;
 async function tileHeights(page, i, j) {
   await page.evaluate(([i, j]) => window.wasmBindings.terrain_request_tile(i, j), [i, j]);
-  for (let k = 0; k < 200; k++) {
+  // Up to 120 s: this asks what the tile is, not how fast it comes (a learned tile in a fresh
+  // part of the world needs the 4×4 network tiles under its eroded blocks, several seconds on
+  // SwiftShader's machine).
+  for (let k = 0; k < 2400; k++) {
     const t = JSON.parse(await page.evaluate(() => window.wasmBindings.terrain_tile_heights()));
     if (t) return t;
     await page.waitForTimeout(50);
