@@ -8,6 +8,7 @@ use std::hint::black_box;
 
 use terrain::render::mesh::node_vertices;
 use terrain::world::quadtree::{NodeData, NodeId};
+use terrain::world::sketched::SKETCH_EXTENT_M;
 use terrain::world::{Neighbourhood, ProceduralSource, TILE_SIZE_M, TileCoord, TileSource, WorldStream};
 
 fn world(c: &mut Criterion) {
@@ -157,21 +158,21 @@ fn sketch(c: &mut Criterion) {
     threads.dedup();
     for t in threads {
         let mut s = SketchScratch::default();
-        g.bench_function(format!("generator, one sketch -> 256² terrain, {t} thread(s)"), |bn| bn.iter(|| black_box(m.generator.generate(a, &mut s, t))));
+        g.bench_function(format!("generator, one sketch -> 256² terrain, {t} thread(s)"), |bn| bn.iter(|| black_box(m.generator.generate(a, SKETCH_EXTENT_M, &mut s, t))));
         let views = generator::CLI_VIEWS;
         g.bench_function(format!("generator, {views} views averaged (terrain sketch's default), {t} thread(s)"), |bn| {
-            bn.iter(|| black_box(m.generator.generate_views(a, views, &mut s, t)))
+            bn.iter(|| black_box(m.generator.generate_views(a, SKETCH_EXTENT_M, views, &mut s, t)))
         });
         g.bench_function(format!("4 variants with their terrains, {t} thread(s)"), |bn| {
             bn.iter(|| {
                 let v = m.vae.variants(a, 4, 7, &mut Default::default(), t);
-                black_box(v.iter().map(|k| m.generator.generate(k, &mut s, t)).collect::<Vec<_>>())
+                black_box(v.iter().map(|k| m.generator.generate(k, SKETCH_EXTENT_M, &mut s, t)).collect::<Vec<_>>())
             })
         });
         g.bench_function(format!("blend of two sketches with its terrain, {t} thread(s)"), |bn| {
             bn.iter(|| {
                 let k = m.vae.interpolate(a, b, 0.5, &mut Default::default(), t);
-                black_box(m.generator.generate(&k, &mut s, t))
+                black_box(m.generator.generate(&k, SKETCH_EXTENT_M, &mut s, t))
             })
         });
     }

@@ -390,6 +390,11 @@ enum Command {
         /// With --format: resample to a 2ⁿ+1 square (257²; Unity, Unreal).
         #[arg(long)]
         pow2_plus_1: bool,
+        /// Ground extent of the sketch's tile (metres), which the generator is told: by default
+        /// the sketch format's tiles (512 m), or with --format the page's sketch world (8,192 m);
+        /// 256 to 16,384.
+        #[arg(long, value_parser = extent_metres)]
+        extent_m: Option<f64>,
         /// Folder of the sketch generator's weights (default: ./weights, else the crate's).
         #[arg(long)]
         weights: Option<PathBuf>,
@@ -451,6 +456,10 @@ enum Command {
         /// new run only). Default: every DEM.
         #[arg(long, value_delimiter = ',')]
         dems: Vec<String>,
+        /// Share (0–1) of the training pairs whose sketch is redrawn as a person would draw it:
+        /// band borders smoothed into blobs, fewer and smoother strokes (a new run only).
+        #[arg(long, default_value_t = 0.0)]
+        hand_drawn: f32,
         /// Also train on the pairs in this folder (the format's 512×256 files, e.g. the sketch
         /// authors' pairs), in their 8 rotations/flips (a new run only).
         #[arg(long)]
@@ -534,6 +543,10 @@ enum Command {
         /// and their band islands under 20 px, as the VAE's edit makes them and tidied.
         #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=16))]
         variants: u32,
+        /// Ground extent of the pairs' tiles (metres) the generator is told: the format's 512 m
+        /// unless said (256 to 16,384).
+        #[arg(long, value_parser = extent_metres, default_value_t = terrain::models::sketch::FORMAT_EXTENT_M)]
+        extent_m: f64,
     },
     /// Evaluate the TEM on the held-out east third of every DEM (feature `train`).
     #[cfg(feature = "train")]
@@ -670,9 +683,9 @@ fn main() -> ExitCode {
         }
         #[cfg(feature = "train")]
         Command::TrainTem(a) => train_tem(a),
-        Command::EvalSketch { pairs, weights, views, variants } => eval_sketch(&pairs, weights, views.count as usize, variants as usize),
-        Command::Sketch { input, out, weights, views, format, relief, pow2_plus_1 } => {
-            sketch(&input, &out, weights, views.count as usize, format.map(|f| (f, relief, pow2_plus_1)))
+        Command::EvalSketch { pairs, weights, views, variants, extent_m } => eval_sketch(&pairs, weights, views.count as usize, variants as usize, extent_m),
+        Command::Sketch { input, out, weights, views, format, relief, pow2_plus_1, extent_m } => {
+            sketch(&input, &out, weights, views.count as usize, format.map(|f| (f, relief, pow2_plus_1)), extent_m)
         }
         Command::SketchExtract { dem, window, out, dem_out } => sketch_extract(&dem, &window, &out, dem_out),
         #[cfg(feature = "train")]
@@ -692,6 +705,7 @@ fn main() -> ExitCode {
             max_extent_m,
             min_extent_m,
             dems,
+            hand_drawn,
             format_pairs,
             format_exclude,
             format_share,
@@ -706,7 +720,7 @@ fn main() -> ExitCode {
                 crop,
                 pool: pool as usize,
                 adversarial,
-                windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m },
+                windows: terrain::train::sketch::WindowChoice { dems, min_extent_m, max_extent_m, hand_drawn },
                 format_pairs,
                 format_exclude,
                 format_share,
@@ -773,6 +787,12 @@ fn main() -> ExitCode {
 /// long before it could run).
 fn step_count(s: &str) -> Result<usize, String> {
     s.parse::<usize>().ok().filter(|n| *n <= 1_000_000_000).ok_or_else(|| format!("a step count is a whole number from 0 to 1000000000, not '{s}'"))
+}
+
+/// A sketch tile's ground extent: metres within [`terrain::models::sketch::EXTENT_RANGE_M`].
+fn extent_metres(s: &str) -> Result<f64, String> {
+    let (lo, hi) = terrain::models::sketch::EXTENT_RANGE_M;
+    s.parse::<f64>().ok().filter(|m| (lo..=hi).contains(m)).ok_or_else(|| format!("a sketch's extent is {lo} to {hi} metres, not '{s}'"))
 }
 
 /// A batch size: a whole number from 1 to 4096.

@@ -180,7 +180,7 @@ fn tem_export_and_bench_describe_the_network() {
 }
 
 /// `terrain sketch-export` writes the generator's 19 convolutions in their trained shapes
-/// (enc.0.a 4→12 … out 12→1) and a probe (272², the sketch with its 8 px margin) whose output's
+/// (enc.0.a 5→12: the sketch's 3 channels, the extent and the baseline … out 12→1) and a probe (272², the sketch with its 8 px margin) whose output's
 /// centre, put on the 0–255 scale by the sketch's bands, is what `terrain sketch --views 1`
 /// makes of the same example sketch (within 0.01);
 /// `terrain sketch-bench` prints a positive time per sketch.
@@ -192,9 +192,9 @@ fn sketch_export_and_bench_describe_the_generator() {
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
     let (side, cin) = (v["side"].as_u64().unwrap() as usize, v["in_channels"].as_u64().unwrap() as usize);
     // 256² and the 8 px mirrored margin on each side: what one view runs.
-    assert_eq!((side, cin, v["margin"].as_u64()), (272, 4, Some(8)));
+    assert_eq!((side, cin, v["margin"].as_u64()), (272, 5, Some(8)));
     assert_eq!(v["layers"].as_array().unwrap().len(), 19);
-    assert_eq!(v["convs"]["enc.0.a"]["shape"], serde_json::json!([12, 4, 3, 3]));
+    assert_eq!(v["convs"]["enc.0.a"]["shape"], serde_json::json!([12, 5, 3, 3]));
     assert_eq!(v["convs"]["dec.0.a"]["shape"], serde_json::json!([12, 36, 3, 3]));
     assert_eq!(v["convs"]["out"]["shape"], serde_json::json!([1, 12, 3, 3]));
     assert_eq!(v["probe_input"].as_array().unwrap().len(), cin * side * side);

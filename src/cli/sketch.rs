@@ -15,7 +15,7 @@ pub(crate) fn sketch_generator(weights: Option<PathBuf>) -> Result<terrain::mode
 /// The probe of `sketch-export` and `sketch-bench`: the first example sketch's network input
 /// with its mirrored margin ([`terrain::models::sketch::PADDED_PX`]², what one view runs).
 pub(crate) fn sketch_probe() -> Vec<f32> {
-    terrain::models::sketch::with_margin(&terrain::models::sketch::assemble_input(&terrain::sketch::examples::first().1).0)
+    terrain::models::sketch::with_margin(&terrain::models::sketch::assemble_input(&terrain::sketch::examples::first().1, terrain::models::sketch::FORMAT_EXTENT_M).0)
 }
 
 pub(crate) fn sketch_export(weights: Option<PathBuf>, out: &std::path::Path) -> Result<(), String> {
@@ -55,7 +55,14 @@ pub(crate) fn sketch_bench(repeats: usize, threads: Option<u32>, weights: Option
     Ok(())
 }
 
-pub(crate) fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Option<PathBuf>, views: usize, metres: Option<(ExportFormat, f64, bool)>) -> Result<(), String> {
+pub(crate) fn sketch(
+    input: &std::path::Path,
+    out: &std::path::Path,
+    weights: Option<PathBuf>,
+    views: usize,
+    metres: Option<(ExportFormat, f64, bool)>,
+    extent_m: Option<f64>,
+) -> Result<(), String> {
     use terrain::sketch::{SKETCH_PX, Sketch, write_dem_png16};
     if let Some((format, relief_m, _)) = metres {
         format_agrees(out, format)?;
@@ -63,20 +70,25 @@ pub(crate) fn sketch(input: &std::path::Path, out: &std::path::Path, weights: Op
     }
     let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
     let generator = sketch_generator(weights)?;
+    let default_extent = if metres.is_some() { terrain::world::sketched::SKETCH_EXTENT_M } else { terrain::models::sketch::FORMAT_EXTENT_M };
+    let extent_m = extent_m.unwrap_or(default_extent);
+    if !generator.knows_extent() {
+        eprintln!("note: these weights were trained before the extent channel: the terrain is the same at every extent");
+    }
     let t = std::time::Instant::now();
-    let h = generator.generate_views(&sk, views, &mut Default::default(), terrain::models::cpu::default_threads());
+    let h = generator.generate_views(&sk, extent_m, views, &mut Default::default(), terrain::models::cpu::default_threads());
     let ms = t.elapsed().as_secs_f64() * 1e3;
     if let Some((_, relief_m, pow2_plus_1)) = metres {
         use terrain::world::sketched::{SKETCH_TILES, SketchSource};
         let world = SketchSource::new(std::sync::Arc::new(h), relief_m);
         let [first, ..] = SKETCH_TILES;
         let hf = export::from_tiles(first.i, first.j, 2, 2, |c| Some(std::sync::Arc::new(world.tile(c)))).ok_or("the sketch's tiles")?;
-        eprintln!("the sketch's terrain: {relief_m} m relief ({views} views, {ms:.0} ms)");
+        eprintln!("the sketch's terrain: {relief_m} m relief ({extent_m} m extent, {views} views, {ms:.0} ms)");
         return write_heights(hf, out, pow2_plus_1);
     }
     let file = std::fs::File::create(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     write_dem_png16(std::io::BufWriter::new(file), SKETCH_PX, &h).map_err(|e| format!("cannot write {}: {e}", out.display()))?;
-    eprintln!("wrote {}: {SKETCH_PX}×{SKETCH_PX} 16-bit relative heights ({views} views, {ms:.0} ms)", out.display());
+    eprintln!("wrote {}: {SKETCH_PX}×{SKETCH_PX} 16-bit relative heights ({extent_m} m extent, {views} views, {ms:.0} ms)", out.display());
     Ok(())
 }
 
@@ -101,6 +113,9 @@ pub(crate) fn train_sketch(
     }
     if !(0.0..=1.0).contains(&cfg.format_share) {
         return Err(format!("--format-share must be between 0 and 1, not {}", cfg.format_share));
+    }
+    if !(0.0..=1.0).contains(&cfg.windows.hand_drawn) {
+        return Err(format!("--hand-drawn must be between 0 and 1, not {}", cfg.windows.hand_drawn));
     }
     if !(cfg.lr.is_finite() && cfg.lr > 0.0) {
         return Err(format!("--lr must be a positive number, not {}", cfg.lr));
@@ -206,7 +221,7 @@ pub(crate) fn sketch_variants(input: &std::path::Path, n: usize, out_dir: &std::
     let t = std::time::Instant::now();
     let variants = vae.variants(&sk, n, seed, &mut Default::default(), threads);
     let mut scratch = Default::default();
-    let dems: Vec<Vec<f32>> = variants.iter().map(|v| generator.generate_views(v, views, &mut scratch, threads)).collect();
+    let dems: Vec<Vec<f32>> = variants.iter().map(|v| generator.generate_views(v, terrain::models::sketch::FORMAT_EXTENT_M, views, &mut scratch, threads)).collect();
     let ms = t.elapsed().as_secs_f64() * 1e3;
     for (k, (v, h)) in variants.iter().zip(&dems).enumerate() {
         let write = |name: String, f: &dyn Fn(std::io::BufWriter<std::fs::File>) -> Result<(), terrain::sketch::SketchError>| -> Result<(), String> {
@@ -313,7 +328,7 @@ pub(crate) fn sketch_extract(dem: &std::path::Path, window: &[u32], out: &std::p
     Ok(())
 }
 
-pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views: usize, variants: usize) -> Result<(), String> {
+pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views: usize, variants: usize, extent_m: f64) -> Result<(), String> {
     use terrain::sketch::{self, baseline, extract, score, tidy};
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| format!("{}: {e}", dir.display()))?
@@ -348,7 +363,7 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
         let base = baseline::interpolate(&sk);
         let rmse = score::rmse(&base, &target);
         let t = std::time::Instant::now();
-        let ours = generator.generate_views(&sk, views, &mut scratch, threads);
+        let ours = generator.generate_views(&sk, extent_m, views, &mut scratch, threads);
         ms.push(t.elapsed().as_secs_f64() * 1e3);
         let e = score::rmse(&ours, &target);
         let measured = if let Some(vae) = &vae {
@@ -356,7 +371,8 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
             let made = vae.untidied_variants(&sk, variants, 1, &mut vs, threads);
             let tidied: Vec<sketch::Sketch> = made.iter().map(|v| tidy::tidy(v, &[&sk])).collect();
             let mut measure = |set: &[sketch::Sketch]| {
-                let steps: Vec<(f32, f32)> = set.iter().map(|v| score::neighbour_steps(&generator.generate_views(v, views, &mut scratch, threads), sketch::SKETCH_PX)).collect();
+                let steps: Vec<(f32, f32)> =
+                    set.iter().map(|v| score::neighbour_steps(&generator.generate_views(v, extent_m, views, &mut scratch, threads), sketch::SKETCH_PX)).collect();
                 let islands: usize = set.iter().map(|v| tidy::band_islands(v, ISLAND_PX)).sum();
                 let changed = set.iter().map(|v| v.band.iter().zip(&sk.band).filter(|(a, b)| a != b).count()).sum::<usize>() as f64 / (set.len() * v_px) as f64;
                 serde_json::json!({ "max_step": steps.iter().map(|s| s.0).fold(0.0, f32::max), "p99_step": steps.iter().map(|s| s.1 as f64).sum::<f64>() / steps.len() as f64, "islands_under_20px": islands, "band_changed_fraction": changed })
@@ -371,7 +387,10 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
         let ag = score::Agreement::between(&ex.sketch, &sk);
         let name = f.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
         println!("{name:36} {e:8.3} {:8.2} {rmse:9.3} {:9.2} {:6.3} {:8.3} {:9.3}", score::psnr(e), score::psnr(rmse), ag.band, ag.ridge_f1(), ag.valley_f1());
-        rows.push(serde_json::json!({ "pair": name, "rmse": e, "psnr": score::psnr(e), "rmse_baseline": rmse, "psnr_baseline": score::psnr(rmse), "extractor": {
+        let by_scale = |h: &[f32]| score::ERROR_SCALES_PX.map(|s| score::rmse_at_scale(h, &target, s));
+        let by_band = |h: &[f32]| score::rmse_by_band(h, &target, &sk.band);
+        rows.push(serde_json::json!({ "pair": name, "rmse": e, "psnr": score::psnr(e), "rmse_baseline": rmse, "psnr_baseline": score::psnr(rmse),
+            "rmse_by_scale": by_scale(&ours), "rmse_by_scale_baseline": by_scale(&base), "rmse_by_band": by_band(&ours), "rmse_by_band_baseline": by_band(&base), "extractor": {
             "band_agreement": ag.band, "ridge_precision": ag.ridge_precision, "ridge_recall": ag.ridge_recall, "valley_precision": ag.valley_precision, "valley_recall": ag.valley_recall } }));
         if let Some(v) = measured {
             rows.last_mut().expect("just pushed")["variants"] = v;
@@ -391,6 +410,22 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
         f1(mean_ex("ridge_precision"), mean_ex("ridge_recall")),
         f1(mean_ex("valley_precision"), mean_ex("valley_recall"))
     );
+    // Mean error by scale and by band (a band's mean over the pairs that have it).
+    let mean_of = |key: &str, k: usize| {
+        let v: Vec<f64> = rows.iter().filter_map(|r| r[key][k].as_f64()).collect();
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    };
+    let scales: Vec<String> = score::ERROR_SCALES_PX.iter().map(|s| format!("σ {s:>2} px")).collect();
+    println!("error by scale (RMSE of the difference smoothed by a Gaussian of σ): {}", scales.join("  "));
+    for (what, key) in [("generator", "rmse_by_scale"), ("baseline", "rmse_by_scale_baseline")] {
+        println!("  {what:10} {}", (0..scales.len()).map(|k| format!("{:8.3}", mean_of(key, k))).collect::<Vec<_>>().join(" "));
+    }
+    println!("error by band (RMSE over each band's pixels): band 0 .. 3");
+    for (what, key) in [("generator", "rmse_by_band"), ("baseline", "rmse_by_band_baseline")] {
+        println!("  {what:10} {}", (0..sketch::BANDS).map(|k| format!("{:8.3}", mean_of(key, k))).collect::<Vec<_>>().join(" "));
+    }
+    let by_scale_json = serde_json::json!({ "sigma_px": score::ERROR_SCALES_PX, "generator": (0..scales.len()).map(|k| mean_of("rmse_by_scale", k)).collect::<Vec<_>>(), "baseline": (0..scales.len()).map(|k| mean_of("rmse_by_scale_baseline", k)).collect::<Vec<_>>() });
+    let by_band_json = serde_json::json!({ "generator": (0..sketch::BANDS).map(|k| mean_of("rmse_by_band", k)).collect::<Vec<_>>(), "baseline": (0..sketch::BANDS).map(|k| mean_of("rmse_by_band_baseline", k)).collect::<Vec<_>>() });
     ms.sort_by(f64::total_cmp);
     let variant_rows: Vec<&serde_json::Value> = rows.iter().filter_map(|r| r.get("variants")).collect();
     if !variant_rows.is_empty() {
@@ -410,7 +445,7 @@ pub(crate) fn eval_sketch(dir: &std::path::Path, weights: Option<PathBuf>, views
         "{}",
         serde_json::json!({ "pairs": rows.len(), "mean": { "rmse": mean("rmse"), "psnr": mean("psnr"), "rmse_baseline": mean("rmse_baseline"), "psnr_baseline": mean("psnr_baseline"),
         "extractor_band_agreement": mean_ex("band_agreement"), "extractor_ridge_precision": mean_ex("ridge_precision"), "extractor_ridge_recall": mean_ex("ridge_recall"),
-        "extractor_valley_precision": mean_ex("valley_precision"), "extractor_valley_recall": mean_ex("valley_recall") }, "views": views, "generator_ms_median": ms[ms.len() / 2], "per_pair": rows })
+        "extractor_valley_precision": mean_ex("valley_precision"), "extractor_valley_recall": mean_ex("valley_recall") }, "rmse_by_scale": by_scale_json, "rmse_by_band": by_band_json, "extent_m": extent_m, "views": views, "generator_ms_median": ms[ms.len() / 2], "per_pair": rows })
     );
     Ok(())
 }

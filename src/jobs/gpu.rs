@@ -61,7 +61,7 @@ impl GpuRunner {
             Request::Sketch { sketch } => {
                 let generator = self.sketch.borrow().clone();
                 match (generator, sketch.sketch()) {
-                    (Some(g), Ok(s)) => match g.generate_async(&s).await {
+                    (Some(g), Ok(s)) => match g.generate_async(&s, crate::world::sketched::SKETCH_EXTENT_M).await {
                         Ok(heights) => Reply::Heights { heights, ms: ms() },
                         Err(e) => Reply::Failed(e),
                     },

@@ -219,7 +219,7 @@ impl Runner {
             Request::Sketch { sketch: s } => {
                 let s = sketch_of(&s)?;
                 let m = self.sketch.as_ref().ok_or(NO_SKETCH)?;
-                Ok(Reply::Heights { heights: m.generator.generate(&s, &mut Default::default(), self.threads), ms: 0.0 })
+                Ok(Reply::Heights { heights: m.generator.generate(&s, crate::world::sketched::SKETCH_EXTENT_M, &mut Default::default(), self.threads), ms: 0.0 })
             }
             Request::Variants { sketch: s, n, seed } => {
                 if !(1..=MAX_VARIANTS).contains(&n) {
@@ -246,7 +246,7 @@ impl Runner {
     /// `sketches` with their terrains.
     fn terrains(&self, sketches: Vec<Sketch>) -> Reply {
         let g = &self.sketch.as_ref().expect("checked by the caller").generator;
-        let heights = sketches.iter().flat_map(|s| g.generate(s, &mut Default::default(), self.threads)).collect();
+        let heights = sketches.iter().flat_map(|s| g.generate(s, crate::world::sketched::SKETCH_EXTENT_M, &mut Default::default(), self.threads)).collect();
         Reply::Sketches { sketches: sketches.iter().map(SketchBytes::from).collect(), heights, ms: 0.0 }
     }
 }
@@ -427,14 +427,14 @@ mod tests {
         assert_eq!(heights(r.call(&env(12, 0, Request::Tile { seed: 7, tile: c, noise: Some(noise) })).unwrap()), want);
 
         let (_, sketch) = crate::sketch::examples::all().swap_remove(0);
-        let want = sketch_models.generator.generate(&sketch, &mut Default::default(), 1);
+        let want = sketch_models.generator.generate(&sketch, crate::world::sketched::SKETCH_EXTENT_M, &mut Default::default(), 1);
         assert_eq!(heights(r.call(&env(13, 0, Request::Sketch { sketch: (&sketch).into() })).unwrap()), want);
         match r.call(&env(14, 0, Request::Variants { sketch: (&sketch).into(), n: 2, seed: 5 })).unwrap().reply {
             Reply::Sketches { sketches, heights, .. } => {
                 let sketches: Vec<Sketch> = sketches.iter().map(|s| s.sketch().unwrap()).collect();
                 assert_eq!(sketches, sketch_models.vae.variants(&sketch, 2, 5, &mut Default::default(), 1));
                 assert_eq!(heights.len(), 2 * SKETCH_TERRAIN);
-                assert_eq!(&heights[SKETCH_TERRAIN..], &sketch_models.generator.generate(&sketches[1], &mut Default::default(), 1)[..]);
+                assert_eq!(&heights[SKETCH_TERRAIN..], &sketch_models.generator.generate(&sketches[1], crate::world::sketched::SKETCH_EXTENT_M, &mut Default::default(), 1)[..]);
             }
             other => panic!("variants: {other:?}"),
         }

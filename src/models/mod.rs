@@ -315,9 +315,9 @@ mod tests {
         let (gpu, cpu) = (SketchGenGpu::from_burnpack(&bytes, &test_gpu()).unwrap(), SketchGenCpu::from_burnpack(&bytes).unwrap());
         for (name, s) in crate::sketch::examples::all() {
             let t = web_time::Instant::now();
-            let a = gpu.generate_blocking(&s).unwrap();
+            let a = gpu.generate_blocking(&s, crate::models::sketch::FORMAT_EXTENT_M).unwrap();
             let gpu_ms = t.elapsed().as_secs_f64() * 1e3;
-            let b = cpu.generate(&s, &mut Default::default(), 2);
+            let b = cpu.generate(&s, crate::models::sketch::FORMAT_EXTENT_M, &mut Default::default(), 2);
             let d = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
             let (lo, hi) = a.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
             eprintln!("{name}: max |Δ| {d:.2e} of 255, wgpu {gpu_ms:.0} ms");

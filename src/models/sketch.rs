@@ -3,7 +3,8 @@
 //! borders ([`crate::sketch::baseline`]) misses (pix2pix's task, trained with L1 + PatchGAN).
 //!
 //! Input ([`IN_CHANNELS`] × H × W, any H and W divisible by 16; [`SKETCH_PX`]² in use):
-//! band / 3, ridge, valley ([`Sketch::channels`]) and the baseline / 255. Output: heights / 255,
+//! band / 3, ridge, valley ([`Sketch::channels`]), the tile's ground extent ([`extent_value`],
+//! the same at every pixel) and the baseline / 255. Output: heights / 255,
 //! the baseline plus the network's correction; the caller puts them on the 0–255 scale by the
 //! sketch's bands ([`crate::sketch::calibrate`]). Network: two 3×3 convolutions + ReLU per
 //! scale ([`WIDTHS`] at 1, 1/2 … 1/16 of the size; 2×2 mean pooling between them), a decoder
@@ -20,8 +21,29 @@ use crate::models::cpu::{self, Conv3, Map, Post};
 use crate::models::tcm::{Stage, conv3, pool2, up2};
 use crate::sketch::{self, SKETCH_PX, Sketch, baseline, calibrate};
 
-/// Input channels: the sketch's three ([`sketch::INPUT_CHANNELS`]) and the baseline.
-pub const IN_CHANNELS: usize = sketch::INPUT_CHANNELS + 1;
+/// Input channels: the sketch's three ([`sketch::INPUT_CHANNELS`]), the extent and the
+/// baseline (last).
+pub const IN_CHANNELS: usize = sketch::INPUT_CHANNELS + 2;
+/// Input channels of the generators made before the extent channel (a weight file of theirs
+/// is read with a zero-weighted extent channel: [`SketchGenCpu::from_burnpack`]).
+pub const IN_CHANNELS_V1: usize = sketch::INPUT_CHANNELS + 1;
+/// The extent channel's index (just before the baseline).
+pub const EXTENT_CHANNEL: usize = sketch::INPUT_CHANNELS;
+/// Ground extent (metres) of a tile of the sketch format (the authors' tiles are 400–512 m of
+/// 2 m alpine DEM): what `terrain sketch` and `eval-sketch` tell the generator unless told
+/// otherwise.
+pub const FORMAT_EXTENT_M: f64 = 512.0;
+/// The smallest and the largest extent (metres) the generator is told: the range it is
+/// trained on (5 m alpine DEMs to 90 m ranges).
+pub const EXTENT_RANGE_M: (f64, f64) = (256.0, 16_384.0);
+
+/// The extent channel's value for a tile `extent_m` metres wide: log2(extent / 512 m) / 4,
+/// so 0 at the format's scale ([`FORMAT_EXTENT_M`]) and 1 at 8 km; the extent is first
+/// clamped to [`EXTENT_RANGE_M`].
+pub fn extent_value(extent_m: f64) -> f32 {
+    let e = if extent_m.is_finite() { extent_m.clamp(EXTENT_RANGE_M.0, EXTENT_RANGE_M.1) } else { FORMAT_EXTENT_M };
+    ((e / FORMAT_EXTENT_M).log2() / 4.0) as f32
+}
 /// The sketch's rotations and flips ([`dihedral`] transforms) in the order
 /// [`SketchGenCpu::generate_views`] adds them: the sketch itself, the half turn, the two
 /// diagonal mirrorings, then the quarter turns and the axis mirrorings.
@@ -79,11 +101,12 @@ pub fn crop_margin(o: &[f32]) -> Vec<f32> {
     (0..SKETCH_PX).flat_map(|y| o[(y + MARGIN_PX) * PADDED_PX + MARGIN_PX..][..SKETCH_PX].iter().copied()).collect()
 }
 
-/// The network's input for `sketch`, channel-first ([`IN_CHANNELS`] × [`SKETCH_PX`]²), and the
-/// baseline it starts from (0–255).
-pub fn assemble_input(sketch: &Sketch) -> (Vec<f32>, Vec<f32>) {
+/// The network's input for `sketch` on a tile `extent_m` metres wide, channel-first
+/// ([`IN_CHANNELS`] × [`SKETCH_PX`]²), and the baseline it starts from (0–255).
+pub fn assemble_input(sketch: &Sketch, extent_m: f64) -> (Vec<f32>, Vec<f32>) {
     let base = baseline::interpolate(sketch);
     let mut x = sketch.channels();
+    x.extend(std::iter::repeat_n(extent_value(extent_m), SKETCH_PX * SKETCH_PX));
     x.extend(base.iter().map(|v| v / 255.0));
     (x, base)
 }
@@ -139,9 +162,14 @@ pub fn conv_layers() -> Vec<(String, usize, usize)> {
 
 /// [`conv_layers`] for a generator of channel widths `w` per scale.
 fn conv_layers_of(w: [usize; SCALES]) -> Vec<(String, usize, usize)> {
+    conv_layers_with(w, IN_CHANNELS)
+}
+
+/// [`conv_layers_of`] with `cin` input channels.
+fn conv_layers_with(w: [usize; SCALES], cin: usize) -> Vec<(String, usize, usize)> {
     let mut v = Vec::new();
     for k in 0..SCALES {
-        v.push((format!("enc.{k}.a"), w[k], if k == 0 { IN_CHANNELS } else { w[k - 1] }));
+        v.push((format!("enc.{k}.a"), w[k], if k == 0 { cin } else { w[k - 1] }));
         v.push((format!("enc.{k}.b"), w[k], w[k]));
     }
     for k in 0..SCALES - 1 {
@@ -214,6 +242,21 @@ fn widened_for_kernels(convs: &[Conv3], any_channels: bool) -> Vec<Conv3> {
     conv_layers_of(KERNEL_WIDTHS).into_iter().zip(convs).map(|((_, cout, cin), c)| c.widened(cout, cin)).collect()
 }
 
+/// The first layer `c` of a generator without the extent channel ([`IN_CHANNELS_V1`] inputs)
+/// with one inserted before the baseline, its weights zero.
+fn with_zero_extent_channel(c: &Conv3) -> Result<Conv3, crate::models::WeightError> {
+    let (w, b) = c.to_oihw();
+    let (cout, cin) = (c.cout(), c.cin());
+    let mut wide = vec![0f32; cout * IN_CHANNELS * 9];
+    for o in 0..cout {
+        for i in 0..cin {
+            let to = if i < EXTENT_CHANNEL { i } else { i + 1 };
+            wide[(o * IN_CHANNELS + to) * 9..][..9].copy_from_slice(&w[(o * cin + i) * 9..][..9]);
+        }
+    }
+    Conv3::from_oihw(cout, IN_CHANNELS, &wide, Some(&b)).map_err(|source| crate::models::WeightError::Layer { name: "enc.0.a".into(), source })
+}
+
 /// The sketch generator on the project's own CPU kernels: the same network as
 /// [`SketchGen::forward`] without a tensor framework (the CLI, the page's worker).
 #[derive(Clone, Debug)]
@@ -243,9 +286,34 @@ impl SketchGenCpu {
         Self::new(cpu::random_convs(&conv_layers(), seed, amplitude))
     }
 
-    /// Reads a generator weight file (burnpack, as training writes it).
+    /// Reads a generator weight file (burnpack, as training writes it). A file of a generator
+    /// made before the extent channel ([`IN_CHANNELS_V1`] inputs) is read with that channel's
+    /// weights zero: the same function as before, whatever the extent.
     pub fn from_burnpack(bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
-        Ok(Self::new(cpu::convs_from_burnpack(bytes, &conv_layers())?))
+        match cpu::convs_from_burnpack(bytes, &conv_layers()) {
+            Ok(convs) => Ok(Self::new(convs)),
+            Err(e) => match cpu::convs_from_burnpack(bytes, &conv_layers_with(WIDTHS, IN_CHANNELS_V1)) {
+                Ok(mut convs) => {
+                    convs[0] = with_zero_extent_channel(&convs[0])?;
+                    Ok(Self::new(convs))
+                }
+                Err(_) => Err(e),
+            },
+        }
+    }
+
+    /// These weights as a burnpack file of the current generator ([`IN_CHANNELS`] inputs,
+    /// float32): what a file made before the extent channel becomes.
+    pub fn to_burnpack(&self) -> Vec<u8> {
+        cpu::convs_to_burnpack(&conv_layers(), &self.convs)
+    }
+
+    /// Whether the extent channel has any weight: false for a generator read from a file made
+    /// before it ([`Self::from_burnpack`]), which makes the same terrain at every extent.
+    pub fn knows_extent(&self) -> bool {
+        let (w, _) = self.convs[0].to_oihw();
+        let cin = self.convs[0].cin();
+        w.chunks_exact(cin * 9).any(|o| o[EXTENT_CHANNEL * 9..][..9].iter().any(|&v| v != 0.0))
     }
 
     /// Writes these weights into a burn generator (training starts from shipped weights).
@@ -295,18 +363,19 @@ impl SketchGenCpu {
         (0..n).map(|p| x[(IN_CHANNELS - 1) * n + p] + s.out.pixel(p / side, p % side)[0]).collect()
     }
 
-    /// The terrain of a sketch on the format's 0–255 scale (stretched to span it, like the
-    /// targets), [`SKETCH_PX`]² row-major: one view, as the page draws it while strokes land.
-    pub fn generate(&self, sketch: &Sketch, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
-        self.generate_views(sketch, 1, s, threads)
+    /// The terrain of a sketch on a tile `extent_m` metres wide ([`extent_value`]) on the
+    /// format's 0–255 scale (stretched to span it, like the targets), [`SKETCH_PX`]²
+    /// row-major: one view, as the page draws it while strokes land.
+    pub fn generate(&self, sketch: &Sketch, extent_m: f64, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
+        self.generate_views(sketch, extent_m, 1, s, threads)
     }
 
     /// [`Self::generate`] averaged over the first `views` (1 to [`VIEW_ORDER`]'s 8) rotations and
     /// flips of the sketch, each output turned back before the mean, so the network's
     /// orientation-dependent errors partly cancel; with 8 views the terrain turns exactly with
     /// the sketch. Costs `views` forward passes, each with the mirrored margin ([`MARGIN_PX`]).
-    pub fn generate_views(&self, sketch: &Sketch, views: usize, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
-        let (x, _) = assemble_input(sketch);
+    pub fn generate_views(&self, sketch: &Sketch, extent_m: f64, views: usize, s: &mut SketchScratch, threads: usize) -> Vec<f32> {
+        let (x, _) = assemble_input(sketch, extent_m);
         let n = SKETCH_PX * SKETCH_PX;
         let order = &VIEW_ORDER[..views.clamp(1, VIEW_ORDER.len())];
         let mut sum = vec![0f32; n];
@@ -344,16 +413,23 @@ pub struct SketchGenGpu {
 }
 
 impl SketchGenGpu {
-    /// Reads a generator weight file (burnpack, float32 or float16) onto `device`.
+    /// Reads a generator weight file (burnpack, float32 or float16) onto `device`; a file made
+    /// before the extent channel is read as [`SketchGenCpu::from_burnpack`] reads it.
     pub fn from_burnpack(bytes: &[u8], device: &Device) -> Result<Self, crate::models::WeightError> {
-        let model = crate::models::load_burnpack(SketchGen::new(device), bytes).map_err(|e| e.in_file(WEIGHT_FILE))?;
+        let model = match crate::models::load_burnpack(SketchGen::new(device), bytes) {
+            Ok(m) => m,
+            Err(e) => match SketchGenCpu::from_burnpack(bytes) {
+                Ok(old) => crate::models::load_burnpack(SketchGen::new(device), &old.to_burnpack()).map_err(|e| e.in_file(WEIGHT_FILE))?,
+                Err(_) => return Err(e.in_file(WEIGHT_FILE)),
+            },
+        };
         Ok(Self { model, device: device.clone() })
     }
 
     /// The queued computation for `sketch`, with the mirrored margin ([`MARGIN_PX`]) cut
     /// away again (read back by the callers).
-    fn launch(&self, sketch: &Sketch) -> Tensor<4> {
-        let (x, _) = assemble_input(sketch);
+    fn launch(&self, sketch: &Sketch, extent_m: f64) -> Tensor<4> {
+        let (x, _) = assemble_input(sketch, extent_m);
         let x = Tensor::<4>::from_data(burn::tensor::TensorData::new(with_margin(&x), [1, IN_CHANNELS, PADDED_PX, PADDED_PX]), &self.device);
         let (a, b) = (MARGIN_PX, MARGIN_PX + SKETCH_PX);
         self.model.forward(x).slice([0..1, 0..1, a..b, a..b])
@@ -361,15 +437,15 @@ impl SketchGenGpu {
 
     /// [`SketchGenCpu::generate`] on the GPU, with an asynchronous readback (as browsers
     /// require for GPU buffers).
-    pub async fn generate_async(&self, sketch: &Sketch) -> Result<Vec<f32>, String> {
-        let data = self.launch(sketch).into_data_async().await.map_err(|e| format!("GPU readback failed: {e:?}"))?;
+    pub async fn generate_async(&self, sketch: &Sketch, extent_m: f64) -> Result<Vec<f32>, String> {
+        let data = self.launch(sketch, extent_m).into_data_async().await.map_err(|e| format!("GPU readback failed: {e:?}"))?;
         Ok(to_format_scale(data.try_to_vec::<f32>().map_err(|e| format!("unexpected result type: {e:?}"))?, sketch))
     }
 
     /// [`Self::generate_async`] with a blocking readback (native).
     #[cfg(not(target_arch = "wasm32"))]
-    pub fn generate_blocking(&self, sketch: &Sketch) -> Result<Vec<f32>, String> {
-        Ok(to_format_scale(self.launch(sketch).into_data().try_to_vec::<f32>().map_err(|e| format!("unexpected result type: {e:?}"))?, sketch))
+    pub fn generate_blocking(&self, sketch: &Sketch, extent_m: f64) -> Result<Vec<f32>, String> {
+        Ok(to_format_scale(self.launch(sketch, extent_m).into_data().try_to_vec::<f32>().map_err(|e| format!("unexpected result type: {e:?}"))?, sketch))
     }
 }
 
@@ -377,7 +453,7 @@ impl SketchGenGpu {
 mod tests {
     use super::*;
 
-    /// The generator maps [2, 4, 64, 64] to [2, 1, 64, 64] with at most 1 M parameters.
+    /// The generator maps [2, 5, 64, 64] to [2, 1, 64, 64] with at most 1 M parameters.
     #[cfg(feature = "train")]
     #[test]
     fn generator_shapes_and_size() {
@@ -388,6 +464,51 @@ mod tests {
         let p = g.parameters();
         assert!(p <= 1_000_000, "{p} parameters");
         println!("sketch generator parameters: {p}");
+    }
+
+    /// A weight file of a generator made before the extent channel is read with that channel
+    /// zero and the baseline's weights moved behind it (every other weight as in the file): it
+    /// makes the same terrain at 512 m and 8 km, says it does not know the extent, and keeps
+    /// that through [`SketchGenCpu::to_burnpack`]; a generator with weights on the channel
+    /// makes different terrain at the two extents.
+    #[test]
+    fn an_old_weight_file_gets_a_zero_extent_channel_and_ignores_the_extent() {
+        let old_layers = conv_layers_with(WIDTHS, IN_CHANNELS_V1);
+        let old = cpu::random_convs(&old_layers, 5, 0.1);
+        let g = SketchGenCpu::from_burnpack(&cpu::convs_to_burnpack(&old_layers, &old)).unwrap();
+        let ((w_old, b_old), (w, b)) = (old[0].to_oihw(), g.convs[0].to_oihw());
+        assert_eq!(b, b_old);
+        for o in 0..WIDTHS[0] {
+            for i in 0..IN_CHANNELS {
+                let got = &w[(o * IN_CHANNELS + i) * 9..][..9];
+                match i.cmp(&EXTENT_CHANNEL) {
+                    std::cmp::Ordering::Less => assert_eq!(got, &w_old[(o * IN_CHANNELS_V1 + i) * 9..][..9]),
+                    std::cmp::Ordering::Equal => assert!(got.iter().all(|&v| v == 0.0)),
+                    std::cmp::Ordering::Greater => assert_eq!(got, &w_old[(o * IN_CHANNELS_V1 + i - 1) * 9..][..9]),
+                }
+            }
+        }
+        assert_eq!(g.convs[1..].iter().map(Conv3::to_oihw).collect::<Vec<_>>(), old[1..].iter().map(Conv3::to_oihw).collect::<Vec<_>>());
+        let sk = lopsided_sketch();
+        let mut s = SketchScratch::default();
+        assert!(!g.knows_extent());
+        assert_eq!(g.generate(&sk, FORMAT_EXTENT_M, &mut s, 1), g.generate(&sk, 8192.0, &mut s, 1));
+        assert!(!SketchGenCpu::from_burnpack(&g.to_burnpack()).unwrap().knows_extent());
+        let new = SketchGenCpu::randomized(5, 0.1);
+        assert!(new.knows_extent());
+        assert_ne!(new.generate(&sk, FORMAT_EXTENT_M, &mut s, 1), new.generate(&sk, 8192.0, &mut s, 1));
+    }
+
+    /// The extent channel is 0 at the format's 512 m, 1 at 8 km, −0.25 at 256 m, and clamped
+    /// outside [`EXTENT_RANGE_M`] (a non-finite extent reads as the format's).
+    #[test]
+    fn the_extent_channel_is_a_quarter_of_log2_of_the_extent_over_512_m() {
+        assert_eq!(extent_value(512.0), 0.0);
+        assert_eq!(extent_value(8192.0), 1.0);
+        assert_eq!(extent_value(256.0), -0.25);
+        assert_eq!(extent_value(100.0), -0.25);
+        assert_eq!(extent_value(1e9), 1.25);
+        assert_eq!(extent_value(f64::NAN), 0.0);
     }
 
     /// The CPU kernels compute the burn generator: random weights (uniform ±0.1, biases too)
@@ -447,7 +568,7 @@ mod tests {
     fn both_widenings_give_the_same_heights() {
         let convs = cpu::random_convs(&conv_layers(), 5, 0.1);
         let (a, b) = (SketchGenCpu::with_widths(convs.clone(), false), SketchGenCpu::with_widths(convs, true));
-        let x = assemble_input(&lopsided_sketch()).0;
+        let x = assemble_input(&lopsided_sketch(), FORMAT_EXTENT_M).0;
         let (ha, hb) = (a.forward(&x, SKETCH_PX, &mut Default::default(), 2), b.forward(&x, SKETCH_PX, &mut Default::default(), 2));
         let worst = ha.iter().zip(&hb).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
         assert!(worst <= 1e-6, "{worst}");
@@ -500,14 +621,14 @@ mod tests {
         let g = SketchGenCpu::randomized(5, 0.1);
         let sk = lopsided_sketch();
         let mut s = SketchScratch::default();
-        let all = g.generate_views(&sk, VIEW_ORDER.len(), &mut s, 2);
-        let one = g.generate(&sk, &mut s, 2);
+        let all = g.generate_views(&sk, FORMAT_EXTENT_M, VIEW_ORDER.len(), &mut s, 2);
+        let one = g.generate(&sk, FORMAT_EXTENT_M, &mut s, 2);
         let worst = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
         for t in [1, 4] {
             let sk_t = turned(&sk, t);
-            let d8 = worst(&g.generate_views(&sk_t, VIEW_ORDER.len(), &mut s, 2), &dihedral(&all, SKETCH_PX, t));
+            let d8 = worst(&g.generate_views(&sk_t, FORMAT_EXTENT_M, VIEW_ORDER.len(), &mut s, 2), &dihedral(&all, SKETCH_PX, t));
             assert!(d8 < 0.01, "transform {t}: 8 views differ from the turned terrain by {d8}");
-            let d1 = worst(&g.generate(&sk_t, &mut s, 2), &dihedral(&one, SKETCH_PX, t));
+            let d1 = worst(&g.generate(&sk_t, FORMAT_EXTENT_M, &mut s, 2), &dihedral(&one, SKETCH_PX, t));
             assert!(d1 > 0.5, "transform {t}: one view already turns with the sketch ({d1}), so the test shows nothing");
         }
         assert!(worst(&all, &one) > 0.5, "8 views equal 1 view");

@@ -175,6 +175,56 @@ pub fn drop_small(mask: &[bool], min: usize) -> Vec<bool> {
     out
 }
 
+/// How a person redraws an extracted sketch (the generator's training augmentation, so that
+/// sketches drawn with the page's brushes make natural terrain too): people draw band borders
+/// as smooth blobs, not as the wiggly contours of real terrain, and draw fewer, smoother
+/// strokes than the drainage network has.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HandDrawn {
+    /// Standard deviation (pixels) of the smoothing of the terrain whose quarters become the
+    /// bands: the larger, the blobbier the borders and the fewer the small islands.
+    pub band_sigma_px: f32,
+    /// Standard deviation (pixels) of the smoothing of the stroke masks (0: as extracted).
+    pub stroke_sigma_px: f32,
+    /// Share (0–1) of the ridge and of the valley strokes (8-connected pieces) kept.
+    pub keep_strokes: f32,
+}
+
+/// The sketch a person might draw of `e`'s terrain ([`HandDrawn`]): bands are the quarters of
+/// the target smoothed by `style.band_sigma_px`, with regions smaller than a brush dot
+/// ([`super::tidy::MIN_REGION_PX`]) taken into the band around them; each ridge and valley piece is kept where `keep(piece
+/// index)` is below `style.keep_strokes` (`keep` returns a number in 0–1), then smoothed by
+/// `style.stroke_sigma_px` and drawn at least [`STROKE_PX`] wide. The target is unchanged:
+/// the generator learns the terrain, not the drawing.
+pub fn hand_drawn(e: &Extracted, style: &HandDrawn, mut keep: impl FnMut(usize) -> f32) -> Sketch {
+    let n = SKETCH_PX * SKETCH_PX;
+    let smooth = if style.band_sigma_px > 0.0 { gaussian(&e.target, SKETCH_PX, style.band_sigma_px) } else { e.target.clone() };
+    let mut sketch = Sketch::filled(0);
+    for p in 0..n {
+        sketch.band[p] = ((smooth[p] / 64.0).max(0.0) as u8).min(3);
+    }
+    super::tidy::merge_islands(&mut sketch, &[], &[]);
+    let mut piece = 0;
+    for (from, to) in [(&e.sketch.ridge, &mut sketch.ridge), (&e.sketch.valley, &mut sketch.valley)] {
+        let mut kept = vec![false; n];
+        for comp in super::regions::Components::of_mask(from).members() {
+            if keep(piece) < style.keep_strokes {
+                comp.into_iter().for_each(|p| kept[p] = true);
+            }
+            piece += 1;
+        }
+        if style.stroke_sigma_px > 0.0 {
+            let soft = gaussian(&kept.iter().map(|&k| if k { 1.0 } else { 0.0 }).collect::<Vec<f32>>(), SKETCH_PX, style.stroke_sigma_px);
+            // A 3 px line blurred keeps about 3 / (2.5 σ) of its height at its centre: half of
+            // that is its edge.
+            let edge = (STROKE_PX as f32 / (2.5 * style.stroke_sigma_px)).min(1.0) * 0.5;
+            kept = soft.iter().map(|&v| v >= edge).collect();
+        }
+        *to = kept;
+    }
+    sketch
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -202,6 +252,41 @@ mod tests {
         }
         let (lo, hi) = e.target.iter().fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
         assert_eq!((lo, hi), (0.0, 255.0));
+    }
+
+    /// Rugged terrain: a tilted plane with bumps of several sizes, so its quarters have
+    /// ragged borders and small islands.
+    fn rugged() -> Vec<f32> {
+        (0..SKETCH_PX * SKETCH_PX)
+            .map(|p| {
+                let (x, y) = ((p % SKETCH_PX) as f32, (p / SKETCH_PX) as f32);
+                y + 20.0 * (x * 0.11).sin() * (y * 0.07).cos() + 6.0 * (x * 0.53 + y * 0.31).sin() + (x - 127.5).abs() * 0.6
+            })
+            .collect()
+    }
+
+    /// Redrawn with smoothed bands, a sketch has no band region under a brush dot (the
+    /// extracted one of the same terrain has some), keeps every stroke pixel with all pieces
+    /// kept and no smoothing, and has no stroke with none kept; the bands still follow the
+    /// terrain (≥ 85 % of pixels in the same band).
+    #[test]
+    fn a_redrawn_sketch_has_no_region_under_a_brush_dot_and_keeps_or_drops_whole_strokes() {
+        let e = extract(&rugged()).unwrap();
+        let small = crate::sketch::tidy::MIN_REGION_PX;
+        assert!(crate::sketch::tidy::band_islands(&e.sketch, small) > 0, "the test terrain has small islands");
+        let style = HandDrawn { band_sigma_px: 8.0, stroke_sigma_px: 0.0, keep_strokes: 1.0 };
+        let all = hand_drawn(&e, &style, |_| 0.5);
+        assert_eq!(crate::sketch::tidy::band_islands(&all, small), 0);
+        assert_eq!((all.ridge.clone(), all.valley.clone()), (e.sketch.ridge.clone(), e.sketch.valley.clone()));
+        let same = (0..SKETCH_PX * SKETCH_PX).filter(|&p| all.band[p] == e.sketch.band[p]).count();
+        assert!(same * 100 >= SKETCH_PX * SKETCH_PX * 85, "{same} pixels keep their band");
+        let none = hand_drawn(&e, &HandDrawn { keep_strokes: 0.0, ..style }, |_| 0.5);
+        assert!(!none.ridge.iter().chain(&none.valley).any(|&s| s));
+        assert!(e.sketch.valley.iter().any(|&v| v), "the test terrain has valleys");
+        let smooth = hand_drawn(&e, &HandDrawn { stroke_sigma_px: 2.0, ..style }, |_| 0.5);
+        let count = |m: &[bool]| m.iter().filter(|&&v| v).count();
+        let (before, after) = (count(&e.sketch.valley), count(&smooth.valley));
+        assert!(after * 10 >= before * 8, "smoothed valleys keep most of their pixels: {before} → {after}");
     }
 
     #[test]

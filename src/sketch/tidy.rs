@@ -33,7 +33,7 @@ pub fn band_islands(s: &Sketch, below_px: usize) -> usize {
 /// Merges every band island of `out` smaller than [`MIN_REGION_PX`] that is not a whole region
 /// of a source into the band it borders most, until none is left: each pass merges every
 /// small island into a neighbour, so the number of regions falls.
-fn merge_islands(out: &mut Sketch, sources: &[&Sketch], source_bands: &[Components]) {
+pub(super) fn merge_islands(out: &mut Sketch, sources: &[&Sketch], source_bands: &[Components]) {
     loop {
         let regions = Components::of_bands(out);
         let mut small: Vec<Vec<usize>> = regions

@@ -34,7 +34,8 @@ pub struct Pair {
 }
 
 /// Which windows pairs are cut from: the DEMs (by manifest id; every DEM if empty) and the
-/// range of a window's ground extent (metres; unbounded where `None`).
+/// range of a window's ground extent (metres; unbounded where `None`); and the share of
+/// training pairs whose sketch is redrawn as a person would draw it ([`HAND_DRAWN_RANGE`]).
 /// A run's checkpoint stores its fields beside the other settings ([`SketchConfig::windows`]).
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct WindowChoice {
@@ -47,11 +48,22 @@ pub struct WindowChoice {
     /// Largest ground extent of a window (metres).
     #[serde(default)]
     pub max_extent_m: Option<f64>,
+    /// Share (0–1) of the training split's pairs whose sketch is redrawn by
+    /// [`extract::hand_drawn`] with a random style from [`HAND_DRAWN_RANGE`] (validation
+    /// pairs never are).
+    #[serde(default)]
+    pub hand_drawn: f32,
 }
+
+/// The ranges a redrawn training sketch's style is drawn from, uniformly
+/// ([`extract::HandDrawn`]; each field a (low, high) pair): band borders smoothed by 3–12 px
+/// (the authors' and the page's sketches have borders smoother than the terrain's contours),
+/// strokes by 0–2 px, and 40–100 % of the ridge and valley pieces kept.
+pub const HAND_DRAWN_RANGE: [(f32, f32); 3] = [(3.0, 12.0), (0.0, 2.0), (0.4, 1.0)];
 
 impl WindowChoice {
     /// Every window of every DEM.
-    pub const ALL: Self = Self { dems: Vec::new(), min_extent_m: None, max_extent_m: None };
+    pub const ALL: Self = Self { dems: Vec::new(), min_extent_m: None, max_extent_m: None, hand_drawn: 0.0 };
 
     /// Whether a window `side` samples wide at `spacing_m` has an extent in range.
     fn extent_fits(&self, side: usize, spacing_m: f64) -> bool {
@@ -86,7 +98,16 @@ pub fn random_pair(dems: &[Dem], split: Split, choice: &WindowChoice, rng: &mut 
         _ => grid.data,
     };
     let e = extract::extract(&heights)?;
-    let (input, _) = assemble_input(&e.sketch);
+    let per_mille = (choice.hand_drawn.clamp(0.0, 1.0) * 1000.0).round() as usize;
+    let sketch = if split == Split::Train && rng.below(1000) < per_mille {
+        let mut uniform = |(lo, hi): (f32, f32)| lo + (hi - lo) * rng.below(1001) as f32 / 1000.0;
+        let [b, s, k] = HAND_DRAWN_RANGE;
+        let style = extract::HandDrawn { band_sigma_px: uniform(b), stroke_sigma_px: uniform(s), keep_strokes: uniform(k) };
+        extract::hand_drawn(&e, &style, |_| rng.below(1000) as f32 / 1000.0)
+    } else {
+        e.sketch
+    };
+    let (input, _) = assemble_input(&sketch, side as f64 * hf.spacing_m);
     Some(Pair { input, target: e.target.iter().map(|v| v / 255.0).collect() })
 }
 
@@ -110,7 +131,7 @@ pub fn format_pairs(dir: &Path, exclude: &[String], augment: bool) -> Result<(Ve
         }
         let file = std::fs::File::open(&f).map_err(|e| format!("{}: {e}", f.display()))?;
         let (sketch, dem) = crate::sketch::read_pair(std::io::BufReader::new(file)).map_err(|e| format!("{}: {e}", f.display()))?;
-        let (input, _) = assemble_input(&sketch);
+        let (input, _) = assemble_input(&sketch, crate::models::sketch::FORMAT_EXTENT_M);
         let target: Vec<f32> = dem.iter().map(|v| v / 255.0).collect();
         for t in 0..if augment { 8 } else { 1 } {
             let input = dihedral_channels(&input, n, t);
@@ -521,7 +542,7 @@ mod tests {
         assert_eq!((pairs.len(), names.len()), (8, 1));
         assert_eq!(pairs[0].target[n - 1], 1.0);
         assert_eq!(pairs[0].target[0], 0.0);
-        assert_eq!(pairs[0].input, assemble_input(&sketch).0);
+        assert_eq!(pairs[0].input, assemble_input(&sketch, crate::models::sketch::FORMAT_EXTENT_M).0);
         // Flipped left-right (t = 4): the high side is on the left.
         assert_eq!(pairs[4].target[0], 1.0);
         assert_eq!(format_pairs(&dir, &["area_000".to_string()], true).unwrap().0.len(), 0);
@@ -538,6 +559,22 @@ mod tests {
         assert_eq!(pairs(&dems, Split::Train, 4, &upto(1000.0), 3).len(), 4);
     }
 
+    /// A pair tells the generator its window's ground extent: with windows of 32 samples at
+    /// 30 m only, every pixel of the extent channel is the value of 960 m.
+    #[test]
+    fn a_pairs_extent_channel_is_its_windows_side_times_spacing() {
+        let dems = vec![synthetic(420, 200, 30.0)];
+        let only_32 = WindowChoice { max_extent_m: Some(960.0), ..WindowChoice::ALL };
+        let made = pairs(&dems, Split::Train, 3, &only_32, 4);
+        assert_eq!(made.len(), 3);
+        let n = SKETCH_PX * SKETCH_PX;
+        let want = crate::models::sketch::extent_value(960.0);
+        assert!(want > 0.0);
+        for p in &made {
+            assert!(p.input[crate::models::sketch::EXTENT_CHANNEL * n..][..n].iter().all(|&v| v == want));
+        }
+    }
+
     /// A checkpoint keeps the window choice and the pixel loss beside the other settings:
     /// written and read back they are the same, and a checkpoint from before the DEM,
     /// least-extent and loss settings (only max_extent_m) reads as every DEM with no least
@@ -545,7 +582,7 @@ mod tests {
     #[test]
     fn a_checkpoint_config_round_trips_its_window_choice_and_loss_and_older_ones_read_as_every_dem_and_l1() {
         let cfg = SketchConfig {
-            windows: WindowChoice { dems: vec!["a".into(), "b".into()], min_extent_m: Some(400.0), max_extent_m: Some(3100.0) },
+            windows: WindowChoice { dems: vec!["a".into(), "b".into()], min_extent_m: Some(400.0), max_extent_m: Some(3100.0), hand_drawn: 0.5 },
             loss: PixelLoss::L2,
             ..Default::default()
         };
@@ -568,7 +605,7 @@ mod tests {
     fn pairs_come_only_from_the_named_dems_and_windows_at_least_the_least_extent() {
         let mut dems = vec![synthetic(620, 420, 30.0)];
         dems[0].id = "a".into();
-        let choice = |ids: &[&str], min: f64| WindowChoice { dems: ids.iter().map(|s| s.to_string()).collect(), min_extent_m: Some(min), max_extent_m: None };
+        let choice = |ids: &[&str], min: f64| WindowChoice { dems: ids.iter().map(|s| s.to_string()).collect(), min_extent_m: Some(min), max_extent_m: None, hand_drawn: 0.0 };
         assert_eq!(pairs(&dems, Split::Train, 3, &choice(&["a"], 7000.0), 3).len(), 3);
         assert_eq!(pairs(&dems, Split::Train, 3, &choice(&["a"], 8000.0), 3).len(), 0);
         assert_eq!(pairs(&dems, Split::Train, 3, &choice(&["b"], 100.0), 3).len(), 0);

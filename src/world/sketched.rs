@@ -16,6 +16,10 @@ use super::pins::Pins;
 use super::{BASE_SPACING_M, Neighbourhood, TILE_SAMPLES, Tile, TileCoord, TileSource};
 use crate::sketch::SKETCH_PX;
 
+/// Ground extent of the sketch's tile (metres): its [`SKETCH_PX`] samples at the world's
+/// 32 m, 8,192 m (the generator is told it: [`crate::models::sketch::extent_value`]).
+pub const SKETCH_EXTENT_M: f64 = SKETCH_PX as f64 * BASE_SPACING_M;
+
 /// Distance over which the ground around the sketch falls to 0 m (metres).
 pub const FADE_M: f64 = 4096.0;
 /// Default relief of a sketch (metres between its lowest and highest point).
