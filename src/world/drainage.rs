@@ -135,18 +135,42 @@ pub fn breach_depressions(h: &mut [f32], n: usize, max_depth_m: f32, wall_m: f32
 /// pinned) kept exactly as they are and taken as outlets like the border: the rest drains to
 /// them or to the border, and no channel is cut into them.
 pub fn breach_depressions_around(h: &mut [f32], n: usize, fixed: Option<&[bool]>, max_depth_m: f32, wall_m: f32, gradient_m: f32) -> (usize, usize) {
+    breach(h, n, fixed, max_depth_m, wall_m, gradient_m, Raise::Yes)
+}
+
+/// [`breach_depressions_around`] that only carves: every closed depression with a way out
+/// to the border (or to the `fixed` samples) no higher than its pit gets its channel, as
+/// there, but none is raised. A basin whose spill point is a border sample above its pit
+/// (its way out is beyond the border) is left as it is, for a later pass over a block that
+/// holds it whole; the pits beside the opened channels are left too. Returns (0, samples
+/// lowered).
+pub fn carve_depressions_around(h: &mut [f32], n: usize, fixed: Option<&[bool]>, wall_m: f32, gradient_m: f32) -> (usize, usize) {
+    breach(h, n, fixed, f32::INFINITY, wall_m, gradient_m, Raise::No)
+}
+
+/// Whether [`breach`] may raise samples (fill).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Raise {
+    Yes,
+    No,
+}
+
+/// [`breach_depressions_around`], raising samples only if `raise` says so.
+fn breach(h: &mut [f32], n: usize, fixed: Option<&[bool]>, max_depth_m: f32, wall_m: f32, gradient_m: f32, raise: Raise) -> (usize, usize) {
     assert_eq!(h.len(), n * n, "a {n}×{n} field has {} samples, not {}", n * n, h.len());
     if let Some(f) = fixed {
         assert_eq!(f.len(), n * n, "a fixed mask of {} samples for a {n}×{n} field", f.len());
     }
     let original = h.to_vec();
-    let mut level = original.clone();
-    fill_around(&mut level, n, fixed, 0.0);
     let mut raised = 0;
-    for (z, l) in h.iter_mut().zip(&level) {
-        if *z < l - max_depth_m {
-            *z = l - max_depth_m;
-            raised += 1;
+    if max_depth_m.is_finite() {
+        let mut level = original.clone();
+        fill_around(&mut level, n, fixed, 0.0);
+        for (z, l) in h.iter_mut().zip(&level) {
+            if *z < l - max_depth_m {
+                *z = l - max_depth_m;
+                raised += 1;
+            }
         }
     }
     const BORDER: usize = usize::MAX;
@@ -169,7 +193,13 @@ pub fn breach_depressions_around(h: &mut [f32], n: usize, fixed: Option<&[bool]>
                     a = parent[a];
                     z = below(z, gradient_m);
                 }
-                if let Some(&b) = path.last().filter(|&&b| parent[b] == BORDER) {
+                let blocked = path.last().is_some_and(|&b| parent[b] == BORDER);
+                if blocked && raise == Raise::No {
+                    // No way out below q inside the field: q stays a pit.
+                    flood.push(q, h[q]);
+                    continue;
+                }
+                if let Some(&b) = path.last().filter(|_| blocked) {
                     // The channel cannot go below the border sample b: raise q above it.
                     let mut top = h[b];
                     for _ in 0..path.len() {
@@ -193,7 +223,7 @@ pub fn breach_depressions_around(h: &mut [f32], n: usize, fixed: Option<&[bool]>
     }
     let cut: Vec<f32> = (0..n * n).map(|p| if lowered[p] { original[p] - h[p] } else { 0.0 }).collect();
     let opened = open_around(h, n, &cut, wall_m, fixed);
-    if opened > 0 {
+    if opened > 0 && raise == Raise::Yes {
         // Capping the sides at the channel's depth can leave shallow pits beside it.
         raised += fill_around(h, n, fixed, gradient_m);
     }
@@ -323,6 +353,47 @@ mod tests {
             }
         }
         assert_eq!(depression_fraction(&h, n, 0.0), 0.0);
+    }
+
+    /// Carving only (the first drainage stage): a bowl 30 m deep below a rim 10 m above the
+    /// border, in a field otherwise falling to the border, gets its channel out and drains; a
+    /// second bowl in the same field whose floor lies below every border sample is left
+    /// exactly as it was; no sample anywhere goes up and the border is kept.
+    #[test]
+    fn carving_drains_a_bowl_with_a_way_out_and_leaves_one_below_the_border_as_it_is() {
+        let n = 64;
+        // A dome falling 1 m per sample from the centre column to the border (1,000 m there).
+        let mut h0: Vec<f32> = (0..n * n).map(|p| 1000.0 + (31 - ((p % n) as i32 - 31).abs().max(((p / n) as i32 - 31).abs())) as f32).collect();
+        let bowl = |h: &mut [f32], cx: i32, cy: i32, floor: f32| {
+            for p in 0..n * n {
+                let (dx, dy) = ((p % n) as i32 - cx, (p / n) as i32 - cy);
+                if dx * dx + dy * dy <= 16 {
+                    h[p] = floor + (dx * dx + dy * dy) as f32 * 0.5;
+                }
+            }
+        };
+        bowl(&mut h0, 20, 20, 990.0); // the rim there is ~1,020 m: its floor is below the border (1,000 m)
+        bowl(&mut h0, 44, 44, 1005.0); // its floor above the border: a way out exists
+        let mut h = h0.clone();
+        let (raised, lowered) = carve_depressions_around(&mut h, n, None, 16.0, FLAT_GRADIENT_M);
+        assert_eq!(raised, 0);
+        assert!(lowered > 0);
+        assert!((0..n * n).all(|p| h[p] <= h0[p]), "a sample went up");
+        for p in 0..n * n {
+            let (x, y) = ((p % n) as i32, (p / n) as i32);
+            if x == 0 || y == 0 || x == n as i32 - 1 || y == n as i32 - 1 {
+                assert_eq!(h[p].to_bits(), h0[p].to_bits(), "border sample {p} changed");
+            }
+            if (x - 20).pow(2) + (y - 20).pow(2) <= 16 {
+                assert_eq!(h[p].to_bits(), h0[p].to_bits(), "the bowl below the border changed at {p}");
+            }
+        }
+        // Everything but the low bowl drains: taken as an outlet, every sample has a strictly
+        // descending path to the border or into it.
+        let low: Vec<bool> = (0..n * n).map(|p| ((p % n) as i32 - 20).pow(2) + ((p / n) as i32 - 20).pow(2) <= 16).collect();
+        assert!(!drains(&h0, n) && !drains_to(&h0, n, &low), "the high bowl is closed before");
+        assert!(drains_to(&h, n, &low), "the high bowl drains after");
+        assert!(depression_fraction(&h, n, 0.0) > 0.0, "the low bowl is still closed");
     }
 
     /// Breached around a fixed square (pinned terrain: a 200 m deep bowl in the middle of
