@@ -242,21 +242,6 @@ fn widened_for_kernels(convs: &[Conv3], any_channels: bool) -> Vec<Conv3> {
     conv_layers_of(KERNEL_WIDTHS).into_iter().zip(convs).map(|((_, cout, cin), c)| c.widened(cout, cin)).collect()
 }
 
-/// The first layer `c` of a generator without the extent channel ([`IN_CHANNELS_V1`] inputs)
-/// with one inserted before the baseline, its weights zero.
-fn with_zero_extent_channel(c: &Conv3) -> Result<Conv3, crate::models::WeightError> {
-    let (w, b) = c.to_oihw();
-    let (cout, cin) = (c.cout(), c.cin());
-    let mut wide = vec![0f32; cout * IN_CHANNELS * 9];
-    for o in 0..cout {
-        for i in 0..cin {
-            let to = if i < EXTENT_CHANNEL { i } else { i + 1 };
-            wide[(o * IN_CHANNELS + to) * 9..][..9].copy_from_slice(&w[(o * cin + i) * 9..][..9]);
-        }
-    }
-    Conv3::from_oihw(cout, IN_CHANNELS, &wide, Some(&b)).map_err(|source| crate::models::WeightError::Layer { name: "enc.0.a".into(), source })
-}
-
 /// The sketch generator on the project's own CPU kernels: the same network as
 /// [`SketchGen::forward`] without a tensor framework (the CLI, the page's worker).
 #[derive(Clone, Debug)]
@@ -294,7 +279,7 @@ impl SketchGenCpu {
             Ok(convs) => Ok(Self::new(convs)),
             Err(e) => match cpu::convs_from_burnpack(bytes, &conv_layers_with(WIDTHS, IN_CHANNELS_V1)) {
                 Ok(mut convs) => {
-                    convs[0] = with_zero_extent_channel(&convs[0])?;
+                    convs[0] = convs[0].with_zero_input(EXTENT_CHANNEL);
                     Ok(Self::new(convs))
                 }
                 Err(_) => Err(e),

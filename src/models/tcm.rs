@@ -338,14 +338,7 @@ impl TcmCpu {
     /// same function of the first seven channels, the starting point of a training run.
     pub fn widened(bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
         let mut convs = cpu::convs_from_burnpack(bytes, &conv_layers_with(IN_CHANNELS_V1))?;
-        let first = &convs[0];
-        let (w, b) = first.to_oihw();
-        let (cout, cin) = (first.cout(), first.cin());
-        let mut wide = vec![0f32; cout * IN_CHANNELS * 9];
-        for o in 0..cout {
-            wide[o * IN_CHANNELS * 9..][..cin * 9].copy_from_slice(&w[o * cin * 9..][..cin * 9]);
-        }
-        convs[0] = Conv3::from_oihw(cout, IN_CHANNELS, &wide, Some(&b)).map_err(|source| crate::models::WeightError::Layer { name: "enc.0.a".into(), source })?;
+        convs[0] = convs[0].widened(convs[0].cout(), IN_CHANNELS);
         Ok(Self { convs })
     }
 

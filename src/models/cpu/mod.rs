@@ -134,6 +134,23 @@ impl Conv3 {
         Self::from_oihw(cout, cin, &wide, Some(&b)).expect("zero-padded weights are finite and sized")
     }
 
+    /// The same layer with one zero-weighted input channel inserted before input `at` (`at` =
+    /// the layer's inputs: appended): the same function of the other inputs, whatever the new
+    /// one holds.
+    pub fn with_zero_input(&self, at: usize) -> Self {
+        assert!(at <= self.cin, "input {at} of a layer with {} inputs", self.cin);
+        let (w, b) = self.to_oihw();
+        let cin = self.cin + 1;
+        let mut wide = vec![0.0; self.cout * cin * 9];
+        for o in 0..self.cout {
+            for i in 0..self.cin {
+                let to = if i < at { i } else { i + 1 };
+                wide[(o * cin + to) * 9..][..9].copy_from_slice(&w[(o * self.cin + i) * 9..][..9]);
+            }
+        }
+        Self::from_oihw(self.cout, cin, &wide, Some(&b)).expect("zero-padded weights are finite and sized")
+    }
+
     /// A layer with every weight and bias uniform in ±`amplitude`, drawn from `seed` with
     /// integer arithmetic (tests: untrained networks that still compute something).
     pub fn random(cout: usize, cin: usize, seed: u64, amplitude: f32) -> Self {
