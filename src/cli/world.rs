@@ -403,6 +403,19 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
         let ms = t0.elapsed().as_secs_f64() * 1e3 / (seeds as usize * SIDE_TILES * SIDE_TILES) as f64;
         regions.push((name, r, ms));
     }
+    // Where the learned world's time went, per world tile made (each part's runs and ms).
+    let spent = learned.time_spent();
+    let world_tiles = (seeds as usize * SIDE_TILES * SIDE_TILES) as f64;
+    let mut time_by_part = serde_json::to_value(spent).expect("json");
+    for part in time_by_part.as_object_mut().expect("an object").values_mut() {
+        let ms = part["ms"].as_f64().unwrap_or(0.0);
+        part["ms_per_world_tile"] = serde_json::json!(ms / world_tiles);
+        part["share"] = serde_json::json!(ms / spent.total_ms().max(1e-9));
+    }
+    eprintln!(
+        "learned world, ms per world tile by part: {}",
+        time_by_part.as_object().expect("an object").iter().map(|(k, v)| format!("{k} {:.1}", v["ms_per_world_tile"].as_f64().unwrap_or(0.0))).collect::<Vec<_>>().join(", ")
+    );
     let mut sides = Vec::new();
     let mut drainage = serde_json::Map::new();
     for side in world_eval::WINDOW_SIDES {
@@ -481,7 +494,7 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
     let grids = terrain::train::tcm::grids(&dems);
     let domes = terrain::train::tcm::phase_dome_bias(&models.tcm, &grids, 400, terrain::models::cpu::default_threads());
     let domes: Vec<serde_json::Value> = domes.iter().enumerate().map(|(p, (m, e))| serde_json::json!({ "phase": p, "made_minus_real_m": m, "standard_error_m": e })).collect();
-    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "drainage_256_windows": drainage, "seams_and_speed": seams, "ruggedness_128m_tiles": ruggedness, "tile_dome_bias_by_phase_128m_validation": domes })).expect("json"));
+    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "drainage_256_windows": drainage, "seams_and_speed": seams, "tcm_time_by_part": time_by_part, "ruggedness_128m_tiles": ruggedness, "tile_dome_bias_by_phase_128m_validation": domes })).expect("json"));
     Ok(())
 }
 

@@ -20,19 +20,6 @@ use std::collections::BinaryHeap;
 /// Rise (metres per sample) given to filled flats so that they drain.
 pub const FLAT_GRADIENT_M: f32 = 1e-3;
 
-/// A height in the flood's heap. The heap orders by the derived `PartialOrd` (f32's own
-/// comparison; NaN samples never enter it), which every world made so far depends on; `Ord`
-/// only completes the trait bound.
-#[derive(PartialEq, PartialOrd)]
-#[allow(clippy::derive_ord_xor_partial_ord)]
-struct Height(f32);
-impl Eq for Height {}
-impl Ord for Height {
-    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
-        self.0.total_cmp(&o.0)
-    }
-}
-
 /// The priority-flood walk over an `n`×`n` field: samples come out lowest first, starting
 /// from the border (the outlets); each one's unvisited 4-neighbours are then taken in. A
 /// sequence number keeps the order of equal heights fixed (first in, first out), so the
@@ -40,14 +27,26 @@ impl Ord for Height {
 struct Flood {
     n: usize,
     done: Vec<bool>,
-    heap: BinaryHeap<Reverse<(Height, u64, usize)>>,
+    /// (height key ([`height_key`]) << 32 | sequence number, sample): one integer comparison
+    /// orders two entries as (f32 comparison of the heights, then first in first out) did.
+    heap: BinaryHeap<Reverse<(u64, u32)>>,
     seq: u64,
+}
+
+/// A key whose unsigned order is the order of the heights by `f32` comparison (every world
+/// made so far depends on it; NaN never enters the flood): the IEEE bits with the sign flipped
+/// for positive heights and all bits flipped for negative ones, −0 taken as +0 (they compare
+/// equal).
+fn height_key(z: f32) -> u64 {
+    let b = if z == 0.0 { 0 } else { z.to_bits() };
+    (if b >> 31 == 1 { !b } else { b | 1 << 31 }) as u64
 }
 
 impl Flood {
     /// The walk with every border sample of `h` queued at its height, then every `fixed`
     /// sample (outlets too, in row-major order).
     fn from_outlets(h: &[f32], n: usize, fixed: Option<&[bool]>) -> Self {
+        assert!(n * n <= u32::MAX as usize, "a {n}×{n} field is too large for the flood");
         let mut f = Self { n, done: vec![false; n * n], heap: BinaryHeap::new(), seq: 0 };
         let border = (0..n).flat_map(|i| [i, (n - 1) * n + i, i * n, i * n + n - 1]);
         let fixed = fixed.into_iter().flat_map(|m| m.iter().enumerate().filter(|&(_, &k)| k).map(|(p, _)| p));
@@ -62,13 +61,16 @@ impl Flood {
 
     /// Queues sample `p` at height `z`.
     fn push(&mut self, p: usize, z: f32) {
-        self.heap.push(Reverse((Height(z), self.seq, p)));
+        // Each sample is queued at most once per walk (n² < 2³²) but a walk may be restarted
+        // on the same flood: the sequence number must still fit its 32 bits.
+        assert!(self.seq < 1 << 32, "more than 2³² samples queued");
+        self.heap.push(Reverse((height_key(z) << 32 | self.seq, p as u32)));
         self.seq += 1;
     }
 
     /// The lowest queued sample, if any.
     fn pop(&mut self) -> Option<usize> {
-        self.heap.pop().map(|Reverse((_, _, p))| p)
+        self.heap.pop().map(|Reverse((_, p))| p as usize)
     }
 
     /// The 4-neighbours of `p` not visited yet and not NaN in `h`, now marked visited
@@ -250,12 +252,14 @@ fn open_around(h: &mut [f32], n: usize, cut: &[f32], wall_m: f32, fixed: Option<
     let mut heap = BinaryHeap::new();
     for p in (0..n * n).filter(|&p| cut[p] > 0.0) {
         cone[p] = (h[p], cut[p]);
-        heap.push(Reverse((Height(h[p]), p)));
+        heap.push(Reverse(height_key(h[p]) << 32 | p as u64));
     }
     let diagonal = wall_m * std::f32::consts::SQRT_2;
-    while let Some(Reverse((Height(z), p))) = heap.pop() {
-        if z > cone[p].0 {
-            continue;
+    while let Some(Reverse(key)) = heap.pop() {
+        let p = (key & u32::MAX as u64) as usize;
+        let z = cone[p].0;
+        if height_key(z) != key >> 32 {
+            continue; // a later, lower cone replaced this entry
         }
         let (x, y) = ((p % n) as i64, (p / n) as i64);
         for (dx, dy) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)] {
@@ -267,7 +271,7 @@ fn open_around(h: &mut [f32], n: usize, cut: &[f32], wall_m: f32, fixed: Option<
             let zq = z + if dx != 0 && dy != 0 { diagonal } else { wall_m };
             if inner(q) && !h[q].is_nan() && zq < cone[q].0 && zq < h[q] {
                 cone[q] = (zq, cone[p].1);
-                heap.push(Reverse((Height(zq), q)));
+                heap.push(Reverse(height_key(zq) << 32 | q as u64));
             }
         }
     }
@@ -306,6 +310,20 @@ pub fn depression_fraction(h: &[f32], n: usize, depth_m: f32) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The flood's integer keys order heights exactly as `f32` comparison does: −0 and +0 are
+    /// one key, and every other pair of the listed heights (negatives, subnormals, ±∞) is in
+    /// the same order by key as by value.
+    #[test]
+    fn height_keys_order_heights_as_f32_comparison_does_with_minus_zero_equal_to_zero() {
+        let v = [f32::NEG_INFINITY, -3.0e38, -1234.5, -1.0, -1e-40, -0.0, 0.0, 1e-45, 1e-40, 1e-3, 1.0, 1.0 + f32::EPSILON, 2.0, 8848.0, 3.0e38, f32::INFINITY];
+        assert_eq!(height_key(-0.0), height_key(0.0));
+        for a in v {
+            for b in v {
+                assert_eq!(height_key(a).cmp(&height_key(b)), a.partial_cmp(&b).unwrap(), "{a} vs {b}");
+            }
+        }
+    }
 
     /// Whether every sample of `h` has a strictly descending 4-connected path to the border
     /// (found by walking from the border upwards).

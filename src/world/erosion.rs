@@ -9,7 +9,8 @@
 //!   route the water: each sample sends it to its steepest lower 8-neighbour on the filled
 //!   surface, so a closed basin spills over its lowest sill;
 //! - every sample's drainage area `A` (samples, itself included) is summed down the flow;
-//! - lowest first, each sample above its receiver moves towards it:
+//! - receivers before their donors (a walk up the flow from the outlets: the same bits as
+//!   lowest first, without a sort), each sample above its receiver moves towards it:
 //!   `h' = (h + F·h'_r + α·h₀) / (1 + F + α)` with `F = K·√A / d` (`d` the step in samples),
 //!   `h₀` the generator's height and `α` the pull back to it; a sample in a lake (not above its
 //!   receiver) is only pulled back to `h₀`;
@@ -60,7 +61,8 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
     let free: Vec<bool> = (0..n * n).map(|q| !outlet(q)).collect();
     let start = h.to_vec();
     let mut filled = vec![0f32; n * n];
-    let mut order: Vec<usize> = (0..n * n).collect();
+    let mut order: Vec<usize> = Vec::with_capacity(n * n);
+    let mut donors = Donors::default();
     let mut receiver = vec![NONE; n * n];
     let mut step = vec![1f32; n * n];
     let mut area = vec![0f32; n * n];
@@ -68,8 +70,6 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
     for _ in 0..p.iterations {
         filled.copy_from_slice(h);
         fill_around(&mut filled, n, fixed, FLAT_GRADIENT_M);
-        // Lowest first; ties (only on outlets, the fill makes the rest strict) by index.
-        order.sort_unstable_by(|&a, &b| filled[a].total_cmp(&filled[b]).then(a.cmp(&b)));
         for q in 0..n * n {
             receiver[q] = NONE;
             if !free[q] {
@@ -86,6 +86,7 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
                 }
             }
         }
+        receivers_first(&receiver, &mut order, &mut donors);
         area.iter_mut().zip(&free).for_each(|(a, &f)| *a = if f { 1.0 } else { 0.0 });
         for &q in order.iter().rev() {
             if receiver[q] != NONE {
@@ -122,6 +123,47 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
             }
         }
     }
+}
+
+/// The samples' donors (the samples whose receiver they are), as compressed lists.
+#[derive(Default)]
+struct Donors {
+    /// Where each sample's donors start in `list` (`n² + 1` entries).
+    start: Vec<usize>,
+    list: Vec<usize>,
+}
+
+/// Every sample in an order where each comes after its receiver (outlets first), into `order`:
+/// a walk up the flow from the outlets. Each update of an iteration reads only its own sample
+/// and its receiver's, and the drainage areas are sums of whole samples (exact in `f32`), so
+/// any such order gives the same bits as sorting by height; this one takes O(n²) instead of a
+/// sort.
+fn receivers_first(receiver: &[usize], order: &mut Vec<usize>, d: &mut Donors) {
+    let len = receiver.len();
+    d.start.clear();
+    d.start.resize(len + 1, 0);
+    for &r in receiver.iter().filter(|&&r| r != NONE) {
+        d.start[r + 1] += 1;
+    }
+    for q in 0..len {
+        d.start[q + 1] += d.start[q];
+    }
+    d.list.clear();
+    d.list.resize(d.start[len], 0);
+    let mut fill = d.start[..len].to_vec();
+    for (q, &r) in receiver.iter().enumerate().filter(|&(_, &r)| r != NONE) {
+        d.list[fill[r]] = q;
+        fill[r] += 1;
+    }
+    order.clear();
+    order.extend((0..len).filter(|&q| receiver[q] == NONE));
+    let mut k = 0;
+    while k < order.len() {
+        let r = order[k];
+        order.extend_from_slice(&d.list[d.start[r]..d.start[r + 1]]);
+        k += 1;
+    }
+    assert_eq!(order.len(), len, "the flow has a cycle");
 }
 
 #[cfg(test)]
@@ -180,6 +222,44 @@ mod tests {
         let sill = |f: &[f32]| (14..19).map(|x| f[24 * n + x]).fold(f32::MIN, f32::max);
         assert!(sill(&h) < sill(&h0) - 30.0, "dam crest on the valley floor {} → {}", sill(&h0), sill(&h));
         assert!(h[24 * n + 8] < h0[24 * n + 8] - 5.0, "valley floor below the dam {} → {}", h0[24 * n + 8], h[24 * n + 8]);
+    }
+
+    /// The update order puts every sample once, after its receiver, on a branching flow: a
+    /// comb of 40 samples whose teeth drain into a spine that drains into an outlet, the
+    /// samples numbered against the flow (so that index order would be wrong).
+    #[test]
+    fn receivers_first_lists_every_sample_once_and_after_its_receiver() {
+        let len = 40;
+        // Sample 39 is the outlet; 30..39 the spine (k drains to k + 1); the rest are teeth
+        // draining to the spine sample k % 9 + 30.
+        let receiver: Vec<usize> = (0..len)
+            .map(|k| {
+                if k == 39 {
+                    NONE
+                } else if k >= 30 {
+                    k + 1
+                } else {
+                    k % 9 + 30
+                }
+            })
+            .collect();
+        let (mut order, mut donors) = (Vec::new(), Donors::default());
+        receivers_first(&receiver, &mut order, &mut donors);
+        let mut at = vec![usize::MAX; len];
+        for (pos, &q) in order.iter().enumerate() {
+            assert_eq!(at[q], usize::MAX, "sample {q} listed twice");
+            at[q] = pos;
+        }
+        assert!(at.iter().all(|&p| p < len), "a sample is missing");
+        for q in 0..len {
+            if receiver[q] != NONE {
+                assert!(at[receiver[q]] < at[q], "sample {q} before its receiver {}", receiver[q]);
+            }
+        }
+        // The same lists on reuse of the buffers.
+        let first = order.clone();
+        receivers_first(&receiver, &mut order, &mut donors);
+        assert_eq!(order, first);
     }
 
     /// The same input makes the same bits; no iterations change nothing.

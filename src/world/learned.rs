@@ -45,6 +45,9 @@
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use web_time::Instant;
 
 use super::drainage;
 use super::erosion::{self, Erosion};
@@ -276,6 +279,51 @@ pub struct LearnedSource {
     scratch: Mutex<(TcmScratch, GrowScratch)>,
     threads: usize,
     pins: Pins,
+    spent: Mutex<TimeSpent>,
+}
+
+/// Time spent in one part of making tiles, and how many times it ran.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PartTime {
+    /// Runs of this part (network tiles, blocks).
+    pub runs: u64,
+    /// Wall-clock milliseconds spent in it, summed over the runs.
+    pub ms: f64,
+}
+
+impl PartTime {
+    fn add(&mut self, d: Duration) {
+        self.runs += 1;
+        self.ms += d.as_secs_f64() * 1e3;
+    }
+}
+
+/// Where a [`LearnedSource`]'s time has gone since it was made: each part of making its tiles
+/// (see the module documentation), in wall-clock milliseconds of the thread that ran it (the
+/// networks use [`LearnedSource::new`]'s threads inside that time).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct TimeSpent {
+    /// The TCM's 128 m network tiles (the network only).
+    pub tcm: PartTime,
+    /// Joining each new 128 m tile to its input neighbours (one run per network tile).
+    pub seams_128m: PartTime,
+    /// The erosion of 128 m blocks, both stages ([`EROSION`]).
+    pub erosion: PartTime,
+    /// The channels cut through the second erosion stage's blocks ([`COARSE_CHANNEL_WALL_M`]).
+    pub channels_128m: PartTime,
+    /// The ×4 step's 32 m tiles (the network and its input; one run per tile).
+    pub grow: PartTime,
+    /// The first 32 m drainage stage: blocks carved ([`drainage::carve_depressions_around`]).
+    pub carve_32m: PartTime,
+    /// The second 32 m drainage stage: blocks breached ([`BREACH_DEPTH_M`]).
+    pub breach_32m: PartTime,
+}
+
+impl TimeSpent {
+    /// The milliseconds of every part, summed.
+    pub fn total_ms(&self) -> f64 {
+        [self.tcm, self.seams_128m, self.erosion, self.channels_128m, self.grow, self.carve_32m, self.breach_32m].iter().map(|p| p.ms).sum()
+    }
 }
 
 impl LearnedSource {
@@ -291,7 +339,17 @@ impl LearnedSource {
             scratch: Mutex::default(),
             threads: threads.max(1),
             pins: Pins::new(),
+            spent: Mutex::default(),
         }
+    }
+
+    /// Where this source's time has gone so far ([`TimeSpent`]).
+    pub fn time_spent(&self) -> TimeSpent {
+        *self.spent.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn spent(&self, f: impl FnOnce(&mut TimeSpent)) {
+        f(&mut self.spent.lock().unwrap_or_else(|p| p.into_inner()));
     }
 
     /// The same networks with `pins` in the world (see [`super::pins`]) and empty caches: the
@@ -325,14 +383,20 @@ impl LearnedSource {
         let centres: [f32; 9] = block.map(|b| macro_height(seed, b));
         let rugged: [f32; 9] = block.map(|b| ruggedness(seed, b));
         let x = tcm::assemble_input(&tiles, &centres, &rugged, tile_seed(seed, c));
+        let t0 = Instant::now();
         let out = {
             let mut s = self.scratch.lock().unwrap_or_else(|p| p.into_inner());
             self.models.tcm.forward(&x, &mut s.0, self.threads)
         };
+        let t1 = Instant::now();
         let level = centres[4];
         let mut tile: Vec<f32> = out.into_iter().map(|v| v * HEIGHT_SCALE_M + level).collect();
         let sides = seam::SIDES.map(|(di, dj)| deps.get(&c.offset(di, dj)).map(|t| t.as_slice()));
         seam::join_edges(&mut tile, TILE_PX, sides);
+        self.spent(|t| {
+            t.tcm.add(t1 - t0);
+            t.seams_128m.add(t1.elapsed());
+        });
         let tile = Arc::new(tile);
         let mut cache = self.coarse.lock().unwrap_or_else(|p| p.into_inner());
         if cache.len() >= COARSE_CACHE_TILES {
@@ -364,10 +428,18 @@ impl LearnedSource {
     /// [`erosion_block_corner`]) of world `seed`.
     fn eroded_block(&self, seed: u64, stage: usize, corner: TileCoord) -> Arc<Vec<f32>> {
         let work = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
+            let t0 = Instant::now();
             erosion::erode(h, m, fixed, &EROSION);
+            let t1 = Instant::now();
             if stage == 1 {
                 drainage::breach_depressions_around(h, m, fixed, f32::INFINITY, COARSE_CHANNEL_WALL_M, COARSE_CHANNEL_GRADIENT_M);
             }
+            self.spent(|t| {
+                t.erosion.add(t1 - t0);
+                if stage == 1 {
+                    t.channels_128m.add(t1.elapsed());
+                }
+            });
         };
         self.block_cached(&self.eroded[stage], seed, corner, (TILE_PX, EROSION_BLOCK_TILES), work, |c| {
             if stage == 0 {
@@ -475,7 +547,9 @@ impl LearnedSource {
     /// square, metres).
     fn filled_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
         let carve = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
+            let t0 = Instant::now();
             drainage::carve_depressions_around(h, m, fixed, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
+            self.spent(|t| t.carve_32m.add(t0.elapsed()));
         };
         self.block_cached(&self.filled, seed, corner, (TILE_SAMPLES, FILL_BLOCK_TILES), carve, |c| self.raw_tile(seed, c).to_vec())
     }
@@ -485,7 +559,9 @@ impl LearnedSource {
     /// second stage).
     fn fill_cached(&self, cache: &Mutex<BlockCache>, seed: u64, corner: TileCoord, tile: impl Fn(TileCoord) -> Vec<f32>) -> Arc<Vec<f32>> {
         let drain = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
+            let t0 = Instant::now();
             drainage::breach_depressions_around(h, m, fixed, BREACH_DEPTH_M, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
+            self.spent(|t| t.breach_32m.add(t0.elapsed()));
         };
         self.block_cached(cache, seed, corner, (TILE_SAMPLES, FILL_BLOCK_TILES), drain, tile)
     }
@@ -574,10 +650,12 @@ impl LearnedSource {
         let window = cut(&field, n3, w, o, o);
         let (gx0, gy0) = (coord.i as i64 * TILE_PX as i64 - grow::MARGIN as i64, coord.j as i64 * TILE_PX as i64 - grow::MARGIN as i64);
         let (x, n64, n32) = grow::assemble(&window, seed, gx0, gy0);
+        let t0 = Instant::now();
         let residual = {
             let mut s = self.scratch.lock().unwrap_or_else(|p| p.into_inner());
             self.models.grow.forward(&x, &n64, &n32, w, &mut s.1, self.threads)
         };
+        self.spent(|t| t.grow.add(t0.elapsed()));
         let base = grow::base(&window);
         let (m, off) = (w * grow::FACTOR, grow::MARGIN * grow::FACTOR);
         (0..TILE_SAMPLES * TILE_SAMPLES)
@@ -648,7 +726,7 @@ mod tests {
     /// eroded 128 m block of each stage, one per 32 m ×4 step (16) and one per drained block
     /// (4 + 1); a tile of the same block then needs none.
     #[test]
-    fn prepare_makes_a_tile_in_one_piece_per_network_tile_eroded_block_and_drained_block() {
+    fn prepare_makes_a_tile_in_one_piece_per_network_tile_eroded_block_and_drained_block_and_times_each_piece_once() {
         let models = random_models();
         let (seed, c) = (9, TileCoord::new(3, -2));
         let whole = LearnedSource::new(models.clone(), 1).generate(seed, c, &Neighbourhood::default());
@@ -673,6 +751,13 @@ mod tests {
             }
         }
         assert_eq!(steps, coarse.len() + stage1.len() + stage2.len() + 16 + 4 + 1);
+        // The time spent counts each piece once, in its part, and the parts add up.
+        let t = src.time_spent();
+        let runs = [t.tcm.runs, t.seams_128m.runs, t.erosion.runs, t.channels_128m.runs, t.grow.runs, t.carve_32m.runs, t.breach_32m.runs];
+        assert_eq!(runs, [coarse.len(), coarse.len(), stage1.len() + stage2.len(), stage2.len(), 16, 4, 1].map(|n| n as u64));
+        let parts = [t.tcm, t.seams_128m, t.erosion, t.channels_128m, t.grow, t.carve_32m, t.breach_32m];
+        assert!(parts.iter().all(|p| p.ms > 0.0), "{t:?}");
+        assert!((parts.iter().map(|p| p.ms).sum::<f64>() - t.total_ms()).abs() < 1e-9);
         let made = src.generate(seed, c, &Neighbourhood::default());
         assert_eq!(made.heights, whole.heights);
         let same = (0..9).map(|n| c.offset(n % 3 - 1, n / 3 - 1)).find(|&d| d != c && second_block_corner(d) == second).expect("a 2×2 block has a tile beside c");
