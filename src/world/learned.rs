@@ -18,7 +18,7 @@
 //!   [`grow::MARGIN`] samples of its neighbours), with noise drawn at global positions, so
 //!   neighbouring 32 m tiles agree along their edges wherever their 128 m fields do;
 //! - each 32 m drainage stage below first drains its block at coarser spacings, 1 km down to
-//!   64 m ([`COARSER_DRAINAGE`], [`super::drainage::drain_coarser`]), so that valleys are as
+//!   64 m, three times over ([`COARSER_DRAINAGE`], [`super::drainage::drain_coarser`]), so that valleys are as
 //!   wide as their scale, not notches that area-averaging closes again;
 //! - its closed depressions are then carved ([`super::drainage::carve_depressions_around`])
 //!   over the block of 2×2 tiles (corner tile at even i and j) it belongs to, the block's
@@ -104,18 +104,24 @@ pub const BREACH_DEPTH_M: f32 = 50.0;
 pub const CHANNEL_WALL_M: f32 = 16.0;
 
 /// The coarser spacings each 32 m drainage stage drains its block at before its own, as
-/// factors of 32 m, coarsest first: 1 km, 512 m, 256 m, 128 m, 64 m
-/// ([`drainage::drain_coarser`]: the block area-averaged, carved in the first stage and
-/// breached in the second, the change interpolated back). A channel carved at 32 m alone is a
-/// notch one sample wide that area-averaging closes again; these are valleys as wide as their
-/// scale. eval-tcm, 4 seeds, weights ffa8e378: realism ratio with the drainage statistics 0.412
-/// → 0.284 (at 128 / 256 px 0.171 / 0.191 → 0.162 / 0.171), flat area 1.48 % → 0.60 %, closed
-/// depressions at 96 m 7.2 % → 5.9 %, 81 → 85 ms a tile. Only 64 m: 0.368; 128 m and 64 m:
-/// 0.358; 256 m down: 0.316; 512 m down: 0.292; adding 2 km: 0.281. The second stage carving
-/// instead of breaching: 0.593 (flat 3.75 %). The change's 3×3-cell maximum interpolated
-/// instead of the change (deeper channels in the averaged field): 0.286, but 0.196 / 0.194
-/// without the drainage statistics.
+/// factors of 32 m, coarsest first: 1 km, 512 m, 256 m, 128 m, 64 m; the list is run
+/// [`COARSER_DRAINAGE_PASSES`] times ([`drainage::drain_coarser`]: the block area-averaged,
+/// carved in the first stage and breached in the second, the change interpolated back). A
+/// channel carved at 32 m alone is a notch one sample wide that area-averaging closes again;
+/// these are valleys as wide as their scale. eval-tcm, 4 seeds, weights ffa8e378, realism
+/// ratio with the drainage statistics (at 128 / 256 px without them) from 0.412 (0.171 /
+/// 0.191) without: one pass 0.284 (0.162 / 0.171); two 0.244; three 0.228 (0.157 / 0.151);
+/// four 0.223. With 8 seeds: none 0.306 (one pass), three 0.256, four 0.259. One pass of
+/// only 64 m: 0.368; 128 m and 64 m: 0.358; 256 m down: 0.316; 512 m down: 0.292; adding
+/// 2 km: 0.281; each factor twice in a row instead of the list twice: 0.242; the second stage
+/// carving instead of breaching: 0.593 (flat 3.75 %); V sides of 4 or 8 m per 32 m instead of
+/// [`CHANNEL_WALL_M`]: 0.265 / 0.296 but 0.186 / 0.193 at 128 px; the change's 3×3-cell
+/// maximum interpolated instead of the change (deeper channels when averaged): 0.286, but
+/// 0.196 / 0.194 without the drainage statistics.
 pub const COARSER_DRAINAGE: [usize; 5] = [32, 16, 8, 4, 2];
+
+/// How many times each 32 m drainage stage runs [`COARSER_DRAINAGE`] (each pass ~4 ms a tile).
+pub const COARSER_DRAINAGE_PASSES: usize = 3;
 
 /// How far (tiles, Chebyshev distance) a pin reaches into the 128 m network tiles: a tile's
 /// 128 m tile takes the pinned tiles beside it and its schedule dependencies, which take
@@ -565,7 +571,7 @@ impl LearnedSource {
     fn filled_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
         let carve = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
             let t0 = Instant::now();
-            for factor in COARSER_DRAINAGE {
+            for factor in COARSER_DRAINAGE.repeat(COARSER_DRAINAGE_PASSES) {
                 drainage::drain_coarser(h, m, fixed, factor, None, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
             }
             drainage::carve_depressions_around(h, m, fixed, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
@@ -580,7 +586,7 @@ impl LearnedSource {
     fn fill_cached(&self, cache: &Mutex<BlockCache>, seed: u64, corner: TileCoord, tile: impl Fn(TileCoord) -> Vec<f32>) -> Arc<Vec<f32>> {
         let drain = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
             let t0 = Instant::now();
-            for factor in COARSER_DRAINAGE {
+            for factor in COARSER_DRAINAGE.repeat(COARSER_DRAINAGE_PASSES) {
                 drainage::drain_coarser(h, m, fixed, factor, Some(BREACH_DEPTH_M), CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
             }
             drainage::breach_depressions_around(h, m, fixed, BREACH_DEPTH_M, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
