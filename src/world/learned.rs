@@ -114,7 +114,7 @@ pub const CHANNEL_WALL_M: f32 = 16.0;
 /// four 0.223. With 8 seeds: none 0.306 (one pass), three 0.256, four 0.259. One pass of
 /// only 64 m: 0.368; 128 m and 64 m: 0.358; 256 m down: 0.316; 512 m down: 0.292; adding
 /// 2 km: 0.281; each factor twice in a row instead of the list twice: 0.242; the second stage
-/// carving instead of breaching: 0.593 (flat 3.75 %); V sides of 4 or 8 m per 32 m instead of
+/// carving instead of breaching (with the 3×3 maximum below): 0.593 (flat 3.75 %); V sides of 4 or 8 m per 32 m instead of
 /// [`CHANNEL_WALL_M`]: 0.265 / 0.296 but 0.186 / 0.193 at 128 px; the change's 3×3-cell
 /// maximum interpolated instead of the change (deeper channels when averaged): 0.286, but
 /// 0.196 / 0.194 without the drainage statistics.
