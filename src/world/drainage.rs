@@ -153,9 +153,10 @@ pub fn carve_depressions_around(h: &mut [f32], n: usize, fixed: Option<&[bool]>,
 /// Drains the `n`×`n` block `h` (metres, row-major) as seen at `factor` times its spacing: `h`
 /// area-averaged over `factor`² samples is carved ([`carve_depressions_around`]) or, with
 /// `max_depth_m`, breached ([`breach_depressions_around`]: pits raised where their way out is
-/// beyond the border, basins deeper than that filled level), its border, the cells holding
-/// a `fixed` sample and the cells beside those kept; the change is then interpolated bilinearly (cell centres, clamped at
-/// the edges) onto every sample of `h` but its border and the `fixed` ones. A channel carved
+/// beyond the border, basins deeper than that filled level), its border, the cells holding a
+/// `fixed` sample and the cells beside those kept; the change is then interpolated bilinearly
+/// (cell centres, clamped at the edges) onto every sample of `h` but its border and the
+/// `fixed` ones. A channel carved
 /// this way is `factor` samples wide at its floor, where one carved at `h`'s own spacing is a
 /// notch that area-averaging closes again. Interpolated, a channel one cell wide spreads over
 /// about three at half its depth in the averaged field: draining at several factors in turn,
@@ -177,14 +178,7 @@ pub fn drain_coarser(h: &mut [f32], n: usize, fixed: Option<&[bool]>, factor: us
     }
     // The cells beside a held one are held too: a sample next to a fixed one then interpolates
     // between two unchanged cells, where half the change of the cell beside would be a step.
-    let held: Vec<bool> = (0..c * c)
-        .map(|q| {
-            (0..9).any(|k| {
-                let (i, j) = ((q % c) as i64 + k % 3 - 1, (q / c) as i64 + k / 3 - 1);
-                (0..c as i64).contains(&i) && (0..c as i64).contains(&j) && held[j as usize * c + i as usize]
-            })
-        })
-        .collect();
+    let held = crate::sketch::extract::dilate(&held, c, 1);
     let before = avg.clone();
     let held = held.iter().any(|&b| b).then_some(&held[..]);
     let (wall, gradient) = (wall_m * factor as f32, gradient_m * factor as f32);
@@ -376,19 +370,18 @@ pub fn depression_fraction(h: &[f32], n: usize, depth_m: f32) -> f64 {
 mod tests {
     use super::*;
 
-    /// The `n`×`n` field `h` area-averaged over `f`² samples.
+    /// The `n`×`n` field `h` area-averaged over `f`² samples, as `eval-tcm`'s drainage
+    /// statistics average the world.
     fn averaged(h: &[f32], n: usize, f: usize) -> Vec<f32> {
-        let c = n / f;
-        (0..c * c).map(|q| (0..f * f).map(|k| h[((q / c) * f + k / f) * n + (q % c) * f + k % f]).sum::<f32>() / (f * f) as f32).collect()
+        crate::dem::Heightfield::new(n, n, 1.0, h.to_vec()).resample_area(f as f64).expect("a coarser spacing").data
     }
 
     /// A bowl drained only by a notch one sample wide to a valley mouth at the border: at its
-    /// own spacing it drains, averaged
-    /// over 4×4 samples most of it is a closed depression again (the notch is a quarter of a
-    /// cell). Drained at 4× its spacing (carving) the averaged field has under 15 % of its area
-    /// in closed depressions deeper than 0.5 m (over 30 % before; the interpolation spreads a
-    /// channel one cell wide over three, about half as deep); nothing rises, and the border and a fixed
-    /// patch keep their bits.
+    /// own spacing it drains, averaged over 4×4 samples most of it is a closed depression
+    /// again (the notch is a quarter of a cell). Drained at 4× its spacing (carving) the
+    /// averaged field has under 15 % of its area in closed depressions deeper than 0.5 m (over
+    /// 30 % before; the interpolation spreads a channel one cell wide over three, about half as
+    /// deep); nothing rises, and the border and a fixed patch keep their bits.
     #[test]
     fn draining_at_four_times_the_spacing_opens_most_of_a_bowl_that_averaging_over_four_samples_closes() {
         let n = 64;

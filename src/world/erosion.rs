@@ -131,6 +131,8 @@ struct Donors {
     /// Where each sample's donors start in `list` (`n² + 1` entries).
     start: Vec<usize>,
     list: Vec<usize>,
+    /// Where the next donor of each sample goes while `list` is filled.
+    next: Vec<usize>,
 }
 
 /// Every sample in an order where each comes after its receiver (outlets first), into `order`:
@@ -150,10 +152,11 @@ fn receivers_first(receiver: &[usize], order: &mut Vec<usize>, d: &mut Donors) {
     }
     d.list.clear();
     d.list.resize(d.start[len], 0);
-    let mut fill = d.start[..len].to_vec();
+    d.next.clear();
+    d.next.extend_from_slice(&d.start[..len]);
     for (q, &r) in receiver.iter().enumerate().filter(|&(_, &r)| r != NONE) {
-        d.list[fill[r]] = q;
-        fill[r] += 1;
+        d.list[d.next[r]] = q;
+        d.next[r] += 1;
     }
     order.clear();
     order.extend((0..len).filter(|&q| receiver[q] == NONE));

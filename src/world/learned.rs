@@ -123,6 +123,11 @@ pub const COARSER_DRAINAGE: [usize; 5] = [32, 16, 8, 4, 2];
 /// How many times each 32 m drainage stage runs [`COARSER_DRAINAGE`] (each pass ~4 ms a tile).
 pub const COARSER_DRAINAGE_PASSES: usize = 3;
 
+/// The factors of the coarser drainage in the order each stage runs them.
+fn coarser_drainage_factors() -> impl Iterator<Item = usize> {
+    std::iter::repeat_n(COARSER_DRAINAGE, COARSER_DRAINAGE_PASSES).flatten()
+}
+
 /// How far (tiles, Chebyshev distance) a pin reaches into the 128 m network tiles: a tile's
 /// 128 m tile takes the pinned tiles beside it and its schedule dependencies, which take
 /// theirs, three levels deep at most (phase 3 → phases 1, 2 → phase 0 → a pin). Farther
@@ -571,7 +576,7 @@ impl LearnedSource {
     fn filled_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
         let carve = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
             let t0 = Instant::now();
-            for factor in COARSER_DRAINAGE.repeat(COARSER_DRAINAGE_PASSES) {
+            for factor in coarser_drainage_factors() {
                 drainage::drain_coarser(h, m, fixed, factor, None, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
             }
             drainage::carve_depressions_around(h, m, fixed, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
@@ -580,25 +585,19 @@ impl LearnedSource {
         self.block_cached(&self.filled, seed, corner, (TILE_SAMPLES, FILL_BLOCK_TILES), carve, |c| self.raw_tile(seed, c).to_vec())
     }
 
-    /// The block of 2×2 tiles `tile(c)` with corner tile `corner`, drained
-    /// ([`drainage::breach_depressions_around`]), from `cache` or made and kept there (the
-    /// second stage).
-    fn fill_cached(&self, cache: &Mutex<BlockCache>, seed: u64, corner: TileCoord, tile: impl Fn(TileCoord) -> Vec<f32>) -> Arc<Vec<f32>> {
+    /// The second-stage block (corner tile `corner`, [`second_block_corner`]) of world `seed`:
+    /// the first stage's drained tiles, drained again over this block
+    /// ([`drainage::breach_depressions_around`], after [`COARSER_DRAINAGE`]).
+    fn drained_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
         let drain = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
             let t0 = Instant::now();
-            for factor in COARSER_DRAINAGE.repeat(COARSER_DRAINAGE_PASSES) {
+            for factor in coarser_drainage_factors() {
                 drainage::drain_coarser(h, m, fixed, factor, Some(BREACH_DEPTH_M), CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
             }
             drainage::breach_depressions_around(h, m, fixed, BREACH_DEPTH_M, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
             self.spent(|t| t.breach_32m.add(t0.elapsed()));
         };
-        self.block_cached(cache, seed, corner, (TILE_SAMPLES, FILL_BLOCK_TILES), drain, tile)
-    }
-
-    /// The second-stage block (corner tile `corner`, [`second_block_corner`]) of world `seed`:
-    /// the first stage's drained tiles, drained again over this block.
-    fn drained_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
-        self.fill_cached(&self.drained, seed, corner, |c| {
+        self.block_cached(&self.drained, seed, corner, (TILE_SAMPLES, FILL_BLOCK_TILES), drain, |c| {
             let first = fill_block_corner(c);
             quadrant(&self.filled_block(seed, first), c, first, TILE_SAMPLES, FILL_BLOCK_TILES)
         })
