@@ -351,6 +351,10 @@ enum Command {
         /// inside the 128 m cell (0: none; with --resume it replaces the saved weight).
         #[arg(long)]
         grow_position: Option<f32>,
+        /// Also keep each checkpoint's TCM generator as snapshots/tcm_STEP.bpk in the
+        /// checkpoint folder (to pick a checkpoint by `terrain eval-tcm` afterwards).
+        #[arg(long)]
+        snapshots: bool,
         #[command(flatten)]
         run: RunArgs,
     },
@@ -757,6 +761,7 @@ fn main() -> ExitCode {
             tcm_only,
             grow_only,
             grow_position,
+            snapshots,
             run,
         } => train_tcm(
             &dem_dir,
@@ -769,7 +774,7 @@ fn main() -> ExitCode {
             [joined, disc_slopes],
             [position, grow_position],
             init.as_deref(),
-            [tcm_only, grow_only],
+            [tcm_only, grow_only, snapshots],
             &run,
         ),
     };

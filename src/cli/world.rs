@@ -207,7 +207,7 @@ pub(crate) fn train_tcm(
     [joined, disc_slopes]: [bool; 2],
     [position, grow_position]: [Option<f32>; 2],
     init: Option<&std::path::Path>,
-    [tcm_only, grow_only]: [bool; 2],
+    [tcm_only, grow_only, snapshots]: [bool; 3],
     run_args: &RunArgs,
 ) -> Result<(), String> {
     use terrain::train::{grow, tcm};
@@ -281,6 +281,13 @@ pub(crate) fn train_tcm(
         if step % every == 0 || step == end || budget.checkpoint_due() {
             if !grow_only {
                 run.save(checkpoint)?;
+                if snapshots {
+                    // Each checkpoint's generator kept, to pick one by eval-tcm afterwards.
+                    let dir = checkpoint.join("snapshots");
+                    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+                    let to = dir.join(format!("tcm_{:06}.bpk", run.progress.step));
+                    std::fs::copy(checkpoint.join(tcm::GEN_FILE), &to).map_err(|e| format!("{}: {e}", to.display()))?;
+                }
             }
             if !tcm_only {
                 up.save(checkpoint)?;
