@@ -23,7 +23,7 @@ step "system packages"
 # The page (its tools, wasm-bindgen-cli and trunk, then its release build) is made while the
 # native tests build and run: each build alone leaves a core idle for long stretches on a
 # 2-core machine. They share the target dir without waiting for each other: cargo locks
-# target/debug for the tests and target/release + target/wasm32-unknown-unknown for the page.
+# target/debug for the tests and target/wasm32-unknown-unknown/page (Cargo.toml's [profile.page]) for the page.
 mkdir -p "$CARGO_TARGET_DIR"
 page_log="$CARGO_TARGET_DIR/page-build.log"
 (
