@@ -298,14 +298,19 @@ pub enum Kernels {
 }
 
 impl Kernels {
-    /// What [`conv`] uses: [`Kernels::Best`], or [`Kernels::Avx2`] when the environment
-    /// variable `TERRAIN_CPU_KERNELS` is `avx2` (read once; for comparing the two in
-    /// benchmarks).
+    /// What [`conv`] uses: [`Kernels::Best`], or [`Kernels::Avx2`] / [`Kernels::Portable`]
+    /// when the environment variable `TERRAIN_CPU_KERNELS` is `avx2` / `portable` (read once;
+    /// for comparing them in benchmarks, and the portable kernels multiply, then add, in the
+    /// order of the page's simd128 kernels, where the x86 ones fuse the two).
     pub fn chosen() -> Self {
         #[cfg(not(target_arch = "wasm32"))]
         {
             static CHOSEN: std::sync::OnceLock<Kernels> = std::sync::OnceLock::new();
-            *CHOSEN.get_or_init(|| if std::env::var("TERRAIN_CPU_KERNELS").is_ok_and(|v| v == "avx2") { Kernels::Avx2 } else { Kernels::Best })
+            *CHOSEN.get_or_init(|| match std::env::var("TERRAIN_CPU_KERNELS").as_deref() {
+                Ok("avx2") => Kernels::Avx2,
+                Ok("portable") => Kernels::Portable,
+                _ => Kernels::Best,
+            })
         }
         #[cfg(target_arch = "wasm32")]
         Kernels::Best
