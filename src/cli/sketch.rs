@@ -192,10 +192,7 @@ pub(crate) fn train_sketch(
             run.save(checkpoint, Some(&v))?;
             if snapshots {
                 // Each checkpoint's generator kept, for a mean of checkpoints afterwards.
-                let dir = checkpoint.join("snapshots");
-                std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-                let to = dir.join(format!("gen_{:06}.bpk", p.step));
-                std::fs::copy(checkpoint.join(terrain::models::sketch::WEIGHT_FILE), &to).map_err(|e| format!("{}: {e}", to.display()))?;
+                super::keep_snapshot(checkpoint, terrain::models::sketch::WEIGHT_FILE, "gen", p.step)?;
             }
             last = Some(v);
         }

@@ -283,10 +283,7 @@ pub(crate) fn train_tcm(
                 run.save(checkpoint)?;
                 if snapshots {
                     // Each checkpoint's generator kept, to pick one by eval-tcm afterwards.
-                    let dir = checkpoint.join("snapshots");
-                    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-                    let to = dir.join(format!("tcm_{:06}.bpk", run.progress.step));
-                    std::fs::copy(checkpoint.join(tcm::GEN_FILE), &to).map_err(|e| format!("{}: {e}", to.display()))?;
+                    super::keep_snapshot(checkpoint, tcm::GEN_FILE, "tcm", run.progress.step)?;
                 }
             }
             if !tcm_only {
