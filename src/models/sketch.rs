@@ -42,7 +42,7 @@ pub const EXTENT_RANGE_M: (f64, f64) = (256.0, 16_384.0);
 /// clamped to [`EXTENT_RANGE_M`].
 pub fn extent_value(extent_m: f64) -> f32 {
     let e = if extent_m.is_finite() { extent_m.clamp(EXTENT_RANGE_M.0, EXTENT_RANGE_M.1) } else { FORMAT_EXTENT_M };
-    ((e / FORMAT_EXTENT_M).log2() / 4.0) as f32
+    (libm::log2(e / FORMAT_EXTENT_M) / 4.0) as f32
 }
 /// The sketch's rotations and flips ([`dihedral`] transforms) in the order
 /// [`SketchGenCpu::generate_views`] adds them: the sketch itself, the half turn, the two

@@ -127,7 +127,7 @@ pub fn tile_ruggedness(h: &[f32]) -> [f32; 9] {
             sq[(y / TILE_PX) * 3 + x / TILE_PX] += (h[y * n + x] as f64 - mean).powi(2);
         }
     }
-    sq.map(|s| ((s / (TILE_PX * TILE_PX) as f64).sqrt().max(0.01) as f32 / RUGGEDNESS_REF_M).ln())
+    sq.map(|s| libm::logf((s / (TILE_PX * TILE_PX) as f64).sqrt().max(0.01) as f32 / RUGGEDNESS_REF_M))
 }
 
 /// The network's input for one tile, channel-first ([`IN_CHANNELS`] × [`CONTEXT_PX`]²):

@@ -352,6 +352,15 @@ impl TemCpu {
             merge: layer(WIDTH, WIDTH, bound(WIDTH)),
             tail: layer(1, WIDTH / 4, 0.0),
         }
+        .fused()
+    }
+
+    /// Every layer [`Conv3::fused`]: nothing downstream of the TEM amplifies a last-bit
+    /// difference (its output is drawn, not grown from), so it takes the x86 kernels' faster
+    /// fused multiply-adds (25–35 % natively).
+    fn fused(self) -> Self {
+        let f = |c: Conv3| c.with_fused(true);
+        Self { head: f(self.head), body: self.body.into_iter().map(f).collect(), merge: f(self.merge), tail: f(self.tail) }
     }
 
     /// Every weight drawn uniformly from ±`amplitude` (deterministic in `seed`): tests use it
@@ -363,13 +372,13 @@ impl TemCpu {
             let b: Vec<f32> = (0..cout).map(|_| amplitude * cpu::unit(&mut s)).collect();
             Conv3::from_oihw(cout, cin, &w, Some(&b)).expect("sizes")
         };
-        Self { head: layer(WIDTH, 4), body: (0..4).map(|_| layer(WIDTH, WIDTH)).collect(), merge: layer(WIDTH, WIDTH), tail: layer(1, WIDTH / 4) }
+        Self { head: layer(WIDTH, 4), body: (0..4).map(|_| layer(WIDTH, WIDTH)).collect(), merge: layer(WIDTH, WIDTH), tail: layer(1, WIDTH / 4) }.fused()
     }
 
     /// Copies a burn model's weights.
     pub fn from_model(m: &Tem) -> Result<Self, String> {
         let one = cpu::conv_from_burn;
-        Ok(Self { head: one(&m.head)?, body: m.body.iter().map(one).collect::<Result<_, _>>()?, merge: one(&m.merge)?, tail: one(&m.tail)? })
+        Ok(Self { head: one(&m.head)?, body: m.body.iter().map(one).collect::<Result<_, _>>()?, merge: one(&m.merge)?, tail: one(&m.tail)? }.fused())
     }
 
     /// Reads a burnpack weight file (as written by training) without a tensor framework:
@@ -382,7 +391,7 @@ impl TemCpu {
         let tail = convs.pop().expect("7 convs");
         let merge = convs.pop().expect("7 convs");
         let head = convs.remove(0);
-        Ok(Self { head, body: convs, merge, tail })
+        Ok(Self { head, body: convs, merge, tail }.fused())
     }
 
     /// Every convolution's weights ([cout, cin, 3, 3], row-major) and bias as JSON

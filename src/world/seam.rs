@@ -111,7 +111,7 @@ fn joined_sides(tile: &[f32], n: usize, neighbours: &[Option<&[f32]>; 4]) -> Opt
 pub fn join_edges_holding_others(tile: &mut [f32], n: usize, neighbours: [Option<&[f32]>; 4]) {
     let Some(sides) = joined_sides(tile, n, &neighbours) else { return };
     // Successive over-relaxation at its optimal factor for this grid.
-    let omega = 2.0 / (1.0 + (std::f32::consts::PI / n as f32).sin());
+    let omega = 2.0 / (1.0 + libm::sinf(std::f32::consts::PI / n as f32));
     join_heights_with(tile, n, &sides, true, 3 * n, omega);
 }
 
@@ -192,7 +192,7 @@ fn join_heights_with(tile: &mut [f32], n: usize, sides: &[Continuation], hold_ot
 /// where the kernel leaves the edge).
 fn smooth_along_edge(values: &[f32]) -> Vec<f32> {
     let reach = (3.0 * UNFOLD_SMOOTH_PX).ceil() as i64;
-    let w: Vec<f32> = (-reach..=reach).map(|d| (-0.5 * (d as f32 / UNFOLD_SMOOTH_PX).powi(2)).exp()).collect();
+    let w: Vec<f32> = (-reach..=reach).map(|d| libm::expf(-0.5 * (d as f32 / UNFOLD_SMOOTH_PX).powi(2))).collect();
     (0..values.len() as i64)
         .map(|k| {
             let (mut sum, mut weight) = (0.0, 0.0);

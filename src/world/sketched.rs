@@ -95,7 +95,7 @@ impl SketchSource {
         // widens with the distance.
         let r = (u - cu).abs().max((v - cv).abs()) - 1;
         let h = self.box_mean(cu, cv, r) / 255.0 * self.relief_m as f64;
-        let d = (((u - cu) as f64).hypot((v - cv) as f64)) * BASE_SPACING_M;
+        let d = libm::hypot((u - cu) as f64, (v - cv) as f64) * BASE_SPACING_M;
         let t = (1.0 - d / FADE_M).max(0.0);
         (h * t * t) as f32
     }

@@ -117,8 +117,8 @@ fn map_from_nchw(x: &[f32], c: usize, h: usize, w: usize) -> Map {
     m
 }
 
-/// Every kernel (32 output channels blocked — AVX2 + FMA and portable —, 1 from 8 or 16 as dot
-/// products, 3 plain), widths that are and are not a
+/// Every kernel (32 output channels blocked — AVX-512, AVX2 and portable —, 1 from 8 or 16 as
+/// dot products, 3 plain), fused or not, widths that are and are not a
 /// multiple of BLOCK, 1 and 3 threads, with ReLU and a skip: every output within 1e-4 of
 /// the definition evaluated in f64, and the zero border stays zero.
 #[test]
@@ -130,10 +130,12 @@ fn convolutions_match_the_definition_for_every_kernel_and_thread_count() {
         let x: Vec<f32> = (0..cin * h * w).map(|_| lcg(&mut seed)).collect();
         let skip_v: Vec<f32> = (0..cout * h * w).map(|_| lcg(&mut seed)).collect();
         let want = naive(&wt, &b, cout, cin, &x, h, w);
-        let layer = Conv3::from_oihw(cout, cin, &wt, Some(&b)).unwrap();
         let src = map_from_nchw(&x, cin, h, w);
         let skip = map_from_nchw(&skip_v, cout, h, w);
-        for (threads, kernels) in [1, 3].into_iter().flat_map(|t| [Kernels::Best, Kernels::Avx2, Kernels::Portable].map(|k| (t, k))) {
+        for (threads, kernels, fused) in
+            [1, 3].into_iter().flat_map(|t| [Kernels::Best, Kernels::Avx2, Kernels::Portable].into_iter().flat_map(move |k| [(t, k, false), (t, k, true)]))
+        {
+            let layer = Conv3::from_oihw(cout, cin, &wt, Some(&b)).unwrap().with_fused(fused);
             for post in [Post::None, Post::Relu, Post::Add(&skip)] {
                 let mut dst = Map::default();
                 conv_impl(&layer, &src, &mut dst, post, threads, kernels);
@@ -151,7 +153,7 @@ fn convolutions_match_the_definition_for_every_kernel_and_thread_count() {
                         }
                     }
                 }
-                assert!(worst < 1e-4, "{cout}x{cin} {h}x{w} threads {threads} {kernels:?} {post:?}: off by {worst}");
+                assert!(worst < 1e-4, "{cout}x{cin} {h}x{w} threads {threads} {kernels:?} fused {fused} {post:?}: off by {worst}");
                 let border: f32 = (0..w + 2).map(|q| dst.data[q * cout..(q + 1) * cout].iter().map(|v| v.abs()).sum::<f32>()).sum();
                 assert_eq!(border, 0.0, "top border written");
             }
@@ -187,29 +189,52 @@ fn wrong_sizes_and_non_finite_weights_are_refused() {
     assert_eq!(Conv3::from_oihw(1, 1, &w, None).unwrap_err(), LayerError::NonFinite { cout: 1, cin: 1 });
 }
 
-/// The AVX-512 kernel gives the AVX2 kernels' bits (the same fused sums in the same order) for
-/// 8 to 112 output channels, widths that end inside a block of 8 pixels and a skip: natively a
-/// tile does not depend on which of the two the CPU has. (Where the CPU has no AVX-512 both
-/// runs take the AVX2 kernels; the test says which ran.)
+/// A layer as loaded (not [`Conv3::fused`]) gives the portable kernel's bits on every kernel
+/// (AVX-512, AVX2, the one-channel dot kernels), so natively a tile is the page's bits (its
+/// SIMD128 kernel multiplies, then adds, in the portable kernel's order); a fused layer gives
+/// the same bits on AVX-512 as on AVX2 + FMA (where both vectorise it), and differs from the
+/// portable kernel somewhere.
+/// 1 to 112 output channels, widths that end inside a block of 8 pixels, ReLU and a skip.
+/// (Where the CPU has no AVX-512 the best kernels are the AVX2 ones; the test says which ran.)
 #[test]
-fn avx512_and_avx2_kernels_give_the_same_bits() {
+fn unfused_layers_give_the_portable_bits_on_every_kernel_and_fused_ones_the_same_bits_on_avx512_and_avx2() {
     let mut seed = 11;
     eprintln!("widest kernels here: {}", Kernels::Best.widest());
-    for (cout, cin, h, w) in [(32, 4, 9, 13), (32, 32, 6, 8), (8, 5, 7, 6), (24, 7, 9, 10), (48, 24, 5, 17), (112, 96, 3, 12), (16, 13, 6, 6)] {
+    let mut fused_differs = 0;
+    for (cout, cin, h, w) in
+        [(32, 4, 9, 13), (32, 32, 6, 8), (8, 5, 7, 6), (24, 7, 9, 10), (48, 24, 5, 17), (112, 96, 3, 12), (16, 13, 6, 6), (1, 8, 6, 11), (1, 16, 5, 9), (3, 5, 4, 7)]
+    {
         let wt: Vec<f32> = (0..cout * cin * 9).map(|_| lcg(&mut seed)).collect();
         let b: Vec<f32> = (0..cout).map(|_| lcg(&mut seed)).collect();
         let x: Vec<f32> = (0..cin * h * w).map(|_| lcg(&mut seed)).collect();
         let skip_v: Vec<f32> = (0..cout * h * w).map(|_| lcg(&mut seed)).collect();
-        let layer = Conv3::from_oihw(cout, cin, &wt, Some(&b)).unwrap();
         let (src, skip) = (map_from_nchw(&x, cin, h, w), map_from_nchw(&skip_v, cout, h, w));
-        for post in [Post::None, Post::Relu, Post::Add(&skip)] {
-            let (mut a, mut c) = (Map::default(), Map::default());
-            conv_impl(&layer, &src, &mut a, post, 2, Kernels::Best);
-            conv_impl(&layer, &src, &mut c, post, 2, Kernels::Avx2);
-            let differ = a.data.iter().zip(&c.data).filter(|(p, q)| p.to_bits() != q.to_bits()).count();
-            assert_eq!(differ, 0, "{cout}x{cin} {h}x{w} {post:?}: {differ} values differ");
+        for fused in [false, true] {
+            let layer = Conv3::from_oihw(cout, cin, &wt, Some(&b)).unwrap().with_fused(fused);
+            for post in [Post::None, Post::Relu, Post::Add(&skip)] {
+                let [best, avx2, portable] = [Kernels::Best, Kernels::Avx2, Kernels::Portable].map(|k| {
+                    let mut m = Map::default();
+                    conv_impl(&layer, &src, &mut m, post, 2, k);
+                    m
+                });
+                let differ = |a: &Map, c: &Map| a.data.iter().zip(&c.data).filter(|(p, q)| p.to_bits() != q.to_bits()).count();
+                // A fused layer of 3 channels runs fused on AVX-512 only (AVX2 takes multiples of 8).
+                if !fused || cout == 1 || cout % 8 == 0 {
+                    assert_eq!(differ(&best, &avx2), 0, "{cout}x{cin} {h}x{w} fused {fused} {post:?}: best vs AVX2");
+                }
+                if fused {
+                    fused_differs += differ(&best, &portable);
+                } else {
+                    assert_eq!(differ(&best, &portable), 0, "{cout}x{cin} {h}x{w} {post:?}: best vs portable");
+                }
+            }
         }
     }
+    #[cfg(target_arch = "x86_64")]
+    if Kernels::Best.widest() != "portable" {
+        assert!(fused_differs > 0, "fused multiply-adds never rounded differently: the fused kernels did not run");
+    }
+    let _ = fused_differs;
 }
 
 /// The vectorised kernel for one output channel from 16 or 24 input channels gives the

@@ -1,14 +1,23 @@
 use super::{BLOCK, Conv3, LANES, Map, Post, ROWS8_PX, dot_output};
 use std::arch::x86_64::*;
 
-/// Any multiple of 8 output channels with AVX2 + FMA: blocks of 4 pixels × 16 channels
+/// `a + x·w` on 8 lanes: one fused multiply-add where `$fused` (one rounding), else a multiply,
+/// then an add, rounded as the portable and the page's kernels round them.
+macro_rules! madd {
+    ($fused:expr, $a:expr, $x:expr, $w:expr) => {
+        if $fused { _mm256_fmadd_ps($x, $w, $a) } else { _mm256_add_ps($a, _mm256_mul_ps($x, $w)) }
+    };
+}
+
+/// Any multiple of 8 output channels with AVX2 + FMA (with `F` fused multiply-adds, else a
+/// multiply, then an add, the portable kernel's bits): blocks of 4 pixels × 16 channels
 /// (8 accumulator registers; the last 8 channels of an odd multiple take a 4 × 8 block).
 /// The compiler left the portable loop scalar (2 GMAC/s against 43 for `rows32`).
 ///
 /// # Safety
 /// The CPU must support AVX2 and FMA.
 #[target_feature(enable = "avx2,fma")]
-pub(super) unsafe fn rows8(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+pub(super) unsafe fn rows8<const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
     let (cin, cout) = (layer.cin, layer.cout);
     let sw = src.w + 2;
     assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + ROWS8_PX) * cin);
@@ -21,10 +30,10 @@ pub(super) unsafe fn rows8(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize,
                 // SAFETY: the CPU has AVX2 and FMA (this function's contract); reads and
                 // writes are inside the bounds asserted above.
                 if c0 + 16 <= cout {
-                    unsafe { block::<2>(layer, src, out, y0, r, x0, c0, w, post) };
+                    unsafe { block::<2, F>(layer, src, out, y0, r, x0, c0, w, post) };
                     c0 += 16;
                 } else {
-                    unsafe { block::<1>(layer, src, out, y0, r, x0, c0, w, post) };
+                    unsafe { block::<1, F>(layer, src, out, y0, r, x0, c0, w, post) };
                     c0 += 8;
                 }
             }
@@ -41,7 +50,7 @@ pub(super) unsafe fn rows8(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize,
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
 #[inline]
-unsafe fn block<const V: usize>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, r: usize, x0: usize, c0: usize, w: usize, post: Post) {
+unsafe fn block<const V: usize, const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, r: usize, x0: usize, c0: usize, w: usize, post: Post) {
     let (cin, cout) = (layer.cin, layer.cout);
     let sw = src.w + 2;
     let y = y0 + r;
@@ -59,7 +68,7 @@ unsafe fn block<const V: usize>(layer: &Conv3, src: &Map, out: &mut [f32], y0: u
                 for (p, a) in acc.iter_mut().enumerate() {
                     let x = _mm256_broadcast_ss(&*sp.add(base + p * cin + ci));
                     for v in 0..V {
-                        a[v] = _mm256_fmadd_ps(x, wv[v], a[v]);
+                        a[v] = madd!(F, a[v], x, wv[v]);
                     }
                 }
             }
@@ -84,7 +93,7 @@ unsafe fn block<const V: usize>(layer: &Conv3, src: &Map, out: &mut [f32], y0: u
 /// # Safety
 /// The CPU must support AVX2 and FMA.
 #[target_feature(enable = "avx2,fma")]
-pub(super) unsafe fn rows32(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+pub(super) unsafe fn rows32<const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
     const _: () = assert!(BLOCK == 3 && LANES == 32);
     let cin = layer.cin;
     let sw = src.w + 2;
@@ -117,21 +126,21 @@ pub(super) unsafe fn rows32(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize
                         let v2 = _mm256_set1_ps(*x2v);
                         let (w0, w1, w2, w3) = (wr[..8].as_ptr(), wr[8..16].as_ptr(), wr[16..24].as_ptr(), wr[24..].as_ptr());
                         let wv = _mm256_loadu_ps(w0);
-                        a00 = _mm256_fmadd_ps(v0, wv, a00);
-                        a10 = _mm256_fmadd_ps(v1, wv, a10);
-                        a20 = _mm256_fmadd_ps(v2, wv, a20);
+                        a00 = madd!(F, a00, v0, wv);
+                        a10 = madd!(F, a10, v1, wv);
+                        a20 = madd!(F, a20, v2, wv);
                         let wv = _mm256_loadu_ps(w1);
-                        a01 = _mm256_fmadd_ps(v0, wv, a01);
-                        a11 = _mm256_fmadd_ps(v1, wv, a11);
-                        a21 = _mm256_fmadd_ps(v2, wv, a21);
+                        a01 = madd!(F, a01, v0, wv);
+                        a11 = madd!(F, a11, v1, wv);
+                        a21 = madd!(F, a21, v2, wv);
                         let wv = _mm256_loadu_ps(w2);
-                        a02 = _mm256_fmadd_ps(v0, wv, a02);
-                        a12 = _mm256_fmadd_ps(v1, wv, a12);
-                        a22 = _mm256_fmadd_ps(v2, wv, a22);
+                        a02 = madd!(F, a02, v0, wv);
+                        a12 = madd!(F, a12, v1, wv);
+                        a22 = madd!(F, a22, v2, wv);
                         let wv = _mm256_loadu_ps(w3);
-                        a03 = _mm256_fmadd_ps(v0, wv, a03);
-                        a13 = _mm256_fmadd_ps(v1, wv, a13);
-                        a23 = _mm256_fmadd_ps(v2, wv, a23);
+                        a03 = madd!(F, a03, v0, wv);
+                        a13 = madd!(F, a13, v1, wv);
+                        a23 = madd!(F, a23, v2, wv);
                     }
                 }
                 let acc = [[a00, a01, a02, a03], [a10, a11, a12, a13], [a20, a21, a22, a23]];
@@ -154,12 +163,13 @@ pub(super) unsafe fn rows32(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize
 }
 
 /// One output channel from 8 input channels: one 8-wide product per tap, four pixels
-/// at a time (four independent chains), then the 8 lanes added up.
+/// at a time (four independent chains), then the 8 lanes added up; with `F` fused
+/// multiply-adds, else the portable [`super::rows_dot`]'s bits.
 ///
 /// # Safety
 /// The CPU must support AVX2 and FMA.
 #[target_feature(enable = "avx2,fma")]
-pub(super) unsafe fn rows_dot8(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+pub(super) unsafe fn rows_dot8<const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
     let sw = src.w + 2;
     assert!(layer.cin == 8 && layer.cout == 1 && layer.w.len() == 72);
     assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + 4) * 8 && out.len() == n * sw);
@@ -178,7 +188,7 @@ pub(super) unsafe fn rows_dot8(layer: &Conv3, src: &Map, out: &mut [f32], y0: us
                     let base = ((y + ky) * sw + x0 + kx) * 8;
                     let px = &src.data[base..base + 32];
                     for (p, a) in acc.iter_mut().enumerate() {
-                        *a = _mm256_fmadd_ps(_mm256_loadu_ps(px[8 * p..].as_ptr()), *wv, *a);
+                        *a = madd!(F, *a, _mm256_loadu_ps(px[8 * p..].as_ptr()), *wv);
                     }
                 }
                 for (p, a) in acc.iter().enumerate().take(4.min(w - x0)) {

@@ -14,13 +14,15 @@ fn lanes(c: usize, cout: usize) -> __mmask16 {
 
 /// Any number of output channels with AVX-512: blocks of [`PX`] pixels × 32 channels (16 where
 /// fewer are left), the last vector masked to the channels there are. Each output is the bias
-/// plus the taps and input channels in the same order and with the same fused multiply-adds
-/// as the AVX2 kernels, so both give the same bits.
+/// plus the taps and input channels in the same order as every other kernel; with `F` (a
+/// [`Conv3::fused`] layer) each step is one fused multiply-add, as in the AVX2 kernels, else a
+/// multiply, then an add, as in the portable and the page's kernels: either way the AVX2
+/// kernels' bits.
 ///
 /// # Safety
 /// The CPU must support AVX-512F.
 #[target_feature(enable = "avx512f")]
-pub(super) unsafe fn rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+pub(super) unsafe fn rows<const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
     let (cin, cout) = (layer.cin, layer.cout);
     let sw = src.w + 2;
     assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + PX) * cin);
@@ -36,10 +38,10 @@ pub(super) unsafe fn rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, 
                 // SAFETY: AVX-512F is present (this function's contract); unmasked lanes stay
                 // inside the bounds asserted above.
                 if cout - c0 > 16 {
-                    unsafe { block::<2>(layer, src, out, y0, r, x0, c0, w, post) };
+                    unsafe { block::<2, F>(layer, src, out, y0, r, x0, c0, w, post) };
                     c0 += 32;
                 } else {
-                    unsafe { block::<1>(layer, src, out, y0, r, x0, c0, w, post) };
+                    unsafe { block::<1, F>(layer, src, out, y0, r, x0, c0, w, post) };
                     c0 += 16;
                 }
             }
@@ -56,7 +58,7 @@ pub(super) unsafe fn rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, 
 #[target_feature(enable = "avx512f")]
 #[allow(clippy::too_many_arguments)]
 #[inline]
-unsafe fn block<const V: usize>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, r: usize, x0: usize, c0: usize, w: usize, post: Post) {
+unsafe fn block<const V: usize, const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, r: usize, x0: usize, c0: usize, w: usize, post: Post) {
     let (cin, cout) = (layer.cin, layer.cout);
     let sw = src.w + 2;
     let y = y0 + r;
@@ -76,7 +78,7 @@ unsafe fn block<const V: usize>(layer: &Conv3, src: &Map, out: &mut [f32], y0: u
                 for (p, a) in acc.iter_mut().enumerate() {
                     let x = _mm512_set1_ps(*sp.add(base + p * cin + ci));
                     for v in 0..V {
-                        a[v] = _mm512_fmadd_ps(x, wv[v], a[v]);
+                        a[v] = if F { _mm512_fmadd_ps(x, wv[v], a[v]) } else { _mm512_add_ps(a[v], _mm512_mul_ps(x, wv[v])) };
                     }
                 }
             }
