@@ -328,8 +328,9 @@ impl PageOptions {
                     "gpu" => TemChoice::Gpu,
                     "cpu" => TemChoice::Cpu,
                     "off" => TemChoice::Off,
+                    "probe" => TemChoice::Probe,
                     other => {
-                        notice = Some(format!("unknown ?tem={} (expected gpu, cpu, off or auto); the page chooses", quoted(other)));
+                        notice = Some(format!("unknown ?tem={} (expected gpu, cpu, off, probe or auto); the page chooses", quoted(other)));
                         TemChoice::Auto
                     }
                 };
@@ -512,6 +513,7 @@ mod tests {
         assert_eq!(tem("?tem=cpu"), TemChoice::Cpu);
         assert_eq!(tem("?a=1&tem=gpu"), TemChoice::Gpu);
         assert_eq!(tem("?t%65m=off"), TemChoice::Off);
+        assert_eq!(tem("?tem=probe"), TemChoice::Probe);
         assert_eq!(tem("?xtem=cpu"), TemChoice::Auto);
         assert_eq!(tem("?tem=cpu2"), TemChoice::Auto);
         assert_eq!(tem("?tem=cpu&tem=off"), TemChoice::Off, "the last value wins");

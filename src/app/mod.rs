@@ -11,6 +11,7 @@ pub mod coarse;
 pub mod heightmap;
 pub mod loads;
 pub mod page;
+pub mod probe;
 pub mod runners;
 mod stats;
 

@@ -13,11 +13,13 @@ use glam::DVec3;
 
 use super::heightmap::{PendingPng, PngKind};
 use super::loads::{Load, LoadError, Loads, ModelSet, notice, reason};
+use super::probe::Probe;
 use super::{LearnedStatus, REFINE_BATCH, TerrainApp};
 use crate::grid::TileCoord;
 use crate::jobs::protocol::{Answer, Envelope, Reply, Request, SketchBytes};
 use crate::jobs::{Job, JobQueue, Outcome};
 use crate::models::runtime::{self, Backend, CpuReason, TemChoice};
+use crate::models::tem::{PROBE_SIDE, probe_input};
 use crate::share::ShareState;
 use crate::share::bundle::WorldBundle;
 use crate::sketch::{SKETCH_PX, Sketch};
@@ -95,6 +97,10 @@ enum For {
     },
     Tile(Job<TileCoord>),
     Coarse(Job<TileCoord>),
+    /// The probe's load of the TEM on the backend it does not run on yet.
+    ProbeLoad(Target),
+    /// A probe quad on this backend.
+    ProbeRun(Target),
     Tem {
         epoch: u64,
         keys: Vec<PatchKey>,
@@ -201,6 +207,14 @@ pub struct PageCore {
     refetch: Vec<(f64, ModelSet, usize, usize)>,
     tem: Backend,
     tem_target: Target,
+    /// What the user asked for (`?tem=`) and the GPU's self-check: the probe's choice keeps to
+    /// them.
+    tem_choice: TemChoice,
+    gpu: Result<(), String>,
+    /// The start-up probe ([`super::probe`]) and, until it starts, the TEM's files for its
+    /// second load.
+    probe: Probe,
+    probe_files: Option<Vec<Vec<u8>>>,
     sketch_on_gpu: bool,
     worker: Result<(), String>,
     software_adapter: bool,
@@ -257,6 +271,10 @@ impl PageCore {
             refetch: Vec::new(),
             tem,
             tem_target,
+            tem_choice: start.tem,
+            gpu: start.gpu.clone(),
+            probe: if runtime::probe_wanted(start.tem, start.gpu.is_ok(), start.worker.is_ok(), start.software_adapter) { Probe::Waiting } else { Probe::Off },
+            probe_files: None,
             sketch_on_gpu: false,
             worker: start.worker,
             software_adapter: start.software_adapter,
@@ -425,7 +443,12 @@ impl PageCore {
         let mut files: Vec<Vec<u8>> = self.files.remove(&set).unwrap_or_default().into_iter().flatten().collect();
         *self.loads.get_mut(set) = Load::Loading;
         match set {
-            ModelSet::Tem => self.post(self.tem_target, 0, Request::LoadTem { files }, For::Load { set, target: self.tem_target }),
+            ModelSet::Tem => {
+                if self.probe == Probe::Waiting {
+                    self.probe_files = Some(files.clone());
+                }
+                self.post(self.tem_target, 0, Request::LoadTem { files }, For::Load { set, target: self.tem_target })
+            }
             ModelSet::World => {
                 let (grow, tcm) = (files.pop().unwrap_or_default(), files.pop().unwrap_or_default());
                 self.post(Target::Worker, 0, Request::LoadWorld { tcm, grow }, For::Load { set, target: Target::Worker });
@@ -683,6 +706,18 @@ impl PageCore {
                 self.app.coarse_done(&job, heights);
             }
             (For::Coarse(job), _) => self.app.coarse_failed(&job),
+            (For::ProbeLoad(_), Reply::Loaded { .. }) => {
+                self.probe = Probe::timing();
+                self.probe_next();
+            }
+            (For::ProbeLoad(target), r) => self.probe_failed(format!("the TEM did not load on {target:?}: {}", failed(&r).unwrap_or_else(|| format!("{r:?}")))),
+            (For::ProbeRun(target), Reply::Heights { ms, .. }) => {
+                self.probe.record(target, ms);
+                self.probe_next();
+            }
+            // A new world began while the quad waited: the same run again.
+            (For::ProbeRun(_), Reply::Stale) => self.probe_next(),
+            (For::ProbeRun(target), r) => self.probe_failed(format!("a quad on {target:?} failed: {}", failed(&r).unwrap_or_else(|| format!("{r:?}")))),
             (For::Tile(job), r) => {
                 self.app.tile_failed(&job);
                 let e = failed(&r).unwrap_or_default();
@@ -782,7 +817,54 @@ impl PageCore {
         self.rest_per_work = runtime::worker_rest_per_work(self.software_adapter, self.complete_epoch == Some(self.app.epoch()));
         self.start_tiles();
         self.start_refinement(now_ms);
+        self.start_probe();
         self.start_sketch();
+    }
+
+    /// Where the start-up probe is: not wanted, waiting, timing, what it measured, or why it
+    /// failed.
+    pub fn probe(&self) -> &Probe {
+        &self.probe
+    }
+
+    /// Starts the probe once the TEM runs and the first view is complete (a person is not
+    /// waiting on it): the TEM loads on the other backend.
+    fn start_probe(&mut self) {
+        if self.probe != Probe::Waiting || !self.loads.tem.is_ready() || self.complete_epoch != Some(self.app.epoch()) {
+            return;
+        }
+        let Some(files) = self.probe_files.take() else {
+            return self.probe_failed("the TEM's files were not kept".into());
+        };
+        let other = if self.tem_target == Target::Gpu { Target::Worker } else { Target::Gpu };
+        self.probe = Probe::Loading;
+        self.post(other, 0, Request::LoadTem { files }, For::ProbeLoad(other));
+    }
+
+    /// Posts the probe's next quad, or, once every run is in, takes the faster backend.
+    fn probe_next(&mut self) {
+        if let Some(target) = self.probe.next() {
+            let request = Request::Enhance { level: 0, n: 1, side: PROBE_SIDE as u32, input: probe_input(0) };
+            return self.post(target, self.app.epoch(), request, For::ProbeRun(target));
+        }
+        let Probe::Done(timings) = self.probe else { return };
+        self.tem = runtime::choose_measured(self.tem_choice, self.gpu.clone(), self.software_adapter, timings);
+        self.tem_target = if self.tem.is_gpu() { Target::Gpu } else { Target::Worker };
+        if !self.tem.is_gpu() {
+            // Strokes follow the TEM to the faster backend.
+            self.sketch_on_gpu = false;
+        }
+        let backend = self.tem_backend();
+        if let Load::Ready { backend: b, .. } = &mut self.loads.tem {
+            b.clone_from(&backend);
+        }
+        self.console.push(format!("TEM probe: {}; the TEM runs on {backend}", timings.label()));
+    }
+
+    fn probe_failed(&mut self, why: String) {
+        self.console.push(format!("the TEM probe failed ({why}); the TEM stays on {}", self.tem_backend()));
+        self.probe = Probe::Failed(why);
+        self.probe_files = None;
     }
 
     /// A CPU worker that has not answered a request within [`WORKER_TIMEOUT_MS`] is taken for

@@ -29,12 +29,14 @@ struct Shell<'a> {
     frame_ms: f64,
     /// The downloads asked for, by file name, in order.
     fetched: Vec<String>,
+    /// A stand-in for the GPU: a runner of its own whose TEM quads report this many ms.
+    gpu: Option<(Runner, f64)>,
 }
 
 impl<'a> Shell<'a> {
     /// A shell with a fresh runner, downloads changed by `swap`.
     fn new(swap: &'a Swap) -> Self {
-        Shell { runner: Runner::new(1), swap, posted: Vec::new(), clock_ms: 0.0, frame_ms: 16.0, fetched: Vec::new() }
+        Shell { runner: Runner::new(1), swap, posted: Vec::new(), clock_ms: 0.0, frame_ms: 16.0, fetched: Vec::new(), gpu: None }
     }
 
     /// Carries out the core's effects, and those their deliveries cause, until none is left.
@@ -58,9 +60,18 @@ impl<'a> Shell<'a> {
                     core.deliver(Delivery::Fetched { id, bytes });
                 }
                 Effect::Post { target, envelope } => {
-                    assert_ne!(target, Target::Gpu, "no GPU here");
                     self.posted.push((target, envelope.request.kind()));
-                    let answer = self.runner.handle(envelope);
+                    let answer = match (target, &mut self.gpu) {
+                        (Target::Gpu, Some((gpu, gpu_ms))) => {
+                            let mut answer = gpu.handle(envelope);
+                            if let Reply::Heights { ms, .. } = &mut answer.reply {
+                                *ms = *gpu_ms;
+                            }
+                            answer
+                        }
+                        (Target::Gpu, None) => panic!("no GPU here"),
+                        _ => self.runner.handle(envelope),
+                    };
                     core.deliver(Delivery::Answer(answer));
                 }
             }
@@ -81,6 +92,49 @@ impl<'a> Shell<'a> {
 
 fn no_swap(_: &str) -> Option<Result<Vec<u8>, String>> {
     None
+}
+
+/// On a hardware adapter whose GPU passed its self-check the TEM starts on the GPU. Once the
+/// first view is complete (not before) the probe loads the TEM into the worker and times a
+/// warm-up and three quads on each: with the GPU's quads answered as taking 10 s the worker
+/// wins, the TEM moves there (later quads go to the worker, the TEM's backend says why, the
+/// console says both times); with 0.001 ms the GPU keeps it. With `?tem=gpu` no probe runs.
+#[test]
+fn the_start_up_probe_moves_the_tem_to_the_faster_backend_once_the_first_view_is_complete() {
+    for (gpu_ms, on_gpu) in [(10_000.0, false), (0.001, true)] {
+        let gpu_start = PageStart { gpu: Ok(()), ..start(Ok(())) };
+        // The procedural world: its tiles are quick, and the TEM refines it as any other.
+        let mut core = PageCore::new(ShareState { source: SourceKind::Procedural, position_m: [2048.0, 900.0, 2048.0], pitch: -0.6, ..ShareState::default() }, gpu_start);
+        let mut shell = Shell::new(&no_swap);
+        shell.gpu = Some((Runner::new(1), gpu_ms));
+        assert_eq!(core.tem_target(), Target::Gpu);
+        shell.frames(&mut core, 1);
+        assert!(core.loads.tem.is_ready() && core.app.stats().tiles_uncovered > 0, "{:?}", core.app.stats());
+        assert_eq!(*core.probe(), Probe::Waiting, "the probe waits for the first view");
+        shell.frames(&mut core, 120);
+        assert_eq!(core.app.stats().tiles_uncovered, 0);
+        let Probe::Done(t) = *core.probe() else { panic!("{:?}", core.probe()) };
+        assert_eq!(t.gpu_ms, gpu_ms);
+        assert!(t.cpu_ms > 0.0 && t.cpu_ms < 10_000.0, "{t:?}");
+        let enhances = |s: &Shell, target| s.posted.iter().filter(|(t, k)| *t == target && *k == "enhance").count();
+        assert!(enhances(&shell, Target::Worker) > super::super::probe::TIMED_RUNS, "the worker's probe quads (a warm-up and the timed ones)");
+        assert_eq!(core.tem_target() == Target::Gpu, on_gpu, "gpu {gpu_ms} ms, cpu {} ms", t.cpu_ms);
+        assert_eq!(core.tem_backend(), if on_gpu { "WebGPU".to_string() } else { format!("CPU (faster: {})", t.label()) });
+        assert!(matches!(&core.loads.tem, Load::Ready { backend, .. } if *backend == core.tem_backend()));
+        assert!(core.console.iter().any(|l| l.starts_with("TEM probe: WebGPU")), "{:?}", core.console);
+        // Later quads go to the winner.
+        let before = (enhances(&shell, Target::Gpu), enhances(&shell, Target::Worker));
+        core.app.camera.position_m += DVec3::new(1500.0, 0.0, 1500.0);
+        shell.frames(&mut core, 60);
+        let after = (enhances(&shell, Target::Gpu), enhances(&shell, Target::Worker));
+        if on_gpu {
+            assert!(after.0 > before.0 && after.1 == before.1, "{before:?} -> {after:?}");
+        } else {
+            assert!(after.1 > before.1 && after.0 == before.0, "{before:?} -> {after:?}");
+        }
+    }
+    let asked = PageCore::new(ShareState::default(), PageStart { gpu: Ok(()), tem: TemChoice::Gpu, ..start(Ok(())) });
+    assert_eq!(*asked.probe(), Probe::Off);
 }
 
 /// A core at the default view whose models `shell` loaded, and the effects of its next round

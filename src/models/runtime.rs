@@ -14,10 +14,13 @@ pub enum TemChoice {
     Cpu,
     /// Learned detail starts switched off (`?tem=off`).
     Off,
+    /// As [`TemChoice::Auto`], and the start-up probe ([`probe_wanted`]) times the GPU against
+    /// the CPU worker even on a software adapter (`?tem=probe`).
+    Probe,
 }
 
 /// Why the models run on the CPU.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum CpuReason {
     /// The WebGPU adapter is a software rasteriser (SwiftShader, llvmpipe): the CPU kernels are
     /// faster than a CPU-emulated GPU.
@@ -26,10 +29,29 @@ pub enum CpuReason {
     Asked,
     /// WebGPU compute failed its self-check or is missing (the message says how).
     NoGpuCompute(String),
+    /// The start-up probe found the CPU worker faster than the GPU.
+    Faster(Timings),
+}
+
+/// What the start-up probe measured: the median milliseconds one TEM quad (level 0, the
+/// probe's window) took on each backend, as its runner timed it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Timings {
+    /// burn on the WebGPU device, readback included (ms).
+    pub gpu_ms: f64,
+    /// The CPU kernels in the worker (ms).
+    pub cpu_ms: f64,
+}
+
+impl Timings {
+    /// The overlay's words: "WebGPU 3.1 ms, CPU 41.0 ms a quad".
+    pub fn label(&self) -> String {
+        format!("WebGPU {:.1} ms, CPU {:.1} ms a quad", self.gpu_ms, self.cpu_ms)
+    }
 }
 
 /// The backend the models run on.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Backend {
     /// burn's wgpu backend on the renderer's WebGPU device.
     Gpu,
@@ -45,6 +67,7 @@ impl Backend {
             Backend::Cpu(CpuReason::SoftwareAdapter) => "CPU (software WebGPU adapter)".into(),
             Backend::Cpu(CpuReason::Asked) => "CPU (asked for by ?tem=cpu)".into(),
             Backend::Cpu(CpuReason::NoGpuCompute(_)) => "CPU (no WebGPU compute)".into(),
+            Backend::Cpu(CpuReason::Faster(t)) => format!("CPU (faster: {})", t.label()),
         }
     }
 
@@ -63,9 +86,30 @@ pub fn choose(choice: TemChoice, gpu: Result<(), String>, software_adapter: bool
         Ok(()) => match choice {
             TemChoice::Gpu => Backend::Gpu,
             TemChoice::Cpu => Backend::Cpu(CpuReason::Asked),
-            TemChoice::Auto | TemChoice::Off if software_adapter => Backend::Cpu(CpuReason::SoftwareAdapter),
-            TemChoice::Auto | TemChoice::Off => Backend::Gpu,
+            TemChoice::Auto | TemChoice::Off | TemChoice::Probe if software_adapter => Backend::Cpu(CpuReason::SoftwareAdapter),
+            TemChoice::Auto | TemChoice::Off | TemChoice::Probe => Backend::Gpu,
         },
+    }
+}
+
+/// Whether the page times the TEM on both backends once its first view is complete
+/// ([`choose_measured`]): only where the choice is the page's (not `?tem=gpu` / `?tem=cpu`),
+/// the GPU passed its self-check and the CPU worker runs. On a software adapter only when asked
+/// (`?tem=probe`): there the "GPU" is an emulation on the very cores the worker uses, so it
+/// cannot beat the kernels it emulates, and loading the TEM into it costs seconds of those
+/// cores (measured on SwiftShader: see the e2e probe test).
+pub fn probe_wanted(choice: TemChoice, gpu_ok: bool, worker_ok: bool, software_adapter: bool) -> bool {
+    gpu_ok && worker_ok && matches!((choice, software_adapter), (TemChoice::Auto | TemChoice::Off, false) | (TemChoice::Probe, _))
+}
+
+/// The backend from the probe's timings: the faster of the two, the GPU on a tie. A GPU
+/// whose self-check failed, or a backend the user asked for, wins over any timing
+/// ([`choose`]).
+pub fn choose_measured(choice: TemChoice, gpu: Result<(), String>, software_adapter: bool, timings: Timings) -> Backend {
+    match (choose(choice, gpu, software_adapter), choice) {
+        (b @ Backend::Cpu(CpuReason::NoGpuCompute(_) | CpuReason::Asked), _) | (b, TemChoice::Gpu) => b,
+        _ if timings.cpu_ms < timings.gpu_ms => Backend::Cpu(CpuReason::Faster(timings)),
+        _ => Backend::Gpu,
     }
 }
 
@@ -118,5 +162,29 @@ mod tests {
         }
         assert_eq!(choose(Auto, ok(), true).label(), "CPU (software WebGPU adapter)");
         assert!(Backend::Gpu.is_gpu() && !choose(Cpu, ok(), false).is_gpu());
+        assert_eq!(choose(Probe, ok(), true), Backend::Cpu(CpuReason::SoftwareAdapter));
+        assert_eq!(choose(Probe, ok(), false), Backend::Gpu);
+    }
+
+    /// The probe runs where the page chooses and both backends work (on a software adapter
+    /// only with `?tem=probe`); its timings pick the faster backend unless the user chose one
+    /// or the GPU failed its self-check.
+    #[test]
+    fn the_probe_runs_where_the_page_chooses_and_the_faster_backend_wins() {
+        use TemChoice::*;
+        assert!(probe_wanted(Auto, true, true, false) && probe_wanted(Off, true, true, false));
+        assert!(!probe_wanted(Auto, true, true, true) && probe_wanted(Probe, true, true, true));
+        assert!(!probe_wanted(Gpu, true, true, false) && !probe_wanted(Cpu, true, true, false));
+        assert!(!probe_wanted(Auto, false, true, false) && !probe_wanted(Auto, true, false, false) && !probe_wanted(Probe, false, true, true));
+        let slow_gpu = Timings { gpu_ms: 40.0, cpu_ms: 12.5 };
+        let fast_gpu = Timings { gpu_ms: 3.0, cpu_ms: 12.5 };
+        assert_eq!(choose_measured(Auto, Ok(()), false, slow_gpu), Backend::Cpu(CpuReason::Faster(slow_gpu)));
+        assert_eq!(choose_measured(Auto, Ok(()), false, fast_gpu), Backend::Gpu);
+        assert_eq!(choose_measured(Probe, Ok(()), true, fast_gpu), Backend::Gpu);
+        assert_eq!(choose_measured(Probe, Ok(()), true, slow_gpu).label(), "CPU (faster: WebGPU 40.0 ms, CPU 12.5 ms a quad)");
+        assert_eq!(choose_measured(Auto, Ok(()), false, Timings { gpu_ms: 5.0, cpu_ms: 5.0 }), Backend::Gpu);
+        assert_eq!(choose_measured(Gpu, Ok(()), false, slow_gpu), Backend::Gpu);
+        assert_eq!(choose_measured(Cpu, Ok(()), false, fast_gpu), Backend::Cpu(CpuReason::Asked));
+        assert!(matches!(choose_measured(Auto, Err("lost".into()), false, fast_gpu), Backend::Cpu(CpuReason::NoGpuCompute(_))));
     }
 }

@@ -575,6 +575,23 @@ test('the TEM on WebGPU (?tem=gpu) refines and matches the native CPU result', a
   await page.close();
 });
 
+test('the start-up probe (?tem=probe): once the first view is complete the TEM is timed on WebGPU (SwiftShader) and on the CPU worker, and runs on the faster one (timings)', async () => {
+  const { page, errors } = await open(LOW_VIEW, '?tem=probe');
+  const t0 = Date.now();
+  const s0 = await waitFor(page, (s) => s.tem_ready && s.stats.tiles_pending === 0, 'the first view', 240_000);
+  assert.equal(s0.stats.refine_backend, 'CPU (software WebGPU adapter)', 'before the probe: the adapter decides');
+  const s = await waitFor(page, (s) => /^TEM probe: WebGPU/.test(s.tem_probe || '') || /failed/.test(s.tem_probe || ''), 'the probe', 300_000);
+  const m = /WebGPU ([\d.]+) ms, CPU ([\d.]+) ms a quad/.exec(s.tem_probe);
+  assert.ok(m, `the probe: ${s.tem_probe}`);
+  const [gpuMs, cpuMs] = [Number(m[1]), Number(m[2])];
+  const s1 = await waitFor(page, (q) => q.stats.refine_backend !== s0.stats.refine_backend || q.stats.frames > s.stats.frames + 5, 'the TEM on its backend', 60_000);
+  report.tem_probe = { line: s.tem_probe, gpu_ms_per_quad: gpuMs, cpu_ms_per_quad: cpuMs, done_s: (Date.now() - t0) / 1000, backend: s1.stats.refine_backend };
+  assert.ok(gpuMs > 0 && cpuMs > 0);
+  assert.equal(s1.stats.refine_backend.startsWith('CPU'), cpuMs < gpuMs, `the faster one runs the TEM: ${s1.stats.refine_backend}`);
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
 test('learned detail can start switched off (?tem=off): the 32 m world only', async () => {
   const { page, errors } = await open(LOW_VIEW, '?tem=off');
   await waitFor(page, (s) => s.tem_ready && s.stats.frames > 30 && s.stats.tiles_pending === 0, 'the unrefined view', 240_000);
