@@ -13,7 +13,7 @@ use glam::DVec3;
 
 use super::heightmap::{PendingPng, PngKind};
 use super::loads::{Load, LoadError, Loads, ModelSet, notice, reason};
-use super::probe::Probe;
+use super::probe::{Probe, SKETCH_TIMED_RUNS, TIMED_RUNS};
 use super::{LearnedStatus, REFINE_BATCH, TerrainApp};
 use crate::grid::TileCoord;
 use crate::jobs::protocol::{Answer, Envelope, Reply, Request, SketchBytes};
@@ -101,6 +101,8 @@ enum For {
     ProbeLoad(Target),
     /// A probe quad on this backend.
     ProbeRun(Target),
+    /// A probe sketch on this backend.
+    SketchProbeRun(Target),
     Tem {
         epoch: u64,
         keys: Vec<PatchKey>,
@@ -215,6 +217,10 @@ pub struct PageCore {
     /// second load.
     probe: Probe,
     probe_files: Option<Vec<Vec<u8>>>,
+    /// The sketch generator's probe ([`super::probe`]).
+    sketch_probe: Probe,
+    /// The sketch generator has loaded on the GPU.
+    sketch_gpu_loaded: bool,
     sketch_on_gpu: bool,
     worker: Result<(), String>,
     software_adapter: bool,
@@ -242,6 +248,7 @@ impl PageCore {
     /// shown).
     pub fn new(share: ShareState, start: PageStart) -> Self {
         let tem = runtime::choose(start.tem, start.gpu.clone(), start.software_adapter);
+        let probe = if runtime::probe_wanted(start.tem, start.gpu.is_ok(), start.worker.is_ok(), start.software_adapter) { Probe::Waiting } else { Probe::Off };
         let tem_target = match (&tem, &start.worker) {
             (Backend::Gpu, _) => Target::Gpu,
             (_, Ok(())) => Target::Worker,
@@ -273,8 +280,10 @@ impl PageCore {
             tem_target,
             tem_choice: start.tem,
             gpu: start.gpu.clone(),
-            probe: if runtime::probe_wanted(start.tem, start.gpu.is_ok(), start.worker.is_ok(), start.software_adapter) { Probe::Waiting } else { Probe::Off },
+            probe: probe.clone(),
             probe_files: None,
+            sketch_probe: probe,
+            sketch_gpu_loaded: false,
             sketch_on_gpu: false,
             worker: start.worker,
             software_adapter: start.software_adapter,
@@ -455,8 +464,9 @@ impl PageCore {
             }
             ModelSet::Sketch => {
                 let (vae, generator) = (files.pop().unwrap_or_default(), files.pop().unwrap_or_default());
-                if self.tem_target == Target::Gpu {
-                    // The generator on the GPU too: strokes are made there when it loads.
+                if self.tem_target == Target::Gpu || self.sketch_probe == Probe::Waiting {
+                    // The generator on the GPU too: strokes are made there when it loads and
+                    // the TEM runs there, and its probe times it against the worker.
                     let request = Request::LoadSketch { generator: generator.clone(), vae: vae.clone() };
                     self.post(Target::Gpu, 0, request, For::Load { set, target: Target::Gpu });
                 }
@@ -676,16 +686,18 @@ impl PageCore {
         match (what, reply) {
             (For::Load { set, target }, Reply::Loaded { hash }) => {
                 if set == ModelSet::Sketch && target == Target::Gpu {
-                    self.sketch_on_gpu = true;
-                    if let Load::Ready { backend, .. } = &mut self.loads.sketch {
-                        *backend = "WebGPU".into();
-                    }
+                    self.sketch_gpu_loaded = true;
+                    self.set_sketch_on_gpu(self.tem_target == Target::Gpu);
                 } else {
                     self.ready(set, hash);
                 }
             }
             (For::Load { set: ModelSet::Sketch, target: Target::Gpu }, r) => {
-                self.console.push(format!("the sketch generator could not run on the GPU ({}); strokes go to the CPU worker", failed(&r).unwrap_or_default()));
+                let why = failed(&r).unwrap_or_default();
+                self.console.push(format!("the sketch generator could not run on the GPU ({why}); strokes go to the CPU worker"));
+                if self.sketch_probe == Probe::Waiting {
+                    self.sketch_probe = Probe::Failed(format!("it did not load on the GPU: {why}"));
+                }
             }
             (For::Load { set, .. }, _) if matches!(self.loads.get(set), Load::Failed(_)) => {}
             (For::Load { set, target }, r) => {
@@ -707,7 +719,7 @@ impl PageCore {
             }
             (For::Coarse(job), _) => self.app.coarse_failed(&job),
             (For::ProbeLoad(_), Reply::Loaded { .. }) => {
-                self.probe = Probe::timing();
+                self.probe = Probe::timing(TIMED_RUNS);
                 self.probe_next();
             }
             (For::ProbeLoad(target), r) => self.probe_failed(format!("the TEM did not load on {target:?}: {}", failed(&r).unwrap_or_else(|| format!("{r:?}")))),
@@ -718,6 +730,16 @@ impl PageCore {
             // A new world began while the quad waited: the same run again.
             (For::ProbeRun(_), Reply::Stale) => self.probe_next(),
             (For::ProbeRun(target), r) => self.probe_failed(format!("a quad on {target:?} failed: {}", failed(&r).unwrap_or_else(|| format!("{r:?}")))),
+            (For::SketchProbeRun(target), Reply::Heights { ms, .. }) => {
+                self.sketch_probe.record(target, ms);
+                self.sketch_probe_next();
+            }
+            (For::SketchProbeRun(target), r) => {
+                let why = format!("a sketch on {target:?} failed: {}", failed(&r).unwrap_or_else(|| format!("{r:?}")));
+                self.console.push(format!("the sketch probe failed ({why}); strokes go to the CPU worker"));
+                self.sketch_probe = Probe::Failed(why);
+                self.set_sketch_on_gpu(false);
+            }
             (For::Tile(job), r) => {
                 self.app.tile_failed(&job);
                 let e = failed(&r).unwrap_or_default();
@@ -850,15 +872,48 @@ impl PageCore {
         let Probe::Done(timings) = self.probe else { return };
         self.tem = runtime::choose_measured(self.tem_choice, self.gpu.clone(), self.software_adapter, timings);
         self.tem_target = if self.tem.is_gpu() { Target::Gpu } else { Target::Worker };
-        if !self.tem.is_gpu() {
-            // Strokes follow the TEM to the faster backend.
-            self.sketch_on_gpu = false;
-        }
         let backend = self.tem_backend();
         if let Load::Ready { backend: b, .. } = &mut self.loads.tem {
             b.clone_from(&backend);
         }
-        self.console.push(format!("TEM probe: {}; the TEM runs on {backend}", timings.label()));
+        self.console.push(format!("TEM probe: {}; the TEM runs on {backend}", timings.label("quad")));
+    }
+
+    /// What the sketch generator's probe found, or is doing.
+    pub fn sketch_probe(&self) -> &Probe {
+        &self.sketch_probe
+    }
+
+    /// Strokes go to the GPU (`true`) or the CPU worker; the loaded set's backend says so.
+    fn set_sketch_on_gpu(&mut self, on_gpu: bool) {
+        self.sketch_on_gpu = on_gpu;
+        let backend = self.sketch_backend();
+        if let Load::Ready { backend: b, .. } = &mut self.loads.sketch {
+            *b = backend.into();
+        }
+    }
+
+    /// Starts the sketch generator's probe once it has loaded on the GPU and in the worker and
+    /// no stroke is being made.
+    fn start_sketch_probe(&mut self) {
+        let busy = self.waiting.values().any(|w| matches!(w, For::Sketch(..)));
+        if self.sketch_probe == Probe::Waiting && self.sketch_gpu_loaded && self.loads.sketch.is_ready() && !busy {
+            self.sketch_probe = Probe::timing(SKETCH_TIMED_RUNS);
+            self.sketch_probe_next();
+        }
+    }
+
+    /// Posts the sketch probe's next run (the canvas's sketch), or, once every run is in,
+    /// sends strokes to the faster backend.
+    fn sketch_probe_next(&mut self) {
+        if let Some(target) = self.sketch_probe.next() {
+            let sketch = self.app.canvas.sketch().into();
+            return self.post(target, 0, Request::Sketch { sketch }, For::SketchProbeRun(target));
+        }
+        let Probe::Done(timings) = self.sketch_probe else { return };
+        let gpu = runtime::choose_measured(self.tem_choice, self.gpu.clone(), self.software_adapter, timings).is_gpu();
+        self.set_sketch_on_gpu(gpu);
+        self.console.push(format!("sketch probe: {}; strokes go to the {}", timings.label("sketch"), self.sketch_backend()));
     }
 
     fn probe_failed(&mut self, why: String) {
@@ -960,6 +1015,7 @@ impl PageCore {
         {
             self.post(Target::Worker, 0, Request::Blend { a: (&a).into(), b: (&b).into(), alpha }, For::Blend(job));
         }
+        self.start_sketch_probe();
         self.start_sketch_jobs();
     }
 

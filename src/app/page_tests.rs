@@ -119,7 +119,7 @@ fn the_start_up_probe_moves_the_tem_to_the_faster_backend_once_the_first_view_is
         let enhances = |s: &Shell, target| s.posted.iter().filter(|(t, k)| *t == target && *k == "enhance").count();
         assert!(enhances(&shell, Target::Worker) > super::super::probe::TIMED_RUNS, "the worker's probe quads (a warm-up and the timed ones)");
         assert_eq!(core.tem_target() == Target::Gpu, on_gpu, "gpu {gpu_ms} ms, cpu {} ms", t.cpu_ms);
-        assert_eq!(core.tem_backend(), if on_gpu { "WebGPU".to_string() } else { format!("CPU (faster: {})", t.label()) });
+        assert_eq!(core.tem_backend(), if on_gpu { "WebGPU".to_string() } else { format!("CPU (faster: {})", t.label("quad")) });
         assert!(matches!(&core.loads.tem, Load::Ready { backend, .. } if *backend == core.tem_backend()));
         assert!(core.console.iter().any(|l| l.starts_with("TEM probe: WebGPU")), "{:?}", core.console);
         // Later quads go to the winner.
@@ -301,6 +301,34 @@ fn the_sketch_world_loads_its_models_and_makes_terrain_variants_and_blends() {
     shell.frames(&mut core, 1);
     assert_eq!(core.blends, 1);
     assert!(core.app.canvas.revision() > rev);
+}
+
+/// The sketch generator's own probe: with a GPU (hardware adapter, self-check passed) the
+/// sketch models load on both the GPU and the worker when the sketch world is shown; the
+/// canvas's sketch is then made on each (a warm-up and two timed runs), and the next stroke
+/// goes to the faster: the worker when the GPU's sketches are answered as taking 10 s, the GPU
+/// at 0.001 ms; the loaded set's backend and the console say which.
+#[test]
+fn the_sketch_generators_probe_sends_strokes_to_the_faster_backend() {
+    for (gpu_ms, on_gpu) in [(10_000.0, false), (0.001, true)] {
+        let gpu_start = PageStart { gpu: Ok(()), ..start(Ok(())) };
+        let mut core = PageCore::new(ShareState { source: SourceKind::Sketch, ..ShareState::default() }, gpu_start);
+        let mut shell = Shell::new(&no_swap);
+        shell.gpu = Some((Runner::new(1), gpu_ms));
+        shell.frames(&mut core, 4);
+        let Probe::Done(t) = *core.sketch_probe() else { panic!("{:?}", core.sketch_probe()) };
+        assert_eq!(t.gpu_ms, gpu_ms);
+        let sketches = |s: &Shell, target| s.posted.iter().filter(|(t, k)| *t == target && *k == "sketch").count();
+        assert!(sketches(&shell, Target::Worker) > super::super::probe::SKETCH_TIMED_RUNS && sketches(&shell, Target::Gpu) > super::super::probe::SKETCH_TIMED_RUNS);
+        assert_eq!(core.sketch_backend(), if on_gpu { "WebGPU" } else { "CPU worker" }, "gpu {gpu_ms} ms, cpu {} ms", t.cpu_ms);
+        assert!(matches!(&core.loads.sketch, Load::Ready { backend, .. } if backend == core.sketch_backend()), "{:?}", core.loads.sketch);
+        assert!(core.console.iter().any(|l| l.starts_with("sketch probe: WebGPU")), "{:?}", core.console);
+        let before = (sketches(&shell, Target::Gpu), sketches(&shell, Target::Worker));
+        core.app.canvas.load(Sketch::filled(2));
+        shell.frames(&mut core, 2);
+        let after = (sketches(&shell, Target::Gpu), sketches(&shell, Target::Worker));
+        assert_eq!((after.0 - before.0, after.1 - before.1), if on_gpu { (1, 0) } else { (0, 1) }, "the next stroke");
+    }
 }
 
 /// A generator that answers NaN heights: the page says so in its message, and the same

@@ -1,16 +1,20 @@
-//! The start-up probe that picks where the TEM runs from measured timings: once the page's
-//! first view is complete, the TEM is loaded on the backend it does not run on yet, one probe
-//! quad (level 0, [`crate::models::tem::probe_input`]) is timed on the GPU and on the CPU
-//! worker, one warm-up and [`TIMED_RUNS`] timed runs each, one at a time so neither slows the
-//! other, and the faster backend runs the TEM from then on
-//! ([`crate::models::runtime::choose_measured`]). Pure state: the page's core posts the
-//! requests and hands back the runners' times.
+//! The start-up probes that pick where each model runs from measured timings. The TEM's: once
+//! the page's first view is complete, the TEM is loaded on the backend it does not run on yet,
+//! one probe quad (level 0, [`crate::models::tem::probe_input`]) is timed on the GPU and on the
+//! CPU worker, one warm-up and [`TIMED_RUNS`] timed runs each, one at a time so neither slows
+//! the other, and the faster backend runs the TEM from then on
+//! ([`crate::models::runtime::choose_measured`]). The sketch generator's: once it has loaded on
+//! both (the sketch world shown), the canvas's sketch is made on each, a warm-up and
+//! [`SKETCH_TIMED_RUNS`] timed runs, and strokes go to the faster. Pure state: the page's core
+//! posts the requests and hands back the runners' times.
 
 use super::page::Target;
 use crate::models::runtime::Timings;
 
 /// Timed probe quads per backend, after one warm-up quad whose time is not counted.
 pub const TIMED_RUNS: usize = 3;
+/// Timed probe sketches per backend, after one warm-up sketch (a sketch is ~6× a quad's work).
+pub const SKETCH_TIMED_RUNS: usize = 2;
 
 /// Where the probe is.
 #[derive(Clone, Debug, PartialEq)]
@@ -38,10 +42,10 @@ pub enum Probe {
 }
 
 impl Probe {
-    /// The timing stage: the GPU's runs first (its kernels are warm from its load), then the
-    /// worker's.
-    pub fn timing() -> Self {
-        let left = std::iter::repeat_n(Target::Gpu, 1 + TIMED_RUNS).chain(std::iter::repeat_n(Target::Worker, 1 + TIMED_RUNS)).collect();
+    /// The timing stage of `timed` runs per backend after a warm-up each: the GPU's runs
+    /// first, then the worker's.
+    pub fn timing(timed: usize) -> Self {
+        let left = std::iter::repeat_n(Target::Gpu, 1 + timed).chain(std::iter::repeat_n(Target::Worker, 1 + timed)).collect();
         Probe::Timing { left, gpu: Vec::new(), cpu: Vec::new() }
     }
 
@@ -72,13 +76,14 @@ impl Probe {
         }
     }
 
-    /// The overlay's words for it, if it has something to say.
-    pub fn label(&self) -> Option<String> {
+    /// The overlay's words for it, if it has something to say: `model` names the model
+    /// ("TEM"), `unit` one run ("quad").
+    pub fn label(&self, model: &str, unit: &str) -> Option<String> {
         match self {
             Probe::Off | Probe::Waiting => None,
-            Probe::Loading | Probe::Timing { .. } => Some("TEM probe: timing WebGPU against the CPU".into()),
-            Probe::Done(t) => Some(format!("TEM probe: {}", t.label())),
-            Probe::Failed(why) => Some(format!("TEM probe failed ({why})")),
+            Probe::Loading | Probe::Timing { .. } => Some(format!("{model} probe: timing WebGPU against the CPU")),
+            Probe::Done(t) => Some(format!("{model} probe: {}", t.label(unit))),
+            Probe::Failed(why) => Some(format!("{model} probe failed ({why})")),
         }
     }
 }
@@ -101,10 +106,10 @@ mod tests {
     /// the median of the rest; a reply out of turn changes nothing.
     #[test]
     fn the_probe_keeps_each_backends_median_after_its_warm_up_and_ignores_replies_out_of_turn() {
-        let mut p = Probe::timing();
+        let mut p = Probe::timing(TIMED_RUNS);
         assert_eq!(p.next(), Some(Target::Gpu));
         p.record(Target::Worker, 1.0);
-        assert_eq!(p, Probe::timing(), "a worker reply while the GPU runs is ignored");
+        assert_eq!(p, Probe::timing(TIMED_RUNS), "a worker reply while the GPU runs is ignored");
         for ms in [900.0, 30.0, 10.0, 20.0] {
             p.record(Target::Gpu, ms);
         }
@@ -114,7 +119,12 @@ mod tests {
         }
         assert_eq!(p, Probe::Done(Timings { gpu_ms: 20.0, cpu_ms: 6.0 }));
         assert_eq!(p.next(), None);
-        assert_eq!(p.label().unwrap(), "TEM probe: WebGPU 20.0 ms, CPU 6.0 ms a quad");
-        assert_eq!(Probe::Waiting.label(), None);
+        assert_eq!(p.label("TEM", "quad").unwrap(), "TEM probe: WebGPU 20.0 ms, CPU 6.0 ms a quad");
+        assert_eq!(Probe::Waiting.label("TEM", "quad"), None);
+        let mut s = Probe::timing(SKETCH_TIMED_RUNS);
+        for (t, ms) in [(Target::Gpu, 99.0), (Target::Gpu, 4.0), (Target::Gpu, 2.0), (Target::Worker, 9.0), (Target::Worker, 3.0), (Target::Worker, 5.0)] {
+            s.record(t, ms);
+        }
+        assert_eq!(s, Probe::Done(Timings { gpu_ms: 4.0, cpu_ms: 5.0 }), "of two timed runs the slower counts");
     }
 }

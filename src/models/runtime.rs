@@ -44,9 +44,9 @@ pub struct Timings {
 }
 
 impl Timings {
-    /// The overlay's words: "WebGPU 3.1 ms, CPU 41.0 ms a quad".
-    pub fn label(&self) -> String {
-        format!("WebGPU {:.1} ms, CPU {:.1} ms a quad", self.gpu_ms, self.cpu_ms)
+    /// The overlay's words, for runs of `unit`: "WebGPU 3.1 ms, CPU 41.0 ms a quad".
+    pub fn label(&self, unit: &str) -> String {
+        format!("WebGPU {:.1} ms, CPU {:.1} ms a {unit}", self.gpu_ms, self.cpu_ms)
     }
 }
 
@@ -67,7 +67,7 @@ impl Backend {
             Backend::Cpu(CpuReason::SoftwareAdapter) => "CPU (software WebGPU adapter)".into(),
             Backend::Cpu(CpuReason::Asked) => "CPU (asked for by ?tem=cpu)".into(),
             Backend::Cpu(CpuReason::NoGpuCompute(_)) => "CPU (no WebGPU compute)".into(),
-            Backend::Cpu(CpuReason::Faster(t)) => format!("CPU (faster: {})", t.label()),
+            Backend::Cpu(CpuReason::Faster(t)) => format!("CPU (faster: {})", t.label("quad")),
         }
     }
 

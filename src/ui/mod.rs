@@ -29,6 +29,8 @@ pub struct Environment {
     /// What the start-up probe measured (`TEM probe: WebGPU 3.1 ms, CPU 41.0 ms a quad`), while
     /// it runs or once it has.
     pub tem_probe: Option<String>,
+    /// What the sketch generator's probe measured (`sketch probe: WebGPU … a sketch`).
+    pub sketch_probe: Option<String>,
     /// Name of the tile source.
     pub source: String,
     /// TEM weight files loaded / total, while they load.
@@ -54,7 +56,8 @@ impl Environment {
     /// TEM's progress, error and readiness, where strokes become terrain, the worker's rest.
     pub fn take_core(&mut self, core: &PageCore) {
         self.ml_status = core.status.clone();
-        self.tem_probe = core.probe().label();
+        self.tem_probe = core.probe().label("TEM", "quad");
+        self.sketch_probe = core.sketch_probe().label("sketch", "sketch");
         self.tem_loading = match core.loads.tem {
             Load::Fetching { done, total } => Some((done, total)),
             _ => None,
@@ -135,7 +138,7 @@ pub fn stats_json(
     let app = &core.app;
     let sketch = app.source() == SourceKind::Sketch;
     serde_json::json!({
-        "stats": app.stats(), "adapter": env.adapter, "ml_status": env.ml_status, "tem_probe": env.tem_probe, "tem_ready": env.tem_ready,
+        "stats": app.stats(), "adapter": env.adapter, "ml_status": env.ml_status, "tem_probe": env.tem_probe, "sketch_probe": env.sketch_probe, "tem_ready": env.tem_ready,
         "tem_error": env.tem_error, "source": env.source, "uploads": env.uploads, "triangles": env.triangles, "cpu_ms": env.cpu_ms,
         "cpu_ms_worst": frame_work.iter().copied().max_by(|a, b| a[0].total_cmp(&b[0])),
         "message": core.message, "device_restarts": device_restarts, "link": app.share_state().to_fragment(),
@@ -401,7 +404,7 @@ impl Overlay {
             }
         }
         ui.label(format!("ML: {}", env.ml_status));
-        if let Some(probe) = &env.tem_probe {
+        for probe in [&env.tem_probe, &env.sketch_probe].into_iter().flatten() {
             ui.label(probe);
         }
         if stats.source == SourceKind::Sketch.label() && stats.sketch_shown > 0 {

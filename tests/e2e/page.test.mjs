@@ -270,7 +270,8 @@ test('the learned world: tiles from the CPU worker match the native CLI within 0
   const nativeMs = Date.now() - t0;
   const native = readTiffF32(fs.readFileSync(tif));
   assert.equal(heights.length, native.length);
-  const diff = Math.max(...heights.map((h, i) => Math.abs(h - native[i])));
+  const diff = Math.max(...heights.map((h, i) => Math.abs(Math.fround(h) - native[i])));
+  const differing = heights.filter((h, i) => Math.fround(h) !== native[i]).length;
   const relief = Math.max(...native) - Math.min(...native);
   // Frame times over the learned world while the autopilot flies on: the intervals between
   // the 3-D view's frames, which the page draws only once the GPU has finished the previous
@@ -287,7 +288,7 @@ test('the learned world: tiles from the CPU worker match the native CLI within 0
   const frames = (await page.evaluate(() => Array.from(window.wasmBindings.terrain_frame_intervals()))).sort((a, b) => a - b);
   const median = frames[Math.floor(frames.length / 2)];
   report.learned_world = {
-    source: s1.source, tile_0_2_max_abs_diff_vs_native_m: diff, tile_0_2_relief_m: relief, native_cli_ms: nativeMs,
+    source: s1.source, tile_0_2_max_abs_diff_vs_native_m: diff, tile_0_2_samples_differing_from_native: differing, tile_0_2_relief_m: relief, native_cli_ms: nativeMs,
     page_ms_per_tile_worker: s1.stats.ms_per_tile, tiles_generated: s1.stats.tiles_generated, tile_jobs: s1.stats.tile_jobs,
     flight_s: LEARNED_FLIGHT_S, frames: frames.length, frame_ms_median: median, frame_ms_p95: frames[Math.floor(frames.length * 0.95)],
     frame_ms_worst: frames[frames.length - 1], worst_over_median: frames[frames.length - 1] / median,
@@ -786,9 +787,9 @@ test('your terrain pinned in the page: a GeoTIFF chosen with "Pin terrain…" be
   const nativeTif = path.join(out, 'pin_beside_native.tif');
   execFileSync(nativeBin, ['world', '--seed', '1', '--tiles', '-1', '0', '1', '1', '--source', 'tcm', '--weights', path.join(repo, 'weights'), '--pin', `${tif}@0,0`, '--out', nativeTif]);
   const native = readTiff(fs.readFileSync(nativeTif)).data;
-  const dh = beside.reduce((m, h, k) => Math.max(m, Math.abs(h - native[k])), 0);
+  const dh = beside.reduce((m, h, k) => Math.max(m, Math.abs(Math.fround(h) - native[k])), 0);
   await page.screenshot({ path: path.join(out, 'pinned.png') });
-  report.pin = { message: s.message, beside_max_dh_vs_native_m: dh };
+  report.pin = { message: s.message, beside_max_dh_vs_native_m: dh, beside_samples_differing_from_native: beside.filter((h, k) => Math.fround(h) !== native[k]).length };
   assert.ok(dh < 0.05, `page vs native beside the pin: ${dh} m`);
   // Away until the pin has left the page's cache, and back: made again, the same bit for bit.
   const back = await flyAwayAndBack(page, [[0, 0], [-1, 0]]);
@@ -1160,6 +1161,20 @@ test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, cle
   assert.deepEqual(other.errors, []);
   await page.close();
   await other.page.close();
+});
+
+test('the sketch generator\'s probe (?tem=probe): loaded on WebGPU (SwiftShader) and in the CPU worker, timed on each, strokes go to the faster (timings)', async () => {
+  const { page, errors } = await open(SKETCH_VIEW, '?tem=probe', BIG);
+  const t0 = Date.now();
+  const s = await waitFor(page, (q) => /^sketch probe: WebGPU/.test(q.sketch_probe || '') || /failed/.test(q.sketch_probe || ''), 'the sketch probe', 400_000);
+  const m = /WebGPU ([\d.]+) ms, CPU ([\d.]+) ms a sketch/.exec(s.sketch_probe);
+  assert.ok(m, `the probe: ${s.sketch_probe}`);
+  const [gpuMs, cpuMs] = [Number(m[1]), Number(m[2])];
+  report.sketch_probe = { line: s.sketch_probe, gpu_ms_per_sketch: gpuMs, cpu_ms_per_sketch: cpuMs, done_s: (Date.now() - t0) / 1000, backend: s.sketch_backend };
+  assert.ok(gpuMs > 0 && cpuMs > 0);
+  assert.equal(s.sketch_backend, cpuMs < gpuMs ? 'CPU worker' : 'WebGPU');
+  assert.deepEqual(errors, []);
+  await page.close();
 });
 
 test('sketch to terrain on WebGPU (?tem=gpu): a stroke is made on the GPU and matches the native CLI', async () => {
