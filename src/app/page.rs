@@ -896,8 +896,11 @@ impl PageCore {
     /// Starts the sketch generator's probe once it has loaded on the GPU and in the worker and
     /// no stroke is being made.
     fn start_sketch_probe(&mut self) {
-        let busy = self.waiting.values().any(|w| matches!(w, For::Sketch(..)));
-        if self.sketch_probe == Probe::Waiting && self.sketch_gpu_loaded && self.loads.sketch.is_ready() && !busy {
+        if self.sketch_probe != Probe::Waiting || !self.sketch_gpu_loaded || !self.loads.sketch.is_ready() {
+            return;
+        }
+        // A stroke in flight would slow one of the runs: wait for it.
+        if !self.waiting.values().any(|w| matches!(w, For::Sketch(..))) {
             self.sketch_probe = Probe::timing(SKETCH_TIMED_RUNS);
             self.sketch_probe_next();
         }

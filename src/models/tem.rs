@@ -355,7 +355,7 @@ impl TemCpu {
         .fused()
     }
 
-    /// Every layer [`Conv3::fused`]: nothing downstream of the TEM amplifies a last-bit
+    /// Every layer made [`Conv3::with_fused`] (true): nothing downstream of the TEM amplifies a last-bit
     /// difference (its output is drawn, not grown from), so it takes the x86 kernels' faster
     /// fused multiply-adds (25–35 % natively).
     fn fused(self) -> Self {

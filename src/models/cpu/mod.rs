@@ -12,7 +12,7 @@
 //! Rust elsewhere. Every kernel accumulates in the same order, and by default each step is a
 //! multiply, then an add, so every kernel on every machine, the page's included, gives the same
 //! bits: a learned tile is a pure function of (seed, weights, tile), and a last-bit
-//! difference cannot flip a drainage choice downstream. A layer marked [`Conv3::fused`] (the
+//! difference cannot flip a drainage choice downstream. A layer made [`Conv3::with_fused`] (the
 //! TEM's, whose output nothing downstream amplifies) lets the x86 kernels fuse the two into one
 //! FMA instead: 25–35 % faster natively, and the page's results then differ in the last bits
 //! (0.24 mm on the TEM probe).
@@ -73,7 +73,10 @@ pub struct Conv3 {
     /// Weights as [tap = 3·ky + kx][cin][cout].
     w: Vec<f32>,
     b: Vec<f32>,
-    /// See [`Conv3::fused`].
+    /// Whether the x86 kernels fuse each multiply and add into one FMA for this layer: one
+    /// rounding instead of two, 25–35 % faster on AVX-512, but results that differ in the last
+    /// bits from the portable kernels and the page's. Off by default, so a layer gives the same
+    /// bits on every machine and in the page ([`Conv3::with_fused`]).
     fused: bool,
 }
 
@@ -167,18 +170,12 @@ impl Conv3 {
     }
 
     /// The same layer, with the x86 kernels allowed to fuse each multiply and add into one
-    /// FMA (`true`) or not (`false`, every layer's default).
+    /// FMA (`true`: one rounding instead of two, 25–35 % faster on AVX-512, but results that
+    /// differ in the last bits from the portable kernels and the page's) or not (`false`, every
+    /// layer's default: the same bits on every machine and in the page).
     pub fn with_fused(mut self, fused: bool) -> Self {
         self.fused = fused;
         self
-    }
-
-    /// Whether the x86 kernels fuse each multiply and add into one FMA for this layer: one
-    /// rounding instead of two, 25–35 % faster on AVX-512, but results that differ in the last
-    /// bits from the portable kernels and the page's. Off by default, so a layer gives the same
-    /// bits on every machine and in the page.
-    pub fn fused(&self) -> bool {
-        self.fused
     }
 
     /// Input channels.
@@ -321,8 +318,8 @@ pub enum Kernels {
 impl Kernels {
     /// What [`conv`] uses: [`Kernels::Best`], or [`Kernels::Avx2`] / [`Kernels::Portable`]
     /// when the environment variable `TERRAIN_CPU_KERNELS` is `avx2` / `portable` (read once;
-    /// for comparing them in benchmarks, and the portable kernels multiply, then add, in the
-    /// order of the page's simd128 kernels, where the x86 ones fuse the two).
+    /// for comparing them in benchmarks; every one gives the same bits, except for a layer
+    /// made [`Conv3::with_fused`], which the x86 kernels fuse).
     pub fn chosen() -> Self {
         #[cfg(not(target_arch = "wasm32"))]
         {

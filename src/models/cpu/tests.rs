@@ -189,7 +189,7 @@ fn wrong_sizes_and_non_finite_weights_are_refused() {
     assert_eq!(Conv3::from_oihw(1, 1, &w, None).unwrap_err(), LayerError::NonFinite { cout: 1, cin: 1 });
 }
 
-/// A layer as loaded (not [`Conv3::fused`]) gives the portable kernel's bits on every kernel
+/// A layer as loaded (not made [`Conv3::with_fused`]) gives the portable kernel's bits on every kernel
 /// (AVX-512, AVX2, the one-channel dot kernels), so natively a tile is the page's bits (its
 /// SIMD128 kernel multiplies, then adds, in the portable kernel's order); a fused layer gives
 /// the same bits on AVX-512 as on AVX2 + FMA (where both vectorise it), and differs from the

@@ -15,7 +15,7 @@ fn lanes(c: usize, cout: usize) -> __mmask16 {
 /// Any number of output channels with AVX-512: blocks of [`PX`] pixels × 32 channels (16 where
 /// fewer are left), the last vector masked to the channels there are. Each output is the bias
 /// plus the taps and input channels in the same order as every other kernel; with `F` (a
-/// [`Conv3::fused`] layer) each step is one fused multiply-add, as in the AVX2 kernels, else a
+/// [`Conv3::with_fused`] layer) each step is one fused multiply-add, as in the AVX2 kernels, else a
 /// multiply, then an add, as in the portable and the page's kernels: either way the AVX2
 /// kernels' bits.
 ///
