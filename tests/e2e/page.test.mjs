@@ -306,6 +306,56 @@ test('the learned world: tiles from the CPU worker match the native CLI within 0
   await page.close();
 });
 
+// Sustained speed: the learned world at the default radius (4 tiles) flown by the autopilot
+// at rising speeds, each on its own heading from the same start (90° apart, so each flies
+// over tiles not made yet beyond the start's view), tiles from the CPU worker. Per speed, the
+// view's own tiles pending, sampled every 250 ms: the share of samples with none pending, the
+// most at once and at the end, and the tiles made per second. The view stays complete at a
+// speed where the worker keeps up: the backlog never grows past two rows of tiles across the
+// view (2 × (2·4 + 1)) and every tile of the view is made again in the flight's last 5 s.
+const SUSTAINED_SPEEDS_MPS = [250, 500, 1000, 2000];
+const SUSTAINED_FLIGHT_S = 20;
+const SUSTAINED_BACKLOG_TILES = 18;
+const SUSTAINED_CAUGHT_UP_S = 5;
+
+test('sustained speed: flown at 250 m/s by the autopilot, the learned view at the default radius stays complete (never more than two rows, 18 tiles, pending; all made again in the last 5 s of a 20 s flight; 500 to 2000 m/s reported)', async () => {
+  const at = (v, k) => `v=2&seed=11&src=tcm&cam=3000,2500,9000,${(0.9 + k * Math.PI / 2).toFixed(4)},-0.3&lod=6&auto=${v}`;
+  const { page, errors } = await open(at(0, 0));
+  const t0 = Date.now();
+  await waitFor(page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 20, 'the learned view at the default radius', 400_000);
+  report.sustained = { first_complete_view_s: (Date.now() - t0) / 1000, radius_tiles: 4, flight_s: SUSTAINED_FLIGHT_S, speeds: {} };
+  for (const [k, v] of SUSTAINED_SPEEDS_MPS.entries()) {
+    await page.evaluate((f) => { window.location.hash = f; }, at(v, k));
+    const before = await stats(page);
+    const samples = [];
+    const start = Date.now();
+    while (Date.now() - start < SUSTAINED_FLIGHT_S * 1000) {
+      await page.waitForTimeout(250);
+      samples.push((await stats(page)).stats.tiles_pending);
+    }
+    const after = await stats(page);
+    const secs = (Date.now() - start) / 1000;
+    const lastComplete = samples.lastIndexOf(0);
+    report.sustained.speeds[v] = {
+      complete_share: samples.filter((p) => p === 0).length / samples.length,
+      pending_max: Math.max(...samples), pending_end: samples[samples.length - 1],
+      last_complete_s: lastComplete < 0 ? null : (lastComplete + 1) * 0.25,
+      tiles_made_per_s: (after.stats.tiles_generated - before.stats.tiles_generated) / secs,
+      ms_per_tile: after.stats.ms_per_tile,
+      stays_complete: Math.max(...samples) <= SUSTAINED_BACKLOG_TILES && lastComplete >= 0 && (lastComplete + 1) * 0.25 >= SUSTAINED_FLIGHT_S - SUSTAINED_CAUGHT_UP_S,
+    };
+  }
+  const kept = SUSTAINED_SPEEDS_MPS.filter((v) => report.sustained.speeds[v].stays_complete);
+  report.sustained.fastest_complete_mps = kept.length ? Math.max(...kept) : null;
+  console.log('SUSTAINED ' + JSON.stringify(report.sustained));
+  const slow = report.sustained.speeds[SUSTAINED_SPEEDS_MPS[0]];
+  assert.ok(slow.pending_max <= SUSTAINED_BACKLOG_TILES, `at ${SUSTAINED_SPEEDS_MPS[0]} m/s up to ${slow.pending_max} tiles were pending`);
+  assert.ok(slow.last_complete_s !== null && slow.last_complete_s >= SUSTAINED_FLIGHT_S - SUSTAINED_CAUGHT_UP_S, `at ${SUSTAINED_SPEEDS_MPS[0]} m/s the view was last complete at ${slow.last_complete_s} s`);
+  assert.ok(report.sustained.speeds[SUSTAINED_SPEEDS_MPS.at(-1)].tiles_made_per_s > 0, 'no tiles were made in the fastest flight');
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
 const FLIGHT_S = 60;
 // A fast flight over a small radius fills the tile cache (capacity 121 tiles) and, with the
 // CPU detail models in a worker refining during the flight, the patch store: the warm-up
