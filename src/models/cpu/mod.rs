@@ -431,20 +431,14 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
         // A fused layer of 32 output channels takes the AVX2 kernel even where AVX-512 is
         // present, with the same bits: its 3 × 32 block ran the TEM 7 % faster on Zen 4
         // (9.4 against 10.1 ms a quad, every level). Unfused, the AVX-512 kernel is faster
-        // (the ×4 step: 13.7 against 16.1 ms a tile). A layer of 24 output channels takes
-        // AVX-512's pixel-vector kernel, whose lanes all work (the channel-vector one masks a
-        // quarter of them): the sketch generator's 24-channel layers 25–30 % faster.
+        // (the ×4 step: 13.7 against 16.1 ms a tile). The AVX-512 kernel runs a layer of 24
+        // output channels along the pixels, every lane working (its channel vectors would mask
+        // a quarter): the sketch generator's 24-channel layers 25–30 % faster.
         #[cfg(target_arch = "x86_64")]
         if kernels == Kernels::Best && has_avx512() && !(layer.cout == LANES && layer.fused && has_avx2_fma()) {
             // SAFETY: the CPU has AVX-512F (checked just above).
             unsafe {
-                if x86_512::pixels_take(layer.cout) {
-                    if layer.fused {
-                        x86_512::rows_pixels::<true>(layer, src, out, y0, n, w, post);
-                    } else {
-                        x86_512::rows_pixels::<false>(layer, src, out, y0, n, w, post);
-                    }
-                } else if layer.fused {
+                if layer.fused {
                     x86_512::rows::<true>(layer, src, out, y0, n, w, post);
                 } else {
                     x86_512::rows::<false>(layer, src, out, y0, n, w, post);

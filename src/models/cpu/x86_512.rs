@@ -1,8 +1,8 @@
 use super::{Conv3, Map, Post};
 use std::arch::x86_64::*;
 
-/// Output pixels per block: 8 pixels × 2 vectors of 16 channels are 16 of AVX-512's 32 vector
-/// registers, beside 2 weight vectors and the broadcast input (the AVX2 kernels have 16
+/// Output pixels per block at most: 8 pixels × 2 vectors of 16 channels are 16 of AVX-512's 32
+/// vector registers, beside 2 weight vectors and the broadcast input (the AVX2 kernels have 16
 /// registers, so 3 or 4 pixels). Its reads past a row's end stay in a map's slack.
 pub(super) const PX: usize = 8;
 
@@ -12,8 +12,9 @@ fn lanes(c: usize, cout: usize) -> __mmask16 {
     ((1u32 << n) - 1) as __mmask16
 }
 
-/// Any number of output channels with AVX-512: blocks of [`PX`] pixels × 32 channels (16 where
-/// fewer are left), the last vector masked to the channels there are. Each output is the bias
+/// Any number of output channels with AVX-512: blocks of 6 to [`PX`] pixels ([`block_px`]) × 32
+/// channels (16 where fewer are left), the last vector masked to the channels there are; a
+/// layer of 24 output channels on [`rows_pixels`] instead. Each output is the bias
 /// plus the taps and input channels in the same order as every other kernel; with `F` (a
 /// [`Conv3::with_fused`] layer) each step is one fused multiply-add, as in the AVX2 kernels, else a
 /// multiply, then an add, as in the portable and the page's kernels: either way the AVX2
@@ -23,6 +24,10 @@ fn lanes(c: usize, cout: usize) -> __mmask16 {
 /// The CPU must support AVX-512F.
 #[target_feature(enable = "avx512f")]
 pub(super) unsafe fn rows<const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+    if layer.cout == PIXEL_CHANNELS {
+        // SAFETY: AVX-512F (this function's contract) and 24 output channels.
+        return unsafe { rows_pixels::<F>(layer, src, out, y0, n, w, post) };
+    }
     let (cin, cout) = (layer.cin, layer.cout);
     let sw = src.w + 2;
     assert!(src.data.len() >= ((y0 + n + 1) * sw + w + 2 + PX) * cin);
@@ -122,14 +127,9 @@ unsafe fn block<const V: usize, const P: usize, const F: bool>(layer: &Conv3, sr
     }
 }
 
-/// Whether [`rows_pixels`] takes a layer of `cout` output channels: 24 (the sketch
-/// generator's second scale). With 12 or 16 channels it was slower than [`rows`] on Zen 4
-/// (the sketch generator's full-size layers: 8.3 → 9.0 ms and 2.6 → 3.8 ms).
-pub(super) fn pixels_take(cout: usize) -> bool {
-    cout == PIXEL_CHANNELS
-}
-
-/// Output channels of [`rows_pixels`].
+/// Output channels of [`rows_pixels`]: 24 (the sketch generator's second scale). With 12 or
+/// 16 channels it was slower than the channel-vector blocks of [`rows`] on Zen 4 (the sketch
+/// generator's full-size layers: 8.3 → 9.0 ms and 2.6 → 3.8 ms).
 const PIXEL_CHANNELS: usize = 24;
 
 /// Pixels of a row per vector of [`rows_pixels`].
@@ -145,9 +145,9 @@ const PIXEL_LANES: usize = 16;
 /// 24-channel layers: 18.4 → 12.0 ms on 1 thread (Zen 4).
 ///
 /// # Safety
-/// The CPU must support AVX-512F; `pixels_take(layer.cout)`.
+/// The CPU must support AVX-512F; the layer has [`PIXEL_CHANNELS`] outputs.
 #[target_feature(enable = "avx512f")]
-pub(super) unsafe fn rows_pixels<const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
+unsafe fn rows_pixels<const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
     const C: usize = PIXEL_CHANNELS;
     const L: usize = PIXEL_LANES;
     let cin = layer.cin;
