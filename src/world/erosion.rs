@@ -21,8 +21,8 @@
 //! river's bed follows the generator's profile with a lag of `K/α·√A` samples, so the sills
 //! of basins along it are cut through. Erosion alone does not leave a field that drains: the
 //! slopes into a lake are cut down to its floor, and a sample between two diagonal gullies can
-//! be a pit to the 4-connected fill. The learned world cuts a channel through what is left
-//! ([`super::learned::COARSE_CHANNEL_WALL_M`]). Water routed to 4-neighbours only, or slopes
+//! be a pit to the 4-connected fill. The learned world's 32 m drainage stages drain what is
+//! left ([`super::learned`]). Water routed to 4-neighbours only, or slopes
 //! cut no lower than a lake's surface, gave a world further from the real ranges
 //! (eval-tcm, 4 seeds: realism ratio with the drainage statistics 0.35–0.52 against 0.30). The border (and any `fixed`
 //! sample) is never changed and takes all water: a block drained this way keeps the edges it
