@@ -18,29 +18,29 @@
 //!   [`grow::MARGIN`] samples of its neighbours), with noise drawn at global positions, so
 //!   neighbouring 32 m tiles agree along their edges wherever their 128 m fields do;
 //! - each 32 m drainage stage below first drains its block at coarser spacings, 1 km down to
-//!   64 m ([`COARSER_DRAINAGE`], [`super::drainage::drain_coarser`]), so that valleys are as
+//!   64 m, three times over ([`COARSER_DRAINAGE`], [`super::drainage::drain_coarser`]), so that valleys are as
 //!   wide as their scale, not notches that area-averaging closes again;
-//! - the first stage carves the closed depressions ([`super::drainage::carve_depressions_around`])
-//!   of the block of 2×2 tiles (corner tile at even i and j) a tile belongs to, the block's
+//! - its closed depressions are then carved ([`super::drainage::carve_depressions_around`])
+//!   over the block of 2×2 tiles (corner tile at even i and j) it belongs to, the block's
 //!   border fixed: each pit with a way out no higher than itself inside the block gets a
-//!   channel carved along its spill path with V-shaped sides ([`CHANNEL_WALL_M`]). Nothing is
-//!   raised: a basin whose way out lies beyond the block's border is left for the next stages
-//!   (raising it to the border made a level lake of it: 88 % of the world's flat area was such
-//!   raised ground, eval-tcm flat area 2.31 % → 1.48 %);
-//! - the second stage carves again over regions of 4×4 tiles (16 km, [`REGION_TILES`], corner
-//!   tiles at even i and j, two tiles apart, so every tile lies in four), each region's border
-//!   fixed; a tile is the lowest of its four regions sample by sample
-//!   ([`LearnedSource::lowest_tile`]). A basin drains if any region that holds it whole drains
-//!   it, and no region's fixed border decides where the water goes;
-//! - the final stage breaches what is left ([`super::drainage::breach_depressions`]) over the
-//!   blocks of 2×2 tiles offset by one tile (corner tile at odd i and j): every pit gets its
-//!   channel, the parts of a basin more than [`BREACH_DEPTH_M`] below its spill height become
-//!   level lakes, and a basin whose way out is beyond the block's border is raised to it. A
-//!   world tile is the quadrant of its final block, a pure function of the 8×8 tiles under
-//!   the nine regions it needs. Before the regions (2026-11-28) this stage breached the first
-//!   stage's tiles directly, and the water of a basin cut by a first-stage border ran to the
-//!   final block's fixed border: deep valley floors closed behind it, 4.5 % of seed 42's area
-//!   at 32 m (now 1.0 %). Drained blocks and regions are kept in bounded caches.
+//!   channel carved along its spill path with V-shaped sides ([`CHANNEL_WALL_M`]). A basin cut
+//!   by a tile edge inside the block is drained as one (a pass per tile leaves it as a pit
+//!   along the edge), and a tile is a pure function of the block's four tiles. Nothing is
+//!   raised in this stage: a basin whose way out lies beyond the block's border is left for
+//!   the second stage, which holds it whole (raising it to the border here made a level lake
+//!   of it that the second stage could only cut channels into: 88 % of the world's flat area
+//!   was such raised ground, eval-tcm flat area 2.31 % → 1.48 %);
+//! - a second stage drains the blocks offset by one tile (corner tile at odd i and j) of those
+//!   tiles ([`super::drainage::breach_depressions`]): every pit gets its channel, the parts of
+//!   a basin more than [`BREACH_DEPTH_M`] below its spill height become level lakes, and a
+//!   basin whose way out is beyond this block's border is raised to it. A basin cut by a
+//!   first-stage block's border lies inside a second-stage block, and every sample drains to
+//!   the block's border. A world tile is the quadrant of its second-stage block, a pure
+//!   function of the 4×4 tiles of the four first-stage blocks under it. With tiles as smooth as
+//!   the first generators made (tile grid, bowls and domes along the edges) this stage turned
+//!   the basins along the edges into wide flat lakes; with tiles as rugged as real terrain it
+//!   takes the closed depressions left along the first stage's borders to none (eval-tcm).
+//!   Drained blocks of both stages are kept in bounded caches.
 //!
 //! The macro field — the absolute level and the large-scale relief the TCM is conditioned on —
 //! is seeded Perlin fBm over tile coordinates ([`macro_height`]), and so is the ruggedness
@@ -105,11 +105,8 @@ pub const CHANNEL_WALL_M: f32 = 16.0;
 
 /// The coarser spacings each 32 m drainage stage drains its block at before its own, as
 /// factors of 32 m, coarsest first: 1 km, 512 m, 256 m, 128 m, 64 m; the list is run
-/// [`COARSER_DRAINAGE_PASSES`] times in the first and the final stage, once in the second
-/// ([`drainage::drain_coarser`]: the block area-averaged, carved in the first two stages and
-/// breached in the final one, the change interpolated back). The history below is from
-/// before the second stage's regions (2026-11-28), when a second stage breached the blocks
-/// the final stage now does. A
+/// [`COARSER_DRAINAGE_PASSES`] times ([`drainage::drain_coarser`]: the block area-averaged,
+/// carved in the first stage and breached in the second, the change interpolated back). A
 /// channel carved at 32 m alone is a notch one sample wide that area-averaging closes again;
 /// these are valleys as wide as their scale. eval-tcm, 4 seeds, weights ffa8e378, realism
 /// ratio with the drainage statistics (at 128 / 256 px without them) from 0.412 (0.171 /
@@ -123,11 +120,10 @@ pub const CHANNEL_WALL_M: f32 = 16.0;
 /// 0.196 / 0.194 without the drainage statistics.
 pub const COARSER_DRAINAGE: [usize; 5] = [32, 16, 8, 4, 2];
 
-/// How many times the first and the final 32 m drainage stage run [`COARSER_DRAINAGE`] (each
-/// pass ~4 ms a tile).
+/// How many times each 32 m drainage stage runs [`COARSER_DRAINAGE`] (each pass ~4 ms a tile).
 pub const COARSER_DRAINAGE_PASSES: usize = 3;
 
-/// The factors of the coarser drainage in the order the first and the final stage run them.
+/// The factors of the coarser drainage in the order each stage runs them.
 fn coarser_drainage_factors() -> impl Iterator<Item = usize> {
     std::iter::repeat_n(COARSER_DRAINAGE, COARSER_DRAINAGE_PASSES).flatten()
 }
@@ -143,11 +139,10 @@ pub const PIN_COARSE_REACH_TILES: i32 = 3;
 /// ([`EROSION_BLOCK_TILES`] − 1).
 pub const PIN_ERODED_REACH_TILES: i32 = PIN_COARSE_REACH_TILES + EROSION_BLOCK_TILES - 1;
 
-/// How far (tiles, Chebyshev distance) a pin reaches into the 32 m tiles: beyond
-/// [`PIN_ERODED_REACH_TILES`], one for the ×4 step's 3×3 context, one across a first-stage
-/// block, three across a second-stage region ([`REGION_TILES`] − 1) and one across a final
-/// block. Farther out the tiles are the world's without pins.
-pub const PIN_REACH_TILES: i32 = PIN_ERODED_REACH_TILES + 1 + (FILL_BLOCK_TILES - 1) + (REGION_TILES - 1) + (FILL_BLOCK_TILES - 1);
+/// How far (tiles, Chebyshev distance) a pin reaches into the 32 m tiles: one more than
+/// [`PIN_ERODED_REACH_TILES`] for the ×4 step's 3×3 context, one for the first drainage block
+/// and one for the second (offset) block. Farther out the tiles are the world's without pins.
+pub const PIN_REACH_TILES: i32 = PIN_ERODED_REACH_TILES + 3;
 
 /// The erosion of the 128 m field before the ×4 step ([`erosion`]): over regions of
 /// [`EROSION_BLOCK_TILES`]² tiles one tile apart, each with its border fixed and the change
@@ -165,22 +160,18 @@ pub const PIN_REACH_TILES: i32 = PIN_ERODED_REACH_TILES + 1 + (FILL_BLOCK_TILES 
 /// part of the world then needs the 16×16 network tiles under it.
 pub const EROSION: Erosion = Erosion { iterations: 40, k: 0.02, alpha: 0.01, kappa: 0.03, taper: 8.0 };
 
-/// Eroded 128 m regions kept in the cache (each 16 KiB).
-pub const ERODED_CACHE_BLOCKS: usize = 256;
+/// Eroded 128 m regions kept in the cache (each 16 KiB): the near tiles' regions stay while
+/// the far field ([`crate::world::stream::FAR_FIELD_M`], ~700 tiles) is made beside them.
+pub const ERODED_CACHE_BLOCKS: usize = 1024;
+
+/// Eroded 128 m tiles kept in the cache (each 4 KiB): the whole far field.
+pub const ERODED_TILE_CACHE: usize = 2048;
 
 /// Side (tiles) of the blocks whose closed depressions are drained together.
 pub const FILL_BLOCK_TILES: i32 = 2;
 
-/// Filled blocks kept in the cache of the first stage (each 256 KiB).
+/// Filled blocks kept in the cache of each stage (each 256 KiB).
 pub const FILL_CACHE_BLOCKS: usize = 64;
-
-/// Side (tiles) of the second 32 m drainage stage's regions: [`FILL_BLOCK_TILES`]² first-stage
-/// blocks, at a stride of one block, so that each tile lies in four of them.
-pub const REGION_TILES: i32 = 2 * FILL_BLOCK_TILES;
-
-/// Drained second-stage regions kept in the cache (each 1 MiB): the view of the default radius
-/// (9×9 tiles) lies in 36.
-pub const REGION_CACHE: usize = 40;
 
 /// 32 m network tiles (before drainage) kept between [`LearnedSource::prepare`] steps: the
 /// four of each of the four first-stage blocks that one second-stage block needs (64 KiB
@@ -220,21 +211,10 @@ pub fn fill_block_corner(c: TileCoord) -> TileCoord {
     stage_corner(c, FILL_BLOCK_TILES, 0)
 }
 
-/// The corner tile (odd i and j) of the final block that holds tile `c`: the first stage's
-/// blocks offset by one tile.
-pub fn final_block_corner(c: TileCoord) -> TileCoord {
+/// The corner tile (odd i and j) of the second-stage fill block that holds tile `c`: the
+/// blocks of the first stage offset by one tile.
+pub fn second_block_corner(c: TileCoord) -> TileCoord {
     stage_corner(c, FILL_BLOCK_TILES, 1)
-}
-
-/// Final blocks kept in the cache (each 256 KiB).
-pub const FINAL_CACHE_BLOCKS: usize = 64;
-
-/// The corner tiles (even i and j) of the four second-stage regions ([`REGION_TILES`]
-/// square, a stride of [`FILL_BLOCK_TILES`] apart) that hold tile `c`, row-major.
-pub fn region_corners(c: TileCoord) -> [TileCoord; 4] {
-    let first = fill_block_corner(c);
-    let s = FILL_BLOCK_TILES;
-    [(-s, -s), (0, -s), (-s, 0), (0, 0)].map(|(di, dj)| first.offset(di, dj))
 }
 
 /// The hat weight of sample `u` (along x or y) of a region `side` samples across:
@@ -320,10 +300,10 @@ pub struct LearnedSource {
     coarse: Mutex<CoarseCache>,
     /// 128 m erosion regions ([`EROSION`]).
     eroded: Mutex<BlockCache>,
+    /// Eroded 128 m tiles ([`LearnedSource::eroded_tile`]).
+    eroded_tiles: Mutex<BlockCache>,
     filled: Mutex<BlockCache>,
-    regions: Mutex<BlockCache>,
-    /// Final blocks ([`LearnedSource::finished_block`]).
-    finished: Mutex<BlockCache>,
+    drained: Mutex<BlockCache>,
     /// 32 m tiles as the networks made them, before drainage (see [`LearnedSource::prepare`]).
     raw: Mutex<BlockCache>,
     scratch: Mutex<(TcmScratch, GrowScratch)>,
@@ -363,16 +343,14 @@ pub struct TimeSpent {
     pub grow: PartTime,
     /// The first 32 m drainage stage: blocks carved ([`drainage::carve_depressions_around`]).
     pub carve_32m: PartTime,
-    /// The second 32 m drainage stage: regions carved ([`REGION_TILES`]).
-    pub regions_32m: PartTime,
-    /// The final 32 m drainage stage: blocks breached ([`BREACH_DEPTH_M`]).
-    pub finish_32m: PartTime,
+    /// The second 32 m drainage stage: blocks breached ([`BREACH_DEPTH_M`]).
+    pub breach_32m: PartTime,
 }
 
 impl TimeSpent {
     /// The milliseconds of every part, summed.
     pub fn total_ms(&self) -> f64 {
-        [self.tcm, self.seams_128m, self.erosion, self.grow, self.carve_32m, self.regions_32m, self.finish_32m].iter().map(|p| p.ms).sum()
+        [self.tcm, self.seams_128m, self.erosion, self.grow, self.carve_32m, self.breach_32m].iter().map(|p| p.ms).sum()
     }
 }
 
@@ -383,9 +361,9 @@ impl LearnedSource {
             models,
             coarse: Mutex::default(),
             eroded: Mutex::new(BlockCache::new(ERODED_CACHE_BLOCKS)),
+            eroded_tiles: Mutex::new(BlockCache::new(ERODED_TILE_CACHE)),
             filled: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)),
-            regions: Mutex::new(BlockCache::new(REGION_CACHE)),
-            finished: Mutex::new(BlockCache::new(FINAL_CACHE_BLOCKS)),
+            drained: Mutex::new(BlockCache::new(FILL_CACHE_BLOCKS)),
             raw: Mutex::new(BlockCache::new(RAW_CACHE_TILES)),
             scratch: Mutex::default(),
             threads: threads.max(1),
@@ -413,8 +391,7 @@ impl LearnedSource {
     /// The same source keeping at most `blocks` filled blocks per stage (tests of eviction).
     pub fn with_fill_cache(mut self, blocks: usize) -> Self {
         self.filled = Mutex::new(BlockCache::new(blocks));
-        self.regions = Mutex::new(BlockCache::new(blocks));
-        self.finished = Mutex::new(BlockCache::new(blocks));
+        self.drained = Mutex::new(BlockCache::new(blocks));
         self
     }
 
@@ -473,6 +450,9 @@ impl LearnedSource {
         if let Some(pin) = self.pins.get(c) {
             return pin.coarse.clone();
         }
+        if let Some(t) = self.eroded_tiles.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, c)) {
+            return t;
+        }
         let n = TILE_PX;
         let side = n * EROSION_BLOCK_TILES as usize;
         let mut tile = vec![0f32; n * n];
@@ -487,7 +467,9 @@ impl LearnedSource {
                 }
             }
         }
-        Arc::new(tile)
+        let tile = Arc::new(tile);
+        self.eroded_tiles.lock().unwrap_or_else(|p| p.into_inner()).insert((seed, c), tile.clone());
+        tile
     }
 
     /// The erosion region of world `seed` with corner tile `corner`: the TCM's
@@ -509,37 +491,28 @@ impl LearnedSource {
     /// take a second. A caller that rests between pieces (the page's CPU worker beside a
     /// software rasteriser) spreads a tile's work out; the tile is the same.
     pub fn prepare(&self, seed: u64, coord: TileCoord) -> bool {
-        let last = final_block_corner(coord);
-        if self.finished.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, last)).is_some() {
+        let second = second_block_corner(coord);
+        if self.drained.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, second)).is_some() {
             return false;
         }
-        let mut regions: Vec<TileCoord> = block_tiles(last).filter(|&c| !self.pins.contains(c)).flat_map(region_corners).collect();
-        regions.sort_by_key(|c| (c.j, c.i));
-        regions.dedup();
-        for region in regions {
-            if self.regions.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, region)).is_some() {
+        for c in block_tiles(second) {
+            let first = fill_block_corner(c);
+            if self.filled.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, first)).is_some() {
                 continue;
             }
-            for first in tiles_of(region, REGION_TILES).map(fill_block_corner) {
-                if self.filled.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, first)).is_some() {
+            for t in block_tiles(first) {
+                if self.raw.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, t)).is_some() {
                     continue;
                 }
-                for t in block_tiles(first) {
-                    if self.raw.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, t)).is_some() {
-                        continue;
-                    }
-                    if !around(t).into_iter().any(|a| self.erosion_piece(seed, a)) {
-                        self.raw_tile(seed, t);
-                    }
-                    return true;
+                if !around(t).into_iter().any(|a| self.erosion_piece(seed, a)) {
+                    self.raw_tile(seed, t);
                 }
-                self.filled_block(seed, first);
                 return true;
             }
-            self.carved_region(seed, region);
+            self.filled_block(seed, first);
             return true;
         }
-        self.finished_block(seed, last);
+        self.drained_block(seed, second);
         true
     }
 
@@ -593,8 +566,8 @@ impl TileSource for LearnedSource {
     }
 
     fn generate(&self, seed: u64, coord: TileCoord, _: &Neighbourhood<'_>) -> Tile {
-        let corner = final_block_corner(coord);
-        let block = self.finished_block(seed, corner);
+        let corner = second_block_corner(coord);
+        let block = self.drained_block(seed, corner);
         Tile::new(coord, quadrant(&block, coord, corner, TILE_SAMPLES, FILL_BLOCK_TILES))
     }
 }
@@ -616,67 +589,22 @@ impl LearnedSource {
         self.block_cached(&self.filled, seed, corner, (TILE_SAMPLES, FILL_BLOCK_TILES), carve, |c| self.raw_tile(seed, c).to_vec())
     }
 
-    /// The second-stage region (corner tile `corner`, [`region_corners`]) of world `seed`: the
-    /// first stage's tiles of its four first-stage blocks, carved again over the whole region
-    /// with its border fixed, once at each of the [`COARSER_DRAINAGE`] spacings and then at
-    /// 32 m ([`drainage::carve_depressions_around`]: nothing raised, so no sample is higher
-    /// than the first stage made it; [`TILE_SAMPLES`]·[`REGION_TILES`] samples square, metres).
-    fn carved_region(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
-        let carve = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
-            let t0 = Instant::now();
-            for factor in COARSER_DRAINAGE {
-                drainage::drain_coarser(h, m, fixed, factor, None, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
-            }
-            drainage::carve_depressions_around(h, m, fixed, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
-            self.spent(|t| t.regions_32m.add(t0.elapsed()));
-        };
-        self.block_cached(&self.regions, seed, corner, (TILE_SAMPLES, REGION_TILES), carve, |c| {
-            let first = fill_block_corner(c);
-            quadrant(&self.filled_block(seed, first), c, first, TILE_SAMPLES, FILL_BLOCK_TILES)
-        })
-    }
-
-    /// The final block (corner tile `corner`, [`final_block_corner`]) of world `seed`: the tiles
-    /// of [`LearnedSource::lowest_tile`] (a pinned tile its own heights), drained over the block
-    /// with its border fixed ([`drainage::breach_depressions_around`], after
-    /// [`COARSER_DRAINAGE`]): every pit left gets its channel, the parts of a basin more than
-    /// [`BREACH_DEPTH_M`] below its spill height become level lakes, and a basin whose way out
-    /// is beyond the block's border is raised to it.
-    fn finished_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
-        let finish = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
+    /// The second-stage block (corner tile `corner`, [`second_block_corner`]) of world `seed`:
+    /// the first stage's drained tiles, drained again over this block
+    /// ([`drainage::breach_depressions_around`], after [`COARSER_DRAINAGE`]).
+    fn drained_block(&self, seed: u64, corner: TileCoord) -> Arc<Vec<f32>> {
+        let drain = |h: &mut [f32], m: usize, fixed: Option<&[bool]>| {
             let t0 = Instant::now();
             for factor in coarser_drainage_factors() {
                 drainage::drain_coarser(h, m, fixed, factor, Some(BREACH_DEPTH_M), CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
             }
             drainage::breach_depressions_around(h, m, fixed, BREACH_DEPTH_M, CHANNEL_WALL_M, drainage::FLAT_GRADIENT_M);
-            self.spent(|t| t.finish_32m.add(t0.elapsed()));
+            self.spent(|t| t.breach_32m.add(t0.elapsed()));
         };
-        self.block_cached(&self.finished, seed, corner, (TILE_SAMPLES, FILL_BLOCK_TILES), finish, |c| match self.pins.get(c) {
-            Some(pin) => pin.fine.to_vec(),
-            None => self.lowest_tile(seed, c),
+        self.block_cached(&self.drained, seed, corner, (TILE_SAMPLES, FILL_BLOCK_TILES), drain, |c| {
+            let first = fill_block_corner(c);
+            quadrant(&self.filled_block(seed, first), c, first, TILE_SAMPLES, FILL_BLOCK_TILES)
         })
-    }
-
-    /// The tile `c` of world `seed` (not pinned) as the lowest of the four carved regions that
-    /// hold it ([`region_corners`], [`LearnedSource::carved_region`]), sample by sample
-    /// ([`TILE_SAMPLES`]², metres). Each region only lowers, and leaves its border as the
-    /// first stage made it, so the minimum is continuous where a region ends; and a sample's
-    /// way down in the region that is lowest there stays a way down in the minimum: a basin
-    /// that any of the four regions drains is drained.
-    fn lowest_tile(&self, seed: u64, c: TileCoord) -> Vec<f32> {
-        let n = TILE_SAMPLES;
-        let m = n * REGION_TILES as usize;
-        let mut tile = vec![f32::INFINITY; n * n];
-        for corner in region_corners(c) {
-            let region = self.carved_region(seed, corner);
-            let (x0, y0) = ((c.i - corner.i) as usize * n, (c.j - corner.j) as usize * n);
-            for y in 0..n {
-                for (t, &z) in tile[y * n..][..n].iter_mut().zip(&region[(y0 + y) * m + x0..][..n]) {
-                    *t = t.min(z);
-                }
-            }
-        }
-        tile
     }
 
     /// The block of k×k tiles `tile(c)` (`n`² samples each; `(n, k)`) with corner tile
@@ -830,7 +758,7 @@ mod tests {
     /// eroded 128 m block of each stage, one per 32 m ×4 step (16) and one per drained block
     /// (4 + 1); a tile of the same block then needs none.
     #[test]
-    fn prepare_makes_a_tile_in_one_piece_per_network_tile_erosion_region_drained_block_and_region_and_times_each_piece_once() {
+    fn prepare_makes_a_tile_in_one_piece_per_network_tile_erosion_region_and_drained_block_and_times_each_piece_once() {
         let models = random_models();
         let (seed, c) = (9, TileCoord::new(3, -2));
         let whole = LearnedSource::new(models.clone(), 1).generate(seed, c, &Neighbourhood::default());
@@ -840,14 +768,10 @@ mod tests {
             steps += 1;
             assert!(steps < 1000, "prepare never finishes");
         }
-        // The pieces: the final block's nine carved regions, their 16 first-stage blocks and
-        // 64 network tiles at 32 m; the eroded 128 m tiles in the 3×3 around each of those;
-        // the erosion regions that hold these; their network tiles, with their dependencies.
-        let last = final_block_corner(c);
-        let regions: std::collections::HashSet<TileCoord> = tiles_of(last, FILL_BLOCK_TILES).flat_map(region_corners).collect();
-        let firsts: std::collections::HashSet<TileCoord> = regions.iter().flat_map(|&r| tiles_of(r, REGION_TILES).map(fill_block_corner)).collect();
-        let raws: std::collections::HashSet<TileCoord> = firsts.iter().flat_map(|&b| tiles_of(b, FILL_BLOCK_TILES)).collect();
-        let eroded: std::collections::HashSet<TileCoord> = raws.iter().flat_map(|&t| around(t)).collect();
+        // The eroded 128 m tiles: the 3×3 around each of the 16 network tiles; the erosion
+        // regions that hold them; their network tiles, with their dependencies.
+        let second = second_block_corner(c);
+        let eroded: std::collections::HashSet<TileCoord> = (0..16).flat_map(|t| (0..9).map(move |n| second.offset(t % 4 - 1 + n % 3 - 1, t / 4 - 1 + n / 3 - 1))).collect();
         let erosion: std::collections::HashSet<TileCoord> = eroded.iter().flat_map(|&e| erosion_region_corners(e)).collect();
         let mut coarse = std::collections::HashSet::new();
         let mut todo: Vec<TileCoord> = erosion.iter().flat_map(|&r| tiles_of(r, EROSION_BLOCK_TILES)).collect();
@@ -856,18 +780,17 @@ mod tests {
                 todo.extend(dependencies(t));
             }
         }
-        assert_eq!((regions.len(), firsts.len(), raws.len()), (9, 16, 64));
-        assert_eq!(steps, coarse.len() + erosion.len() + raws.len() + firsts.len() + regions.len() + 1);
+        assert_eq!(steps, coarse.len() + erosion.len() + 16 + 4 + 1);
         // The time spent counts each piece once, in its part, and the parts add up.
         let t = src.time_spent();
-        let runs = [t.tcm.runs, t.seams_128m.runs, t.erosion.runs, t.grow.runs, t.carve_32m.runs, t.regions_32m.runs, t.finish_32m.runs];
-        assert_eq!(runs, [coarse.len(), coarse.len(), erosion.len(), raws.len(), firsts.len(), regions.len(), 1].map(|n| n as u64));
-        let parts = [t.tcm, t.seams_128m, t.erosion, t.grow, t.carve_32m, t.regions_32m, t.finish_32m];
+        let runs = [t.tcm.runs, t.seams_128m.runs, t.erosion.runs, t.grow.runs, t.carve_32m.runs, t.breach_32m.runs];
+        assert_eq!(runs, [coarse.len(), coarse.len(), erosion.len(), 16, 4, 1].map(|n| n as u64));
+        let parts = [t.tcm, t.seams_128m, t.erosion, t.grow, t.carve_32m, t.breach_32m];
         assert!(parts.iter().all(|p| p.ms > 0.0), "{t:?}");
         assert!((parts.iter().map(|p| p.ms).sum::<f64>() - t.total_ms()).abs() < 1e-9);
         let made = src.generate(seed, c, &Neighbourhood::default());
         assert_eq!(made.heights, whole.heights);
-        let same = (0..9).map(|n| c.offset(n % 3 - 1, n / 3 - 1)).find(|&d| d != c && final_block_corner(d) == last).expect("a 2×2 block has a tile beside c");
+        let same = (0..9).map(|n| c.offset(n % 3 - 1, n / 3 - 1)).find(|&d| d != c && second_block_corner(d) == second).expect("a 2×2 block has a tile beside c");
         assert!(!src.prepare(seed, same));
     }
 
@@ -915,7 +838,7 @@ mod tests {
     /// tiles of the block with corner (−1, 1), put together, have no closed depression of any
     /// depth.
     #[test]
-    fn tiles_of_a_final_block_drain_together() {
+    fn tiles_of_a_second_stage_block_drain_together() {
         let src = LearnedSource::new(random_models(), 1);
         let (n, m) = (TILE_SAMPLES, 2 * TILE_SAMPLES);
         let mut h = vec![0f32; m * m];
@@ -934,25 +857,14 @@ mod tests {
         assert_eq!(fill_block_corner(TileCoord::new(3, -3)), TileCoord::new(2, -4));
     }
 
-    /// Final blocks start at odd tile coordinates, for negative coordinates too.
+    /// A tile lies in the four erosion regions listed for it, which are distinct; and the hat
+    /// weights of the two regions that hold a sample along one axis sum to exactly 1.
     #[test]
-    fn final_blocks_start_at_odd_tiles() {
-        assert_eq!(final_block_corner(TileCoord::new(0, 1)), TileCoord::new(-1, 1));
-        assert_eq!(final_block_corner(TileCoord::new(2, 1)), TileCoord::new(1, 1));
-        assert_eq!(final_block_corner(TileCoord::new(-1, -2)), TileCoord::new(-1, -3));
-        assert_eq!(final_block_corner(TileCoord::new(4, -3)), TileCoord::new(3, -3));
-    }
-
-    /// A tile lies in the four second-stage regions listed for it, which start at even tile
-    /// coordinates two apart; and the hat weights of the two regions that hold a sample along
-    /// one axis sum to exactly 1.
-    #[test]
-    fn a_tile_lies_in_its_four_regions_and_hat_weights_sum_to_one() {
+    fn a_tile_lies_in_its_four_erosion_regions_and_hat_weights_sum_to_one() {
         for c in [TileCoord::new(0, 1), TileCoord::new(-3, 2), TileCoord::new(5, -4)] {
-            let corners = region_corners(c);
+            let corners = erosion_region_corners(c);
             for r in corners {
-                assert!(r.i.rem_euclid(2) == 0 && r.j.rem_euclid(2) == 0, "{r:?}");
-                assert!((0..REGION_TILES).contains(&(c.i - r.i)) && (0..REGION_TILES).contains(&(c.j - r.j)), "{c:?} in {r:?}");
+                assert!((0..EROSION_BLOCK_TILES).contains(&(c.i - r.i)) && (0..EROSION_BLOCK_TILES).contains(&(c.j - r.j)), "{c:?} in {r:?}");
             }
             let distinct: std::collections::HashSet<TileCoord> = corners.into_iter().collect();
             assert_eq!(distinct.len(), 4);
@@ -963,6 +875,15 @@ mod tests {
             }
             assert_eq!(hat_weight(0, side), 1.0 / side as f32);
         }
+    }
+
+    /// Second-stage blocks start at odd tile coordinates, for negative coordinates too.
+    #[test]
+    fn second_stage_blocks_start_at_odd_tiles() {
+        assert_eq!(second_block_corner(TileCoord::new(0, 1)), TileCoord::new(-1, 1));
+        assert_eq!(second_block_corner(TileCoord::new(2, 1)), TileCoord::new(1, 1));
+        assert_eq!(second_block_corner(TileCoord::new(-1, -2)), TileCoord::new(-1, -3));
+        assert_eq!(second_block_corner(TileCoord::new(4, -3)), TileCoord::new(3, -3));
     }
 
     /// The ruggedness field over 200×200 tiles of two seeds has the mean and standard
@@ -1011,14 +932,14 @@ mod shipped_tests {
     use crate::geomorph::drainage::measure;
 
     /// Drainage figures of the 4×4 world tiles −1..=2 each way of `seed` (the four
-    /// final blocks with corners at odd tiles): closed-depression fraction (any depth)
+    /// second-stage blocks with corners at odd tiles): closed-depression fraction (any depth)
     /// of each block alone, of the region (deeper than 1 m), the region's [`measure`], and its
     /// median slope (degrees).
     fn region_figures(src: &LearnedSource, seed: u64) -> ([f64; 4], f64, crate::geomorph::drainage::Drainage, f64) {
         let (k, n) = (4usize, TILE_SAMPLES);
         let m = k * n;
         let first = TileCoord::new(-1, -1);
-        assert_eq!(final_block_corner(first), first);
+        assert_eq!(second_block_corner(first), first);
         let mut h = vec![0f32; m * m];
         for t in 0..k * k {
             let tile = src.generate(seed, first.offset(t as i32 % k as i32, t as i32 / k as i32), &Neighbourhood::default());
