@@ -472,6 +472,7 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
             let mut f = seam_figures(rs);
             let strip: Vec<f64> = rs.iter().map(world_eval::edge_strip_ratio).collect();
             f["edge_strip"] = serde_json::json!(strip.iter().sum::<f64>() / strip.len() as f64);
+            f["grid_alignment"] = serde_json::json!(grid_alignment_mean(&rs.iter().flat_map(|r| world_eval::windows_of(r, world_eval::WINDOW_SIDES[1])).collect::<Vec<_>>()));
             f["ms_per_tile"] = serde_json::json!(ms);
             (name.to_string(), f)
         })
@@ -479,7 +480,9 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
     let side = world_eval::WINDOW_SIDES[1];
     let real: Vec<terrain::dem::Heightfield> =
         world_eval::real_windows(&dems, side).into_iter().map(|w| terrain::dem::Heightfield::new(side, side, terrain::grid::BASE_SPACING_M, w)).collect();
-    seams.insert("real_validation_cut_into_tiles".into(), seam_figures(&real));
+    let mut real_figures = seam_figures(&real);
+    real_figures["grid_alignment"] = serde_json::json!(grid_alignment_mean(&real.iter().map(|r| r.data.clone()).collect::<Vec<_>>()));
+    seams.insert("real_validation_cut_into_tiles".into(), real_figures);
     // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.
     let mean_sd = |v: &[f64]| {
         let m = v.iter().sum::<f64>() / v.len() as f64;
@@ -500,6 +503,13 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
     let domes: Vec<serde_json::Value> = domes.iter().enumerate().map(|(p, (m, e))| serde_json::json!({ "phase": p, "made_minus_real_m": m, "standard_error_m": e })).collect();
     println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "drainage_256_windows": drainage, "seams_and_speed": seams, "tcm_time_by_part": time_by_part, "ruggedness_128m_tiles": ruggedness, "tile_dome_bias_by_phase_128m_validation": domes })).expect("json"));
     Ok(())
+}
+
+/// The mean grid alignment ([`terrain::train::world_eval::grid_alignment`]) of 32 m windows
+/// of side [`terrain::train::world_eval::WINDOW_SIDES`]`[1]`.
+fn grid_alignment_mean(windows: &[Vec<f32>]) -> f64 {
+    let side = terrain::train::world_eval::WINDOW_SIDES[1];
+    windows.iter().map(|w| terrain::train::world_eval::grid_alignment(w, side)).sum::<f64>() / windows.len().max(1) as f64
 }
 
 /// Per drainage statistic, the mean and median over `set` (and its distance to the real

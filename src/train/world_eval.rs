@@ -76,6 +76,29 @@ pub fn stats_of(windows: &[Vec<f32>], side: usize) -> Vec<Stats> {
     windows.iter().filter_map(|w| geomorph::measure(w, side, BASE_SPACING_M).ok()).collect()
 }
 
+/// The grid alignment of a `side`² window at 32 m (metres, row-major): the size of the 8-fold
+/// harmonic of its gradient directions, each weighted by its slope (|Σ g·e^{8iθ}| / Σ g over
+/// the samples steeper than 2 %, centred differences). Flow cut along the grid's eight
+/// directions (D8 rills, straight channels) raises it; real terrain's valleys run every way:
+/// the validation DEMs at 32 m score about 0.005–0.012.
+pub fn grid_alignment(window: &[f32], side: usize) -> f64 {
+    let (mut re, mut im, mut sum) = (0f64, 0f64, 0f64);
+    let at = |x: usize, y: usize| window[y * side + x] as f64;
+    for y in 1..side.saturating_sub(1) {
+        for x in 1..side - 1 {
+            let (gx, gy) = ((at(x + 1, y) - at(x - 1, y)) / (2.0 * BASE_SPACING_M), (at(x, y + 1) - at(x, y - 1)) / (2.0 * BASE_SPACING_M));
+            let g = gx.hypot(gy);
+            if g > 0.02 {
+                let theta = gy.atan2(gx);
+                re += g * (8.0 * theta).cos();
+                im += g * (8.0 * theta).sin();
+                sum += g;
+            }
+        }
+    }
+    if sum > 0.0 { re.hypot(im) / sum } else { 0.0 }
+}
+
 /// The seam figure of a region made of whole tiles, for each interior tile edge (128 samples
 /// long): the mean |height step| across the edge divided by the mean |step| between the
 /// neighbouring rows (or columns) inside the two tiles (the 4 on either side). Real terrain,
@@ -216,6 +239,23 @@ fn edge_ratios(hf: &Heightfield, diff: impl Fn(&dyn Fn(usize) -> f64, usize) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A cone (slopes facing every way alike) has a grid alignment under 0.01; a square
+    /// pyramid (four faces along the grid's axes) and one turned by 22.5° (faces between the
+    /// eight directions, which the 8-fold harmonic counts alike) over 0.9.
+    #[test]
+    fn grid_alignment_is_low_for_a_cone_and_high_for_pyramids() {
+        let side = 128;
+        let c = (side as f64 - 1.0) / 2.0;
+        let field = |f: &dyn Fn(f64, f64) -> f64| -> Vec<f32> { (0..side * side).map(|p| f((p % side) as f64 - c, (p / side) as f64 - c) as f32).collect() };
+        // The cone ends in a plain 60 samples out, so the square window adds no corners.
+        let cone = grid_alignment(&field(&|x, y| 2000.0 - 10.0 * x.hypot(y).min(60.0)), side);
+        let pyramid = grid_alignment(&field(&|x, y| 2000.0 - 10.0 * x.abs().max(y.abs())), side);
+        let (s, k) = (22.5f64.to_radians().sin(), 22.5f64.to_radians().cos());
+        let turned = grid_alignment(&field(&|x, y| 2000.0 - 10.0 * (k * x + s * y).abs().max((k * y - s * x).abs())), side);
+        assert!(cone < 0.01, "cone {cone}");
+        assert!(pyramid > 0.9 && turned > 0.9, "pyramid {pyramid}, turned {turned}");
+    }
 
     /// A region whose tiles are offset by 10 m each has a seam ratio far above 1 along the
     /// shifted edges; a smooth continuous field has a ratio of 1.

@@ -8,7 +8,14 @@
 //! - the field is filled ([`super::drainage::fill_depressions`] with its ε gradient) only to
 //!   route the water: each sample sends it to its steepest lower 8-neighbour on the filled
 //!   surface, so a closed basin spills over its lowest sill;
-//! - every sample's drainage area `A` (samples, itself included) is summed down the flow;
+//! - every sample's drainage area `A` (samples, itself included) is summed down the flow.
+//!   Where `A` is below [`Erosion::spread_below`] (hillslopes) a sample's water is shared
+//!   among all its lower 8-neighbours in proportion to the square of the drop per unit
+//!   distance (multiple flow directions, taken highest first); from there on (channels) it
+//!   all goes to the steepest one. With one direction everywhere (D8), every hillslope
+//!   sample's water runs down one of eight straight lines, and the stream-power term cut
+//!   them as parallel straight rills along the eight directions, seen from above as
+//!   hatching (eval-tcm's grid alignment, below);
 //! - receivers before their donors (a walk up the flow from the outlets: the same bits as
 //!   lowest first, without a sort), each sample above its receiver moves towards it:
 //!   `h' = (h + F·h'_r + α·h₀) / (1 + F + α)` with `F = K·√A / d` (`d` the step in samples),
@@ -47,10 +54,26 @@ pub struct Erosion {
     /// border, all of it from this far in (a smoothstep). A block eroded with its border fixed
     /// would keep the generator's heights there as a rim beside the lowered inside.
     pub taper: f32,
+    /// Drainage area (samples) below which a sample's water spreads over all its lower
+    /// 8-neighbours (see the module documentation); 0: every sample sends all of it to its
+    /// steepest lower neighbour (D8).
+    pub spread_below: f32,
 }
 
 /// No receiver: the sample is an outlet (border, fixed) or NaN.
 const NONE: usize = usize::MAX;
+
+/// The 8 neighbours (dx, dy) and the distance to each (samples).
+const NEIGHBOURS: [(i64, i64, f32); 8] = [
+    (-1, -1, std::f32::consts::SQRT_2),
+    (0, -1, 1.0),
+    (1, -1, std::f32::consts::SQRT_2),
+    (-1, 0, 1.0),
+    (1, 0, 1.0),
+    (-1, 1, std::f32::consts::SQRT_2),
+    (0, 1, 1.0),
+    (1, 1, std::f32::consts::SQRT_2),
+];
 
 /// Erodes the `n`×`n` heightfield `h` (metres, row-major) in place (see the module
 /// documentation), its border and the `fixed` samples (`n`², true: fixed) kept. NaN samples are
@@ -64,6 +87,10 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
     let mut order: Vec<usize> = Vec::with_capacity(n * n);
     let mut donors = Donors::default();
     let mut receiver = vec![NONE; n * n];
+    let mut by_height: Vec<u64> = Vec::with_capacity(n * n);
+    // The drop per unit distance to each of the 8 neighbours on the filled field (0 where
+    // not lower), per sample.
+    let mut drops = vec![0f32; 8 * n * n];
     let mut step = vec![1f32; n * n];
     let mut area = vec![0f32; n * n];
     let mut next = vec![0f32; n * n];
@@ -77,10 +104,10 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
             }
             let (x, y) = ((q % n) as i64, (q / n) as i64);
             let mut best = 0f32;
-            for (dx, dy) in [(-1i64, -1i64), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)] {
+            for (t, (dx, dy, d)) in NEIGHBOURS.into_iter().enumerate() {
                 let r = (y + dy) as usize * n + (x + dx) as usize;
-                let d = if dx != 0 && dy != 0 { std::f32::consts::SQRT_2 } else { 1.0 };
                 let drop = (filled[q] - filled[r]) / d;
+                drops[8 * q + t] = if drop > 0.0 { drop } else { 0.0 };
                 if drop > best {
                     (best, receiver[q], step[q]) = (drop, r, d);
                 }
@@ -88,9 +115,13 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
         }
         receivers_first(&receiver, &mut order, &mut donors);
         area.iter_mut().zip(&free).for_each(|(a, &f)| *a = if f { 1.0 } else { 0.0 });
-        for &q in order.iter().rev() {
-            if receiver[q] != NONE {
-                area[receiver[q]] += area[q];
+        if p.spread_below > 0.0 {
+            spread_areas(&filled, &drops, &free, &receiver, p.spread_below, &mut by_height, &mut area);
+        } else {
+            for &q in order.iter().rev() {
+                if receiver[q] != NONE {
+                    area[receiver[q]] += area[q];
+                }
             }
         }
         for &q in &order {
@@ -125,6 +156,43 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
     }
 }
 
+/// Sums the drainage areas `area` (1 on each free sample, 0 elsewhere, on entry) down the
+/// flow on `filled`: the free samples taken highest first (ties by index: the same order,
+/// and so the same bits, on every platform), each passes its area on to all its lower
+/// 8-neighbours in proportion to the square of its drop per unit distance to each (`drops`,
+/// 8 per sample in the order of [`NEIGHBOURS`], 0 where not lower) while it is below
+/// `spread_below`, and all of it to `receiver` from there on. `by_height` is scratch.
+fn spread_areas(filled: &[f32], drops: &[f32], free: &[bool], receiver: &[usize], spread_below: f32, by_height: &mut Vec<u64>, area: &mut [f32]) {
+    let n = filled.len().isqrt();
+    // A free sample is never on the border, so all 8 neighbours exist.
+    let offset: [isize; 8] = NEIGHBOURS.map(|(dx, dy, _)| dy as isize * n as isize + dx as isize);
+    // Each free sample as (its height's bits made to sort like the height, inverted so the
+    // highest comes first; its index).
+    let descending = |f: f32| {
+        let b = f.to_bits();
+        !(if b >> 31 == 1 { !b } else { b | 0x8000_0000 })
+    };
+    by_height.clear();
+    by_height.extend((0..n * n).filter(|&q| free[q]).map(|q| (u64::from(descending(filled[q])) << 32) | q as u64));
+    by_height.sort_unstable();
+    for &key in by_height.iter() {
+        let q = (key & 0xffff_ffff) as usize;
+        let a = area[q];
+        let d = &drops[8 * q..][..8];
+        let w: [f32; 8] = std::array::from_fn(|t| d[t] * d[t]);
+        let sum = w.iter().sum::<f32>();
+        // Spread: to every lower neighbour its share of the squared drops; else all to the
+        // receiver. Without branches on the neighbours (this loop is most of the cost).
+        let per_weight = if a < spread_below && sum > 0.0 { a / sum } else { 0.0 };
+        let to_receiver = if per_weight > 0.0 { NONE } else { receiver[q] };
+        for (t, &o) in offset.iter().enumerate() {
+            let r = q.wrapping_add_signed(o);
+            let share = if r == to_receiver { a } else { w[t] * per_weight };
+            area[r] += if d[t] > 0.0 { share } else { 0.0 };
+        }
+    }
+}
+
 /// The samples' donors (the samples whose receiver they are), as compressed lists.
 #[derive(Default)]
 struct Donors {
@@ -137,9 +205,9 @@ struct Donors {
 
 /// Every sample in an order where each comes after its receiver (outlets first), into `order`:
 /// a walk up the flow from the outlets. Each update of an iteration reads only its own sample
-/// and its receiver's, and the drainage areas are sums of whole samples (exact in `f32`), so
-/// any such order gives the same bits as sorting by height; this one takes O(n²) instead of a
-/// sort.
+/// and its receiver's, and the D8 drainage areas summed in the reverse of this order are sums
+/// of whole samples (exact in `f32`), so any such order gives the same bits as sorting by
+/// height; this one takes O(n²) instead of a sort.
 fn receivers_first(receiver: &[usize], order: &mut Vec<usize>, d: &mut Donors) {
     let len = receiver.len();
     d.start.clear();
@@ -174,7 +242,7 @@ mod tests {
     use super::*;
     use crate::world::drainage::depression_fraction;
 
-    const SOME: Erosion = Erosion { iterations: 40, k: 0.02, alpha: 0.01, kappa: 0.1, taper: 0.0 };
+    const SOME: Erosion = Erosion { iterations: 40, k: 0.02, alpha: 0.01, kappa: 0.1, taper: 0.0, spread_below: 0.0 };
 
     /// Seeded bumps: the sum of a few sines, 0–300 m.
     fn bumps(n: usize) -> Vec<f32> {
@@ -221,7 +289,7 @@ mod tests {
             .collect();
         assert!(depression_fraction(&h0, n, 0.5) > 0.05);
         let mut h = h0.clone();
-        erode(&mut h, n, None, &Erosion { iterations: 60, k: 0.05, alpha: 0.0, kappa: 0.0, taper: 0.0 });
+        erode(&mut h, n, None, &Erosion { iterations: 60, k: 0.05, alpha: 0.0, kappa: 0.0, taper: 0.0, spread_below: 0.0 });
         let sill = |f: &[f32]| (14..19).map(|x| f[24 * n + x]).fold(f32::MIN, f32::max);
         assert!(sill(&h) < sill(&h0) - 30.0, "dam crest on the valley floor {} → {}", sill(&h0), sill(&h));
         assert!(h[24 * n + 8] < h0[24 * n + 8] - 5.0, "valley floor below the dam {} → {}", h0[24 * n + 8], h[24 * n + 8]);
@@ -263,6 +331,75 @@ mod tests {
         let first = order.clone();
         receivers_first(&receiver, &mut order, &mut donors);
         assert_eq!(order, first);
+    }
+
+    /// The 8-fold harmonic of the erosion depth (start − end) around a ring of radius 10–24
+    /// samples of an eroded cone, relative to the mean depth there: 0 for an erosion that
+    /// cuts the same at every angle.
+    fn eightfold_depth(spread_below: f32) -> f64 {
+        let n = 64;
+        let c = (n as f32 - 1.0) / 2.0;
+        let h0: Vec<f32> = (0..n * n).map(|p| 400.0 - 12.0 * ((p % n) as f32 - c).hypot((p / n) as f32 - c)).collect();
+        let mut h = h0.clone();
+        erode(&mut h, n, None, &Erosion { spread_below, ..SOME });
+        let (mut re, mut im, mut sum) = (0f64, 0f64, 0f64);
+        for p in 0..n * n {
+            let (x, y) = ((p % n) as f64 - c as f64, (p / n) as f64 - c as f64);
+            let r = x.hypot(y);
+            if (10.0..24.0).contains(&r) {
+                let depth = (h0[p] - h[p]) as f64;
+                let phi = y.atan2(x);
+                re += depth * (8.0 * phi).cos();
+                im += depth * (8.0 * phi).sin();
+                sum += depth.abs();
+            }
+        }
+        re.hypot(im) / sum
+    }
+
+    /// A cone erodes about as round with water spread over the lower neighbours as it is: the
+    /// 8-fold harmonic of the erosion depth around it is under a third of what one steepest
+    /// direction per sample (D8) leaves, which cuts along the eight directions.
+    #[test]
+    fn spread_flow_erodes_a_cone_round_where_d8_cuts_along_eight_directions() {
+        let (d8, spread) = (eightfold_depth(0.0), eightfold_depth(16.0));
+        println!("8-fold harmonic of the erosion depth: D8 {d8:.3}, spread below 16 samples {spread:.3}");
+        assert!(spread < d8 / 3.0, "D8 {d8}, spread {spread}");
+    }
+
+    /// Spread flow loses no water: on a field of bumps every free sample's area (1 each)
+    /// arrives at the outlets (the border), within 1e-4 of their count, and the areas are
+    /// the same bits on a second run.
+    #[test]
+    fn spread_areas_deliver_all_water_to_the_outlets() {
+        let n = 40;
+        let mut filled = bumps(n);
+        crate::world::drainage::fill_around(&mut filled, n, None, FLAT_GRADIENT_M);
+        let border = |q: usize| q.is_multiple_of(n) || q % n == n - 1 || q / n == 0 || q / n == n - 1;
+        let free: Vec<bool> = (0..n * n).map(|q| !border(q)).collect();
+        let (mut drops, mut receiver) = (vec![0f32; 8 * n * n], vec![NONE; n * n]);
+        for q in (0..n * n).filter(|&q| free[q]) {
+            let mut best = 0f32;
+            for (t, (dx, dy, d)) in NEIGHBOURS.into_iter().enumerate() {
+                let r = ((q / n) as i64 + dy) as usize * n + ((q % n) as i64 + dx) as usize;
+                drops[8 * q + t] = ((filled[q] - filled[r]) / d).max(0.0);
+                if drops[8 * q + t] > best {
+                    (best, receiver[q]) = (drops[8 * q + t], r);
+                }
+            }
+        }
+        let run = |spread_below: f32| {
+            let mut area: Vec<f32> = free.iter().map(|&f| if f { 1.0 } else { 0.0 }).collect();
+            spread_areas(&filled, &drops, &free, &receiver, spread_below, &mut Vec::new(), &mut area);
+            area
+        };
+        for spread_below in [4.0, 1e9] {
+            let area = run(spread_below);
+            let out: f64 = (0..n * n).filter(|&q| border(q)).map(|q| area[q] as f64).sum();
+            let want = free.iter().filter(|&&f| f).count() as f64;
+            assert!((out - want).abs() < 1e-4 * want, "spread below {spread_below}: {out} of {want} arrive");
+            assert_eq!(area, run(spread_below));
+        }
     }
 
     /// The same input makes the same bits; no iterations change nothing.
