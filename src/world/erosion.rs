@@ -15,7 +15,7 @@
 //!   all goes to the steepest one. With one direction everywhere (D8), every hillslope
 //!   sample's water runs down one of eight straight lines, and the stream-power term cut
 //!   them as parallel straight rills along the eight directions, seen from above as
-//!   hatching (eval-tcm's grid alignment, below);
+//!   hatching (`terrain eval-tcm`'s grid alignment figure);
 //! - receivers before their donors (a walk up the flow from the outlets: the same bits as
 //!   lowest first, without a sort), each sample above its receiver moves towards it:
 //!   `h' = (h + F·h'_r + α·h₀) / (1 + F + α)` with `F = K·√A / d` (`d` the step in samples),
