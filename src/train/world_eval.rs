@@ -80,7 +80,7 @@ pub fn stats_of(windows: &[Vec<f32>], side: usize) -> Vec<Stats> {
 /// harmonic of its gradient directions, each weighted by its slope (|Σ g·e^{8iθ}| / Σ g over
 /// the samples steeper than 2 %, centred differences). Flow cut along the grid's eight
 /// directions (D8 rills, straight channels) raises it; real terrain's valleys run every way:
-/// the validation DEMs at 32 m score about 0.005–0.012.
+/// `terrain eval-tcm`'s held-out real windows (256² at 32 m) average 0.015.
 pub fn grid_alignment(window: &[f32], side: usize) -> f64 {
     let (mut re, mut im, mut sum) = (0f64, 0f64, 0f64);
     let at = |x: usize, y: usize| window[y * side + x] as f64;
