@@ -85,7 +85,7 @@ pub fn grid_alignment(window: &[f32], side: usize) -> f64 {
     let (mut re, mut im, mut sum) = (0f64, 0f64, 0f64);
     let at = |x: usize, y: usize| window[y * side + x] as f64;
     for y in 1..side.saturating_sub(1) {
-        for x in 1..side - 1 {
+        for x in 1..side.saturating_sub(1) {
             let (gx, gy) = ((at(x + 1, y) - at(x - 1, y)) / (2.0 * BASE_SPACING_M), (at(x, y + 1) - at(x, y - 1)) / (2.0 * BASE_SPACING_M));
             let g = gx.hypot(gy);
             if g > 0.02 {

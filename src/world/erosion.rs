@@ -88,8 +88,6 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
     let mut donors = Donors::default();
     let mut receiver = vec![NONE; n * n];
     let mut by_height: Vec<u64> = Vec::with_capacity(n * n);
-    // The drop per unit distance to each of the 8 neighbours on the filled field (0 where
-    // not lower), per sample.
     let mut drops = vec![0f32; 8 * n * n];
     let mut step = vec![1f32; n * n];
     let mut area = vec![0f32; n * n];
@@ -97,22 +95,7 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
     for _ in 0..p.iterations {
         filled.copy_from_slice(h);
         fill_around(&mut filled, n, fixed, FLAT_GRADIENT_M);
-        for q in 0..n * n {
-            receiver[q] = NONE;
-            if !free[q] {
-                continue;
-            }
-            let (x, y) = ((q % n) as i64, (q / n) as i64);
-            let mut best = 0f32;
-            for (t, (dx, dy, d)) in NEIGHBOURS.into_iter().enumerate() {
-                let r = (y + dy) as usize * n + (x + dx) as usize;
-                let drop = (filled[q] - filled[r]) / d;
-                drops[8 * q + t] = if drop > 0.0 { drop } else { 0.0 };
-                if drop > best {
-                    (best, receiver[q], step[q]) = (drop, r, d);
-                }
-            }
-        }
+        flow_directions(&filled, &free, &mut drops, &mut receiver, &mut step);
         receivers_first(&receiver, &mut order, &mut donors);
         area.iter_mut().zip(&free).for_each(|(a, &f)| *a = if f { 1.0 } else { 0.0 });
         if p.spread_below > 0.0 {
@@ -151,6 +134,31 @@ pub fn erode(h: &mut [f32], n: usize, fixed: Option<&[bool]>, p: &Erosion) {
             if d < 1.0 {
                 let w = d * d * (3.0 - 2.0 * d);
                 *z = z0 + w * (*z - z0);
+            }
+        }
+    }
+}
+
+/// The flow on the filled `n`×`n` field `filled`: for each free sample, the drop per unit
+/// distance to each of its 8 neighbours (`drops`, 8 per sample in the order of
+/// [`NEIGHBOURS`], 0 where not lower), its steepest lower neighbour (`receiver`; [`NONE`] for
+/// samples that are not free or have none) and the distance to it (`step`, samples). The
+/// samples that are not free keep their drops (0 from the start).
+fn flow_directions(filled: &[f32], free: &[bool], drops: &mut [f32], receiver: &mut [usize], step: &mut [f32]) {
+    let n = filled.len().isqrt();
+    for q in 0..n * n {
+        receiver[q] = NONE;
+        if !free[q] {
+            continue;
+        }
+        let (x, y) = ((q % n) as i64, (q / n) as i64);
+        let mut best = 0f32;
+        for (t, (dx, dy, d)) in NEIGHBOURS.into_iter().enumerate() {
+            let r = (y + dy) as usize * n + (x + dx) as usize;
+            let drop = (filled[q] - filled[r]) / d;
+            drops[8 * q + t] = if drop > 0.0 { drop } else { 0.0 };
+            if drop > best {
+                (best, receiver[q], step[q]) = (drop, r, d);
             }
         }
     }
@@ -378,16 +386,7 @@ mod tests {
         let border = |q: usize| q.is_multiple_of(n) || q % n == n - 1 || q / n == 0 || q / n == n - 1;
         let free: Vec<bool> = (0..n * n).map(|q| !border(q)).collect();
         let (mut drops, mut receiver) = (vec![0f32; 8 * n * n], vec![NONE; n * n]);
-        for q in (0..n * n).filter(|&q| free[q]) {
-            let mut best = 0f32;
-            for (t, (dx, dy, d)) in NEIGHBOURS.into_iter().enumerate() {
-                let r = ((q / n) as i64 + dy) as usize * n + ((q % n) as i64 + dx) as usize;
-                drops[8 * q + t] = ((filled[q] - filled[r]) / d).max(0.0);
-                if drops[8 * q + t] > best {
-                    (best, receiver[q]) = (drops[8 * q + t], r);
-                }
-            }
-        }
+        flow_directions(&filled, &free, &mut drops, &mut receiver, &mut vec![1f32; n * n]);
         let run = |spread_below: f32| {
             let mut area: Vec<f32> = free.iter().map(|&f| if f { 1.0 } else { 0.0 }).collect();
             spread_areas(&filled, &drops, &free, &receiver, spread_below, &mut Vec::new(), &mut area);
