@@ -250,6 +250,17 @@ enum Command {
         #[arg(long)]
         weights: Option<PathBuf>,
     },
+    /// Calibrate the integer-exact TCM for a weight file: its activation grids from the
+    /// float world's network inputs (tiles −3…2 of seeds 1…`seeds`); prints the weight file's
+    /// hash and the grids as one JSON line, for `models::tcm::EXACT_CALIBRATIONS`.
+    TcmCalibrate {
+        /// Worlds (seeds 1 and up) whose tiles the network inputs come from.
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
+        seeds: u32,
+        /// Folder of the world's weights (tcm_128m.bpk, grow_32m.bpk).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+    },
     /// Time TEM inference: prints JSON with the median milliseconds per quad (input 100² incl.
     /// margin → 200²), on the CPU kernels or (`--gpu`) burn's wgpu backend.
     TemBench {
@@ -676,6 +687,7 @@ fn main() -> ExitCode {
         Command::Hillshade { input, spacing_m, side, out } => hillshade(&input, spacing_m, side as usize, &out),
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),
+        Command::TcmCalibrate { seeds, weights } => tcm_calibrate(seeds as u64, weights),
         Command::TemExport { weights, out } => tem_export(weights, &out),
         Command::SketchExport { weights, out } => sketch_export(weights, &out),
         Command::SketchBench { repeats, threads, weights } => sketch_bench(repeats as usize, threads, weights),

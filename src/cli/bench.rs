@@ -70,6 +70,8 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
         (None, format!("cpu kernels ({}), {threads} thread{}", terrain::models::cpu::Kernels::chosen().widest(), if threads == 1 { "" } else { "s" }))
     };
     let (tcm_cpu, grow_cpu) = (TcmCpu::from_burnpack(&tcm_bytes).map_err(|e| e.to_string())?, GrowCpu::from_burnpack(&grow_bytes).map_err(|e| e.to_string())?);
+    // The integer-exact TCM the world runs, where these weights have a calibration.
+    let exact = terrain::world::learned::LearnedModels::from_bytes(&tcm_bytes, &grow_bytes).map_err(|e| e.to_string())?.exact;
     for &b in batches {
         let b = b as usize;
         let tcm_in: Vec<Vec<f32>> = (0..b).map(|k| tcm_input(k % 4, k)).collect();
@@ -103,7 +105,18 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
                 (tcm_t, grow_t)
             }
         };
-        for (model, (median, best, first)) in [("tcm_128m", tcm_t), ("grow_32m", grow_t)] {
+        let mut rows = vec![("tcm_128m", tcm_t), ("grow_32m", grow_t)];
+        if let (None, Some(exact)) = (&gpu_models, &exact) {
+            let mut ts = TcmScratch::default();
+            rows.push((
+                "tcm_128m_exact",
+                time_calls(repeats, || {
+                    tcm_in.iter().for_each(|x| drop(std::hint::black_box(exact.forward(x, &mut ts, threads))));
+                    Ok(())
+                })?,
+            ));
+        }
+        for (model, (median, best, first)) in rows {
             println!(
                 "{}",
                 serde_json::json!({ "model": model, "batch": b, "on": place, "repeats": repeats, "ms_per_batch": median, "min_ms_per_batch": best, "ms_per_tile": median / b as f64, "first_call_ms": first })
@@ -123,4 +136,40 @@ fn adapter_names() -> String {
 #[cfg(not(feature = "train"))]
 fn adapter_names() -> String {
     "burn wgpu (default Vulkan adapter)".into()
+}
+
+/// `terrain tcm-calibrate`: the integer-exact TCM's activation grids for the weights in
+/// `weights`, from the network inputs of the float world's tiles −3…2 of seeds 1…`seeds`.
+pub(crate) fn tcm_calibrate(seeds: u64, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::grid::coord::TileCoord;
+    use terrain::models::tcm::{TcmCpu, TcmExact};
+    use terrain::world::learned::{GROW_FILE, LearnedModels, LearnedSource, TCM_FILE};
+    let dir = weights_dir(weights);
+    let read = |f: &str| std::fs::read(dir.join(f)).map_err(|e| format!("cannot read {}: {e}", dir.join(f).display()));
+    let (tcm_bytes, grow_bytes) = (read(TCM_FILE)?, read(GROW_FILE)?);
+    let tcm = TcmCpu::from_burnpack(&tcm_bytes).map_err(|e| e.to_string())?;
+    let grow = terrain::models::grow::GrowCpu::from_burnpack(&grow_bytes).map_err(|e| e.to_string())?;
+    let float = LearnedSource::new(std::sync::Arc::new(LearnedModels::from_parts(tcm.clone(), None, grow, "float")), terrain::models::cpu::default_threads());
+    let inputs: Vec<Vec<f32>> =
+        (1..=seeds).flat_map(|seed| (0..36).map(move |t| (seed, TileCoord::new(t % 6 - 3, t / 6 - 3)))).map(|(seed, c)| float.network_input(seed, c).0).collect();
+    let exps = TcmExact::calibrate(&tcm, &inputs).map_err(|e| e.to_string())?;
+    let exact = TcmExact::new(&tcm, &exps).map_err(|e| e.to_string())?;
+    let (mut sq, mut var, mut n) = (0f64, 0f64, 0f64);
+    let mut s = Default::default();
+    for x in &inputs {
+        let (a, b) = (tcm.forward(x, &mut s, 1), exact.forward(x, &mut s, 1));
+        let mean = a.iter().map(|&v| v as f64).sum::<f64>() / a.len() as f64;
+        for (p, q) in a.iter().zip(&b) {
+            sq += ((p - q) as f64).powi(2);
+            var += (*p as f64 - mean).powi(2);
+            n += 1.0;
+        }
+    }
+    let rms_m = (sq / n).sqrt() * terrain::models::tcm::HEIGHT_SCALE_M as f64;
+    let sd_m = (var / n).sqrt() * terrain::models::tcm::HEIGHT_SCALE_M as f64;
+    println!(
+        "{}",
+        serde_json::json!({ "tcm_hash": terrain::models::weights_hash(&[&tcm_bytes]), "act_exp": exps, "inputs": inputs.len(), "largest_sum": exact.bound(), "rms_vs_float_m": rms_m, "float_tile_sd_m": sd_m })
+    );
+    Ok(())
 }

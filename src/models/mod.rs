@@ -5,6 +5,7 @@
 //! detail; [`tcm`] and [`grow`]: the learned world).
 
 pub mod cpu;
+pub mod exact;
 pub mod grow;
 pub mod runtime;
 pub mod sketch;

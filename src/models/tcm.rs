@@ -391,6 +391,199 @@ impl TcmCpu {
     }
 }
 
+/// Grid exponent of the integer-exact TCM's input (every channel: 1/256 of a unit, about 2 m
+/// of height; [`TcmExact`]).
+pub const EXACT_INPUT_EXP: i32 = -8;
+
+/// Largest input level (magnitude) of the integer-exact TCM: ±8 units (±4,000 m from the
+/// macro level; noise ±7σ).
+pub const EXACT_INPUT_LEVELS: f32 = 2047.0;
+
+/// The integer-exact TCM's activation grids ([`TcmExact::calibrate`]) for the TCM weight files
+/// they were calibrated on, by [`crate::models::weights_hash`] of the file: the shipped
+/// weights' from the world's tiles −3…2 of seeds 1–4 (`terrain tcm-calibrate`).
+pub const EXACT_CALIBRATIONS: &[(&str, &[i32])] = &[("39b4f87f", &[-7, -7, -7, -7, -8, -8, -9, -8, -10, -10, -7, -8, -8, -9, -9, -10, -10, -10])];
+
+/// The activation grids of [`EXACT_CALIBRATIONS`] for the TCM weight file whose hash is
+/// `tcm_hash`, if it has them.
+pub fn exact_calibration(tcm_hash: &str) -> Option<&'static [i32]> {
+    EXACT_CALIBRATIONS.iter().find(|(h, _)| *h == tcm_hash).map(|(_, e)| *e)
+}
+
+/// The TCM on integer grids ([`crate::models::exact`]): the same network as [`TcmCpu`], with
+/// 8-bit weights and 10-bit activations carried in f32, so that every kernel (portable, AVX2,
+/// AVX-512 with fused multiply-adds, the page's SIMD128) and a GPU's convolutions give the same
+/// bits.
+#[derive(Clone, Debug)]
+pub struct TcmExact {
+    layers: Vec<crate::models::exact::ExactConv>,
+    /// Activation grid exponent of each layer but the output (network order).
+    act_exp: Vec<i32>,
+}
+
+impl TcmExact {
+    /// Quantizes `tcm` with the activation grids `act_exp` (one per layer but the output, in
+    /// [`conv_layers`] order, e.g. from [`TcmExact::calibrate`]).
+    pub fn new(tcm: &TcmCpu, act_exp: &[i32]) -> Result<Self, cpu::LayerError> {
+        use crate::models::exact::{ACT_LEVELS, pow2, quantize};
+        let c = &tcm.convs;
+        assert_eq!(act_exp.len(), c.len() - 1, "one activation grid per layer but the output");
+        let mut layers = Vec::with_capacity(c.len());
+        let act = |l: usize, n: usize| (vec![act_exp[l]; n], vec![(0.0, ACT_LEVELS); n]);
+        for (l, conv) in c.iter().enumerate() {
+            let (exp, max) = match l {
+                // The input: the three masks (channels 1–3) are 0 or 1, the others signed.
+                0 => (
+                    vec![EXACT_INPUT_EXP; conv.cin()],
+                    (0..conv.cin()).map(|i| if (1..=3).contains(&i) { (0.0, pow2(-EXACT_INPUT_EXP)) } else { (-EXACT_INPUT_LEVELS, EXACT_INPUT_LEVELS) }).collect(),
+                ),
+                // Encoder: the previous layer (the pooled skip's grid is its own).
+                1..=9 => act(l - 1, conv.cin()),
+                // Decoder stage k's first layer: the coarser map (enc.4.b, or dec.k+1.b) upsampled,
+                // then skip k (enc.k.b).
+                10 | 12 | 14 | 16 => {
+                    let k = (l - 10) / 2;
+                    let coarse = if k == 3 { 9 } else { 11 + 2 * (k + 1) };
+                    let n_coarse = WIDTHS[k + 1];
+                    let (mut e, mut m) = act(coarse, n_coarse);
+                    let (e2, m2) = act(2 * k + 1, WIDTHS[k]);
+                    e.extend(e2);
+                    m.extend(m2);
+                    (e, m)
+                }
+                // The output layer reads the last decoder stage (dec.0.b).
+                18 => act(11, conv.cin()),
+                _ => act(l - 1, conv.cin()),
+            };
+            // Sums of integers below 2²⁴ are exact in any order, fused or not: the fastest kernels.
+            let mut q = quantize(conv, &exp, &max)?;
+            q.conv = q.conv.with_fused(true);
+            layers.push(q);
+        }
+        Ok(Self { layers, act_exp: act_exp.to_vec() })
+    }
+
+    /// The largest sum any layer can form (below 2²⁴).
+    pub fn bound(&self) -> f64 {
+        self.layers.iter().map(|l| l.bound).fold(0.0, f64::max)
+    }
+
+    /// One tile, as [`TcmCpu::forward`]: `x` from [`assemble_input`]; the centre tile relative
+    /// to the macro level in units of [`HEIGHT_SCALE_M`], a multiple of the output layer's grid.
+    pub fn forward(&self, x: &[f32], s: &mut TcmScratch, threads: usize) -> Vec<f32> {
+        self.run(x, s, threads, cpu::Kernels::chosen(), None)
+    }
+
+    /// [`TcmExact::forward`] on `kernels`; `record` gets each layer's largest value before
+    /// rounding (real units, after the ReLU).
+    pub(crate) fn run(&self, x: &[f32], s: &mut TcmScratch, threads: usize, kernels: cpu::Kernels, mut record: Option<&mut [f32]>) -> Vec<f32> {
+        use crate::models::exact::{ACT_LEVELS, pow2};
+        let scale = pow2(-EXACT_INPUT_EXP);
+        let q: Vec<f32> = x.iter().map(|&v| (v * scale + 0.5).floor().clamp(-EXACT_INPUT_LEVELS, EXACT_INPUT_LEVELS)).collect();
+        s.input.set_chw(&q, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX);
+        let ones: Vec<f32> = vec![1.0; WIDTHS[4]];
+        let mut conv = |l: usize, src: &Map, dst: &mut Map| {
+            let layer = &self.layers[l];
+            cpu::conv_impl(&layer.conv, src, dst, Post::Relu, threads, kernels);
+            if let Some(r) = record.as_deref_mut() {
+                let unit: Vec<f32> = layer.acc_exp.iter().map(|&e| pow2(e)).collect();
+                for (y, x) in (0..dst.height()).flat_map(|y| (0..dst.width()).map(move |x| (y, x))) {
+                    r[l] = dst.pixel(y, x).iter().zip(&unit).fold(r[l], |m, (&v, &u)| m.max(v * u));
+                }
+            }
+            cpu::requantize(dst, &layer.to_grid(self.act_exp[l]), ACT_LEVELS);
+        };
+        for k in 0..5 {
+            let src = if k == 0 {
+                &s.input
+            } else {
+                cpu::pool2(&s.skips[k - 1], &mut s.pooled, threads);
+                cpu::requantize(&mut s.pooled, &ones[..WIDTHS[k - 1]], ACT_LEVELS);
+                &s.pooled
+            };
+            conv(2 * k, src, &mut s.t);
+            let dst = if k < 4 { &mut s.skips[k] } else { &mut s.h };
+            conv(2 * k + 1, &s.t, dst);
+        }
+        for k in (0..4).rev() {
+            cpu::up2_concat(&s.h, &s.skips[k], DECODER_CROP[k], &mut s.cat, threads);
+            conv(10 + 2 * k, &s.cat, &mut s.t);
+            conv(11 + 2 * k, &s.t, &mut s.h);
+        }
+        let out = &self.layers[18];
+        cpu::conv_impl(&out.conv, &s.h, &mut s.out, Post::None, threads, kernels);
+        let unit = pow2(out.acc_exp[0]);
+        let off = (DECODER_CROP[0] - TILE_PX) / 2;
+        let mut tile = Vec::with_capacity(TILE_PX * TILE_PX);
+        for y in 0..TILE_PX {
+            for xx in 0..TILE_PX {
+                tile.push(s.out.pixel(y + off, xx + off)[0] * unit);
+            }
+        }
+        tile
+    }
+
+    /// This network's integer weights in a burn generator on `device` (for
+    /// [`TcmExact::forward_burn`]).
+    pub fn to_burn(&self, device: &Device) -> Result<Tcm, crate::models::WeightError> {
+        let convs: Vec<Conv3> = self.layers.iter().map(|l| l.conv.clone()).collect();
+        crate::models::load_burnpack(Tcm::new(device), &cpu::convs_to_burnpack(&conv_layers(), &convs))
+    }
+
+    /// [`TcmExact::forward`] on burn's backends (a GPU's convolutions, whatever their order of
+    /// sums): `m` from [`TcmExact::to_burn`], `x` [B, [`IN_CHANNELS`], 96, 96] from
+    /// [`assemble_input`]; returns [B, 1, 32, 32], the same bits as the CPU kernels.
+    pub fn forward_burn(&self, m: &Tcm, x: Tensor<4>) -> Tensor<4> {
+        use crate::models::exact::{ACT_LEVELS, pow2};
+        let device = x.device();
+        // ⌊v · scale + ½⌋ per channel, clamped: exact for the powers of two used.
+        let grid = |v: Tensor<4>, scale: &[f32], max: f32| {
+            let s = Tensor::<1>::from_data(burn::tensor::TensorData::new(scale.to_vec(), [scale.len()]), &device).reshape([1, scale.len(), 1, 1]);
+            (v * s + 0.5).floor().clamp(-max, max)
+        };
+        let inputs = vec![pow2(-EXACT_INPUT_EXP); IN_CHANNELS];
+        let mut h = grid(x, &inputs, EXACT_INPUT_LEVELS);
+        let conv = |l: usize, conv: &Conv2d, v: Tensor<4>| grid(relu(conv.forward(v)), &self.layers[l].to_grid(self.act_exp[l]), ACT_LEVELS);
+        let mut skips = Vec::with_capacity(4);
+        for (k, stage) in m.enc.iter().enumerate() {
+            if k > 0 {
+                h = grid(pool2(h), &vec![1.0; WIDTHS[k - 1]], ACT_LEVELS);
+            }
+            h = conv(2 * k + 1, &stage.b, conv(2 * k, &stage.a, h));
+            if k < 4 {
+                skips.push(h.clone());
+            }
+        }
+        for k in (0..4).rev() {
+            let crop = DECODER_CROP[k];
+            let cat = Tensor::cat(vec![centre(up2(h), crop), centre(skips[k].clone(), crop)], 1);
+            h = conv(11 + 2 * k, &m.dec[k].b, conv(10 + 2 * k, &m.dec[k].a, cat));
+        }
+        centre(m.out.forward(h), TILE_PX) * pow2(self.layers[18].acc_exp[0])
+    }
+
+    /// Activation grids for `tcm` from network inputs `inputs` ([`assemble_input`]): layer by
+    /// layer, the coarsest power of two on which the layer's largest value (with the grids
+    /// already chosen before it) needs at most [`crate::models::exact::ACT_LEVELS`] levels.
+    pub fn calibrate(tcm: &TcmCpu, inputs: &[Vec<f32>]) -> Result<Vec<i32>, cpu::LayerError> {
+        let n = tcm.convs.len() - 1;
+        let mut exps = vec![0; n];
+        let mut s = TcmScratch::default();
+        // In the order the network runs them: the encoder, then the decoder from its coarsest
+        // stage (each layer's inputs on grids already chosen).
+        let order = (0..10).chain((0..4).rev().flat_map(|k| [10 + 2 * k, 11 + 2 * k]));
+        for l in order {
+            let net = Self::new(tcm, &exps)?;
+            let mut most = vec![0f32; n + 1];
+            for x in inputs {
+                net.run(x, &mut s, 1, cpu::Kernels::chosen(), Some(&mut most));
+            }
+            exps[l] = crate::models::exact::grid_exp(most[l].max(f32::MIN_POSITIVE) as f64, crate::models::exact::ACT_LEVELS as f64);
+        }
+        Ok(exps)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -537,5 +730,49 @@ mod tests {
                 assert!(worst < 1e-4, "phase {p}, {threads} threads: CPU and burn differ by {worst}");
             }
         }
+    }
+
+    /// The shipped TCM on integer grids ([`TcmExact`], its calibration) gives the same bits on
+    /// the portable, AVX2 and widest CPU kernels at 1 and 2 threads, on burn's CPU backend and on
+    /// burn's wgpu backend (lavapipe here: other kernels, other orders of sums), for inputs of
+    /// every phase in one batch; and it stays within 12 m (root mean square) of the float
+    /// network, whose tiles vary by hundreds of metres.
+    #[cfg(feature = "train")]
+    #[test]
+    fn the_integer_exact_tcm_gives_the_same_bits_on_every_cpu_kernel_and_on_burn_cpu_and_wgpu() {
+        let bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(crate::world::learned::TCM_FILE)).unwrap();
+        let float = TcmCpu::from_burnpack(&bytes).unwrap();
+        let exps = exact_calibration(&crate::models::weights_hash(&[&bytes])).expect("the shipped TCM has a calibration");
+        let exact = TcmExact::new(&float, exps).unwrap();
+        assert!(exact.bound() < crate::models::exact::F32_EXACT);
+        let tile: Vec<f32> = (0..TILE_PX * TILE_PX).map(|p| 900.0 + 400.0 * ((p % 32) as f32 * 0.3).sin() + 9.0 * (p / 32) as f32).collect();
+        let inputs: Vec<Vec<f32>> = (0..4)
+            .map(|p| {
+                let mask = phase_mask(p);
+                let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tile.as_slice()));
+                assemble_input(&tiles, &[850.0, 900.0, 950.0, 1000.0, 1050.0, 1100.0, 1150.0, 1200.0, 1250.0], &[1.0, 1.2, 1.3, 1.1, 1.27, 1.4, 1.2, 1.0, 1.5], 40 + p as u64)
+            })
+            .collect();
+        let mut s = TcmScratch::default();
+        let cpu_out: Vec<f32> = inputs.iter().flat_map(|x| exact.run(x, &mut s, 1, cpu::Kernels::Portable, None)).collect();
+        for kernels in [cpu::Kernels::Avx2, cpu::Kernels::Best] {
+            for threads in [1, 2] {
+                let out: Vec<f32> = inputs.iter().flat_map(|x| exact.run(x, &mut s, threads, kernels, None)).collect();
+                assert!(out.iter().zip(&cpu_out).all(|(a, b)| a.to_bits() == b.to_bits()), "{kernels:?}, {threads} threads");
+            }
+        }
+        let float_out: Vec<f32> = inputs.iter().flat_map(|x| float.forward(x, &mut s, 1)).collect();
+        let rms_m = (float_out.iter().zip(&cpu_out).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / cpu_out.len() as f64).sqrt() * HEIGHT_SCALE_M as f64;
+        let mean = float_out.iter().map(|&v| v as f64).sum::<f64>() / float_out.len() as f64;
+        let sd_m = (float_out.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / float_out.len() as f64).sqrt() * HEIGHT_SCALE_M as f64;
+        assert!(rms_m < 12.0 && sd_m > 100.0, "integer vs float {rms_m} m RMS, tiles' spread {sd_m} m");
+        for device in [Device::flex(), crate::models::native_gpu().expect("a Vulkan device (lavapipe)")] {
+            let m = exact.to_burn(&device).unwrap();
+            let x = Tensor::<4>::from_data(burn::tensor::TensorData::new(inputs.concat(), [4, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX]), &device);
+            let out: Vec<f32> = exact.forward_burn(&m, x).into_data().try_to_vec::<f32>().unwrap();
+            let differ = out.iter().zip(&cpu_out).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+            assert_eq!(differ, 0, "{device:?}: {differ} of {} samples differ from the CPU kernels", out.len());
+        }
+        println!("integer-exact TCM: {rms_m:.2} m RMS from the float network (tiles' spread {sd_m:.0} m); largest sum {}", exact.bound());
     }
 }

@@ -62,7 +62,7 @@ use super::tile::{Neighbourhood, Tile, TileSource, cut, paste};
 use crate::grid::coord::{TILE_SAMPLES, TileCoord};
 use crate::grid::schedule::{dependencies, tile_seed};
 use crate::models::grow::{self, GrowCpu, GrowScratch};
-use crate::models::tcm::{self, HEIGHT_SCALE_M, TILE_PX, TcmCpu, TcmScratch};
+use crate::models::tcm::{self, HEIGHT_SCALE_M, TILE_PX, TcmCpu, TcmExact, TcmScratch};
 
 // The ×4 step makes exactly one world tile from one 128 m tile.
 const _: () = assert!(TILE_PX * grow::FACTOR == TILE_SAMPLES);
@@ -271,6 +271,10 @@ pub fn ruggedness(seed: u64, c: TileCoord) -> f32 {
 pub struct LearnedModels {
     /// The 128 m tile generator.
     pub tcm: TcmCpu,
+    /// The TCM on integer grids, where its weights have a calibration
+    /// ([`tcm::exact_calibration`]): the world's tiles then have the same bits on every
+    /// kernel and backend. `None`: the float network [`LearnedModels::tcm`] makes them.
+    pub exact: Option<TcmExact>,
     /// The ×4 step to 32 m.
     pub grow: GrowCpu,
     /// Short hash of the weight files (names the weights in share links).
@@ -282,12 +286,17 @@ impl LearnedModels {
     pub fn from_bytes(tcm_bytes: &[u8], grow_bytes: &[u8]) -> Result<Self, crate::models::WeightError> {
         let tcm = TcmCpu::from_burnpack(tcm_bytes).map_err(|e| e.in_file(TCM_FILE))?;
         let grow = GrowCpu::from_burnpack(grow_bytes).map_err(|e| e.in_file(GROW_FILE))?;
-        Ok(Self { tcm, grow, hash: crate::models::weights_hash(&[tcm_bytes, grow_bytes]) })
+        let tcm_hash = crate::models::weights_hash(&[tcm_bytes]);
+        let exact = match tcm::exact_calibration(&tcm_hash) {
+            Some(exps) => Some(TcmExact::new(&tcm, exps).map_err(|source| crate::models::WeightError::Layer { name: "integer-exact TCM".into(), source }.in_file(TCM_FILE))?),
+            None => None,
+        };
+        Ok(Self { tcm, exact, grow, hash: crate::models::weights_hash(&[tcm_bytes, grow_bytes]) })
     }
 
-    /// Wraps networks already built (tests, training runs).
-    pub fn from_parts(tcm: TcmCpu, grow: GrowCpu, hash: &str) -> Self {
-        Self { tcm, grow, hash: hash.into() }
+    /// Wraps networks already built (tests, training runs); `exact` as [`LearnedModels::exact`].
+    pub fn from_parts(tcm: TcmCpu, exact: Option<TcmExact>, grow: GrowCpu, hash: &str) -> Self {
+        Self { tcm, exact, grow, hash: hash.into() }
     }
 
     /// Reads `dir/`[`TCM_FILE`] and `dir/`[`GROW_FILE`].
@@ -416,21 +425,16 @@ impl LearnedSource {
         if let Some(t) = self.coarse.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, c)) {
             return t.clone();
         }
-        // The schedule's neighbours, and every pinned one: pins are given whatever their phase.
-        let pinned = around(c).into_iter().filter(|b| self.pins.contains(*b));
-        let deps: HashMap<TileCoord, Arc<Vec<f32>>> = dependencies(c).chain(pinned).map(|d| (d, self.coarse_tile(seed, d))).collect();
-        let block = around(c);
-        let tiles: [Option<&[f32]>; 9] = block.map(|b| deps.get(&b).map(|v| v.as_slice()));
-        let centres: [f32; 9] = block.map(|b| macro_height(seed, b));
-        let rugged: [f32; 9] = block.map(|b| ruggedness(seed, b));
-        let x = tcm::assemble_input(&tiles, &centres, &rugged, tile_seed(seed, c));
+        let (x, deps, level) = self.network_input(seed, c);
         let t0 = Instant::now();
         let out = {
             let mut s = self.scratch.lock().unwrap_or_else(|p| p.into_inner());
-            self.models.tcm.forward(&x, &mut s.0, self.threads)
+            match &self.models.exact {
+                Some(exact) => exact.forward(&x, &mut s.0, self.threads),
+                None => self.models.tcm.forward(&x, &mut s.0, self.threads),
+            }
         };
         let t1 = Instant::now();
-        let level = centres[4];
         let mut tile: Vec<f32> = out.into_iter().map(|v| v * HEIGHT_SCALE_M + level).collect();
         let sides = seam::SIDES.map(|(di, dj)| deps.get(&c.offset(di, dj)).map(|t| t.as_slice()));
         seam::join_edges(&mut tile, TILE_PX, sides);
@@ -446,6 +450,20 @@ impl LearnedSource {
         }
         cache.insert((seed, c), tile.clone());
         tile
+    }
+
+    /// The TCM's input for tile `c` of world `seed` ([`tcm::assemble_input`]), the input tiles
+    /// it was made from (the schedule's dependencies and every pinned neighbour, made if not
+    /// cached) and the macro level of `c` (metres).
+    pub fn network_input(&self, seed: u64, c: TileCoord) -> (Vec<f32>, HashMap<TileCoord, Arc<Vec<f32>>>, f32) {
+        // The schedule's neighbours, and every pinned one: pins are given whatever their phase.
+        let pinned = around(c).into_iter().filter(|b| self.pins.contains(*b));
+        let deps: HashMap<TileCoord, Arc<Vec<f32>>> = dependencies(c).chain(pinned).map(|d| (d, self.coarse_tile(seed, d))).collect();
+        let block = around(c);
+        let tiles: [Option<&[f32]>; 9] = block.map(|b| deps.get(&b).map(|v| v.as_slice()));
+        let centres: [f32; 9] = block.map(|b| macro_height(seed, b));
+        let rugged: [f32; 9] = block.map(|b| ruggedness(seed, b));
+        (tcm::assemble_input(&tiles, &centres, &rugged, tile_seed(seed, c)), deps, centres[4])
     }
 
     /// The 128 m tiles of the 3×3 block centred on `c` of world `seed` as the TCM made them,
@@ -759,7 +777,7 @@ mod tests {
     use crate::grid::mix64;
 
     fn random_models() -> Arc<LearnedModels> {
-        Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), GrowCpu::randomized(2, 0.05), "test"))
+        Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), None, GrowCpu::randomized(2, 0.05), "test"))
     }
 
     /// A tile prepared piece by piece is bit-identical to one made in one go; the pieces are
@@ -1127,7 +1145,7 @@ mod shipped_tests {
     /// The bounds can fail: an untrained TCM's world (random weights) is outside them.
     #[test]
     fn an_untrained_tcm_region_is_outside_the_drainage_bounds() {
-        let src = LearnedSource::new(Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), GrowCpu::randomized(2, 0.05), "test")), 1);
+        let src = LearnedSource::new(Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), None, GrowCpu::randomized(2, 0.05), "test")), 1);
         let f = region_figures(&src, 1);
         eprintln!("untrained: {f:?}");
         assert!(!within_bounds(&f), "{f:?}");

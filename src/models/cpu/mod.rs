@@ -354,7 +354,7 @@ impl Kernels {
 }
 
 /// [`conv`] on the given set of kernels (tests run each).
-fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize, kernels: Kernels) {
+pub(crate) fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize, kernels: Kernels) {
     assert_eq!(src.c, layer.cin, "input channels");
     if let Post::Add(s) = post {
         assert!(s.h == src.h && s.w == src.w && s.c == layer.cout, "skip shape");
@@ -673,6 +673,27 @@ fn for_row_runs(rows: &mut [f32], row_len: usize, threads: usize, f: impl Fn(usi
     #[cfg(target_arch = "wasm32")]
     let _ = (row_len, threads);
     f(0, rows);
+}
+
+/// Rounds every interior value of `map` to its channel's integer grid: channel `k`'s value `v`
+/// becomes min(⌊v · `scale[k]` + ½⌋, `max`).
+/// With each `scale[k]` a power of two and |v · scale[k]| < 2²³, every step is exact in f32,
+/// so every machine, kernel and backend gives the same bits ([`crate::models::exact`]).
+pub fn requantize(map: &mut Map, scale: &[f32], max: f32) {
+    assert_eq!(scale.len(), map.c, "one scale per channel");
+    let (h, w, c) = (map.h, map.w, map.c);
+    let row_len = (w + 2) * c;
+    for row in map.data[row_len..row_len * (h + 1)].chunks_exact_mut(row_len) {
+        for px in row[c..(w + 1) * c].chunks_exact_mut(c) {
+            for (v, &k) in px.iter_mut().zip(scale) {
+                // ⌊·⌋ by truncation and a correction: exact below 2³¹, and vectorised where
+                // f32::floor is a library call (x86-64 without SSE4.1).
+                let x = *v * k + 0.5;
+                let t = x as i32 as f32;
+                *v = if t > x { t - 1.0 } else { t }.min(max);
+            }
+        }
+    }
 }
 
 /// `src` upsampled ×2 (nearest): `dst` becomes twice the size with the same channels.
