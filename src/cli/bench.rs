@@ -76,6 +76,7 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
         let b = b as usize;
         let tcm_in: Vec<Vec<f32>> = (0..b).map(|k| tcm_input(k % 4, k)).collect();
         let grow_in: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = (0..b).map(grow_input).collect();
+        let mut exact_gpu = None;
         let (tcm_t, grow_t) = match &gpu_models {
             Some((device, tcm, grow)) => {
                 let stack = |parts: Vec<&Vec<f32>>, c: usize, s: usize| {
@@ -90,6 +91,14 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
                     let y = grow.forward(stack(x, 6, WINDOW), stack(n64, 1, 2 * WINDOW), stack(n32, 1, 4 * WINDOW));
                     y.into_data().try_to_vec::<f32>().map(drop).map_err(|e| format!("{e:?}"))
                 })?;
+                if let Some(exact) = &exact {
+                    let m = exact.to_burn(device).map_err(|e| e.to_string())?;
+                    let t = time_calls(repeats, || {
+                        let y = exact.forward_burn(&m, stack(tcm_in.iter().collect(), IN_CHANNELS, CONTEXT_PX));
+                        y.into_data().try_to_vec::<f32>().map(drop).map_err(|e| format!("{e:?}"))
+                    })?;
+                    exact_gpu = Some(t);
+                }
                 (tcm_t, grow_t)
             }
             None => {
@@ -106,7 +115,9 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
             }
         };
         let mut rows = vec![("tcm_128m", tcm_t), ("grow_32m", grow_t)];
-        if let (None, Some(exact)) = (&gpu_models, &exact) {
+        if let Some(t) = exact_gpu {
+            rows.push(("tcm_128m_exact", t));
+        } else if let (None, Some(exact)) = (&gpu_models, &exact) {
             let mut ts = TcmScratch::default();
             rows.push((
                 "tcm_128m_exact",

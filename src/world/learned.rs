@@ -275,6 +275,10 @@ pub struct LearnedModels {
     /// ([`tcm::exact_calibration`]): the world's tiles then have the same bits on every
     /// kernel and backend. `None`: the float network [`LearnedModels::tcm`] makes them.
     pub exact: Option<TcmExact>,
+    /// The integer-exact TCM on a burn device, where [`LearnedModels::with_tcm_on`] put it
+    /// (natively: a GPU's Vulkan, or Mesa's lavapipe).
+    #[cfg(not(target_arch = "wasm32"))]
+    tcm_on: Option<(burn::tensor::Device, tcm::Tcm)>,
     /// The ×4 step to 32 m.
     pub grow: GrowCpu,
     /// Short hash of the weight files (names the weights in share links).
@@ -291,12 +295,53 @@ impl LearnedModels {
             Some(exps) => Some(TcmExact::new(&tcm, exps).map_err(|source| crate::models::WeightError::Layer { name: "integer-exact TCM".into(), source }.in_file(TCM_FILE))?),
             None => None,
         };
-        Ok(Self { tcm, exact, grow, hash: crate::models::weights_hash(&[tcm_bytes, grow_bytes]) })
+        Ok(Self {
+            tcm,
+            exact,
+            #[cfg(not(target_arch = "wasm32"))]
+            tcm_on: None,
+            grow,
+            hash: crate::models::weights_hash(&[tcm_bytes, grow_bytes]),
+        })
     }
 
     /// Wraps networks already built (tests, training runs); `exact` as [`LearnedModels::exact`].
     pub fn from_parts(tcm: TcmCpu, exact: Option<TcmExact>, grow: GrowCpu, hash: &str) -> Self {
-        Self { tcm, exact, grow, hash: hash.into() }
+        Self {
+            tcm,
+            exact,
+            #[cfg(not(target_arch = "wasm32"))]
+            tcm_on: None,
+            grow,
+            hash: hash.into(),
+        }
+    }
+
+    /// These networks with the integer-exact TCM on burn's `device`: the world's 128 m tiles
+    /// are then made there, one call each, with the same bits as on the CPU kernels. An error
+    /// where the TCM has no integer-exact calibration (the float network's last bits differ
+    /// between backends, and the drainage turns them into metres).
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn with_tcm_on(mut self, device: &burn::tensor::Device) -> Result<Self, String> {
+        let exact = self.exact.as_ref().ok_or("this TCM has no integer-exact calibration: its tiles would differ between backends")?;
+        self.tcm_on = Some((device.clone(), exact.to_burn(device).map_err(|e| e.to_string())?));
+        Ok(self)
+    }
+
+    /// One 128 m tile of the TCM from its input `x` ([`tcm::TcmCpu::forward`]'s units): on the
+    /// integer grids where the weights have a calibration ([`LearnedModels::exact`]), on
+    /// burn's device where [`LearnedModels::with_tcm_on`] put it (natively; a device that
+    /// fails to answer is a panic naming it), else the float network.
+    pub fn tcm_forward(&self, x: &[f32], s: &mut TcmScratch, threads: usize) -> Vec<f32> {
+        #[cfg(not(target_arch = "wasm32"))]
+        if let (Some(exact), Some((device, m))) = (&self.exact, &self.tcm_on) {
+            let x = burn::tensor::Tensor::<4>::from_data(burn::tensor::TensorData::new(x.to_vec(), [1, tcm::IN_CHANNELS, tcm::CONTEXT_PX, tcm::CONTEXT_PX]), device);
+            return exact.forward_burn(m, x).into_data().try_to_vec::<f32>().unwrap_or_else(|e| panic!("the TCM's tile from {device:?}: {e:?}"));
+        }
+        match &self.exact {
+            Some(exact) => exact.forward(x, s, threads),
+            None => self.tcm.forward(x, s, threads),
+        }
     }
 
     /// Reads `dir/`[`TCM_FILE`] and `dir/`[`GROW_FILE`].
@@ -429,10 +474,7 @@ impl LearnedSource {
         let t0 = Instant::now();
         let out = {
             let mut s = self.scratch.lock().unwrap_or_else(|p| p.into_inner());
-            match &self.models.exact {
-                Some(exact) => exact.forward(&x, &mut s.0, self.threads),
-                None => self.models.tcm.forward(&x, &mut s.0, self.threads),
-            }
+            self.models.tcm_forward(&x, &mut s.0, self.threads)
         };
         let t1 = Instant::now();
         let mut tile: Vec<f32> = out.into_iter().map(|v| v * HEIGHT_SCALE_M + level).collect();
@@ -823,6 +865,23 @@ mod tests {
 
     /// Three visit orders of a 6×6 region (shuffled, each with a fresh source and cache) make
     /// bit-identical tiles; the tiles are not flat and differ between seeds.
+    /// The learned world made with its TCM on burn's wgpu backend (lavapipe here) is the CPU
+    /// kernels' world bit for bit: a 32 m tile of seed 5 (its 128 m tiles, their erosion and
+    /// both drainage stages under it), and the device made every 128 m tile it needed.
+    #[test]
+    fn world_tiles_with_the_tcm_on_wgpu_are_the_cpu_kernels_tiles_bit_for_bit() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let cpu = LearnedSource::new(Arc::new(LearnedModels::load_dir(&dir).unwrap()), 1);
+        let on_gpu = LearnedModels::load_dir(&dir).unwrap().with_tcm_on(&crate::models::native_gpu().expect("a Vulkan device (lavapipe)")).unwrap();
+        let gpu = LearnedSource::new(Arc::new(on_gpu), 1);
+        let c = TileCoord::new(1, 0);
+        let (a, b) = (cpu.generate(5, c, &Neighbourhood::default()).heights, gpu.generate(5, c, &Neighbourhood::default()).heights);
+        let differ = a.iter().zip(&b).filter(|(p, q)| p.to_bits() != q.to_bits()).count();
+        assert_eq!(differ, 0, "{differ} of {} samples differ", a.len());
+        let (made_cpu, made_gpu) = (cpu.time_spent().tcm.runs, gpu.time_spent().tcm.runs);
+        assert!(made_gpu == made_cpu && made_gpu >= 9, "128 m tiles made: {made_cpu} on the CPU, {made_gpu} on the device");
+    }
+
     #[test]
     fn tiles_are_bit_identical_for_any_visit_order() {
         let models = random_models();
