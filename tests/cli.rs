@@ -215,16 +215,17 @@ fn sketch_export_and_bench_describe_the_generator() {
     assert!(b["ms_per_sketch"].as_f64().unwrap() > 0.0 && b["threads"] == 1);
 }
 
-/// `terrain tile-bench` prints one line per network and batch size asked for (the TCM and the
-/// ×4 step at 1 and 3 tiles), each with a positive time per batch call that is its time per
-/// tile times the batch.
+/// `terrain tile-bench` prints one line per network and batch size asked for (the TCM, the
+/// ×4 step and the shipped TCM on integer grids at 1 and 3 tiles), each with a positive time
+/// per batch call that is its time per tile times the batch.
 #[test]
 fn tile_bench_times_both_networks_per_batch() {
     let o = run(&["tile-bench", "--batch", "1", "--batch", "3", "--repeats", "1", "--threads", "1"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let lines: Vec<serde_json::Value> = o.stdout.split(|&b| b == b'\n').filter(|l| !l.is_empty()).map(|l| serde_json::from_slice(l).unwrap()).collect();
     let keys: Vec<(String, u64)> = lines.iter().map(|l| (l["model"].as_str().unwrap().to_string(), l["batch"].as_u64().unwrap())).collect();
-    let want: Vec<(String, u64)> = [("tcm_128m", 1), ("grow_32m", 1), ("tcm_128m", 3), ("grow_32m", 3)].iter().map(|(m, b)| (m.to_string(), *b)).collect();
+    let want: Vec<(String, u64)> =
+        [("tcm_128m", 1), ("grow_32m", 1), ("tcm_128m_exact", 1), ("tcm_128m", 3), ("grow_32m", 3), ("tcm_128m_exact", 3)].iter().map(|(m, b)| (m.to_string(), *b)).collect();
     assert_eq!(keys, want);
     for l in &lines {
         let (batch, tile) = (l["ms_per_batch"].as_f64().unwrap(), l["ms_per_tile"].as_f64().unwrap());
