@@ -5,10 +5,11 @@
 //! last bits and the world's drainage turns those bits into metres (issue 37).
 //!
 //! A layer ([`quantize`]) takes inputs on grids of 2^`in_exp[i]` (real value = integer ×
-//! 2^exp) bounded by `in_max[i]` levels. Each output channel `c` gets its own accumulator grid
-//! 2^`acc_exp[c]`: the finest on which its weights, with the input grids folded in, need at
-//! most [`WEIGHT_LEVELS`] levels, coarsened until the largest possible sum (every |weight| ×
-//! its input's bound, plus the bias) stays below 2²⁴ ([`F32_EXACT`]). The output is rounded to
+//! 2^exp) whose levels lie in `in_range[i]`. Each output channel `c` gets its own accumulator
+//! grid 2^`acc_exp[c]`: the finest on which its weights, with the input grids folded in, need
+//! at most [`WEIGHT_LEVELS`] levels, coarsened until every partial sum it can form (each
+//! term's extremes by its sign over its input's range, plus the bias) stays below 2²⁴
+//! ([`F32_EXACT`]). The output is rounded to
 //! the layer's activation grid 2^`out_exp` and clamped to [`ACT_LEVELS`]
 //! ([`crate::models::cpu::requantize`]): a multiplication by a power of two, an addition of ½
 //! and a floor, each exact.
@@ -18,7 +19,8 @@ use crate::models::cpu::{Conv3, LayerError};
 /// Every integer of magnitude below this is exact in f32 (2²⁴).
 pub const F32_EXACT: f64 = 16_777_216.0;
 
-/// Largest weight level (magnitude) of a quantized layer: 9-bit weights, where the bound on the sums allows (most channels of the wide layers get fewer).
+/// Largest weight level (magnitude) of a quantized layer: 9-bit weights where the bound on the
+/// sums allows (most channels of the wide layers get fewer).
 pub const WEIGHT_LEVELS: f64 = 255.0;
 
 /// Largest activation level after a ReLU: 10-bit activations.

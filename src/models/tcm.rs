@@ -411,9 +411,9 @@ pub fn exact_calibration(tcm_hash: &str) -> Option<&'static [i32]> {
 }
 
 /// The TCM on integer grids ([`crate::models::exact`]): the same network as [`TcmCpu`], with
-/// 8-bit weights and 10-bit activations carried in f32, so that every kernel (portable, AVX2,
-/// AVX-512 with fused multiply-adds, the page's SIMD128) and a GPU's convolutions give the same
-/// bits.
+/// 9-bit weights (fewer where the bound on the sums needs it) and 10-bit activations carried
+/// in f32, so that every kernel (portable, AVX2, AVX-512 with fused multiply-adds, the page's
+/// SIMD128) and a GPU's convolutions give the same bits.
 #[derive(Clone, Debug)]
 pub struct TcmExact {
     layers: Vec<crate::models::exact::ExactConv>,
