@@ -360,35 +360,47 @@ impl TcmCpu {
     /// ([`TILE_PX`]², row-major) relative to the macro level in units of [`HEIGHT_SCALE_M`].
     pub fn forward(&self, x: &[f32], s: &mut TcmScratch, threads: usize) -> Vec<f32> {
         s.input.set_chw(x, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX);
-        let c = &self.convs;
-        // Encoder: stage k reads the input (k = 0) or the pooled previous stage.
-        for k in 0..5 {
-            let src = if k == 0 {
-                &s.input
-            } else {
-                cpu::pool2(&s.skips[k - 1], &mut s.pooled, threads);
-                &s.pooled
-            };
-            cpu::conv(&c[2 * k], src, &mut s.t, Post::Relu, threads);
-            let dst = if k < 4 { &mut s.skips[k] } else { &mut s.h };
-            cpu::conv(&c[2 * k + 1], &s.t, dst, Post::Relu, threads);
-        }
-        // Decoder: upsample, take the centre crop beside the skip's, two convolutions.
-        for k in (0..4).rev() {
-            cpu::up2_concat(&s.h, &s.skips[k], DECODER_CROP[k], &mut s.cat, threads);
-            cpu::conv(&c[10 + 2 * k], &s.cat, &mut s.t, Post::Relu, threads);
-            cpu::conv(&c[11 + 2 * k], &s.t, &mut s.h, Post::Relu, threads);
-        }
-        cpu::conv(&c[18], &s.h, &mut s.out, Post::None, threads);
-        let off = (DECODER_CROP[0] - TILE_PX) / 2;
-        let mut tile = Vec::with_capacity(TILE_PX * TILE_PX);
-        for y in 0..TILE_PX {
-            for xx in 0..TILE_PX {
-                tile.push(s.out.pixel(y + off, xx + off)[0]);
-            }
-        }
-        tile
+        unet(|l| &self.convs[l], s, threads, cpu::Kernels::chosen(), |_, _| {})
     }
+}
+
+/// The generator's layers on the CPU kernels in the order it runs them, from `s.input`:
+/// `layer(l)` is convolution `l` ([`conv_layers`] order); `after(Some(l), map)` is called on
+/// each ReLU layer's output and `after(None, map)` on each pooled map, before the next layer
+/// reads it (the integer-exact TCM rounds them there). Returns the output layer's centre tile.
+fn unet<'a>(layer: impl Fn(usize) -> &'a Conv3, s: &mut TcmScratch, threads: usize, kernels: cpu::Kernels, mut after: impl FnMut(Option<usize>, &mut Map)) -> Vec<f32> {
+    let conv = |l: usize, src: &Map, dst: &mut Map, after: &mut dyn FnMut(Option<usize>, &mut Map)| {
+        cpu::conv_impl(layer(l), src, dst, Post::Relu, threads, kernels);
+        after(Some(l), dst);
+    };
+    // Encoder: stage k reads the input (k = 0) or the pooled previous stage.
+    for k in 0..5 {
+        let src = if k == 0 {
+            &s.input
+        } else {
+            cpu::pool2(&s.skips[k - 1], &mut s.pooled, threads);
+            after(None, &mut s.pooled);
+            &s.pooled
+        };
+        conv(2 * k, src, &mut s.t, &mut after);
+        let dst = if k < 4 { &mut s.skips[k] } else { &mut s.h };
+        conv(2 * k + 1, &s.t, dst, &mut after);
+    }
+    // Decoder: upsample, take the centre crop beside the skip's, two convolutions.
+    for k in (0..4).rev() {
+        cpu::up2_concat(&s.h, &s.skips[k], DECODER_CROP[k], &mut s.cat, threads);
+        conv(10 + 2 * k, &s.cat, &mut s.t, &mut after);
+        conv(11 + 2 * k, &s.t, &mut s.h, &mut after);
+    }
+    cpu::conv_impl(layer(18), &s.h, &mut s.out, Post::None, threads, kernels);
+    let off = (DECODER_CROP[0] - TILE_PX) / 2;
+    let mut tile = Vec::with_capacity(TILE_PX * TILE_PX);
+    for y in 0..TILE_PX {
+        for xx in 0..TILE_PX {
+            tile.push(s.out.pixel(y + off, xx + off)[0]);
+        }
+    }
+    tile
 }
 
 /// Grid exponent of the integer-exact TCM's input (every channel: 1/256 of a unit, about 2 m
@@ -478,49 +490,30 @@ impl TcmExact {
     /// rounding (real units, after the ReLU).
     pub(crate) fn run(&self, x: &[f32], s: &mut TcmScratch, threads: usize, kernels: cpu::Kernels, mut record: Option<&mut [f32]>) -> Vec<f32> {
         use crate::models::exact::{ACT_LEVELS, pow2};
-        let scale = pow2(-EXACT_INPUT_EXP);
-        let q: Vec<f32> = x.iter().map(|&v| (v * scale + 0.5).floor().clamp(-EXACT_INPUT_LEVELS, EXACT_INPUT_LEVELS)).collect();
-        s.input.set_chw(&q, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX);
-        let ones: Vec<f32> = vec![1.0; WIDTHS[4]];
-        let mut conv = |l: usize, src: &Map, dst: &mut Map| {
-            let layer = &self.layers[l];
-            cpu::conv_impl(&layer.conv, src, dst, Post::Relu, threads, kernels);
-            if let Some(r) = record.as_deref_mut() {
-                let unit: Vec<f32> = layer.acc_exp.iter().map(|&e| pow2(e)).collect();
-                for (y, x) in (0..dst.height()).flat_map(|y| (0..dst.width()).map(move |x| (y, x))) {
-                    r[l] = dst.pixel(y, x).iter().zip(&unit).fold(r[l], |m, (&v, &u)| m.max(v * u));
+        s.input.set_chw(x, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX);
+        cpu::requantize(&mut s.input, &[pow2(-EXACT_INPUT_EXP); IN_CHANNELS], EXACT_INPUT_LEVELS);
+        let ones = [1.0; WIDTHS[4]];
+        let tile = unet(
+            |l| &self.layers[l].conv,
+            s,
+            threads,
+            kernels,
+            |l, map| match l {
+                Some(l) => {
+                    let layer = &self.layers[l];
+                    if let Some(r) = record.as_deref_mut() {
+                        let unit: Vec<f32> = layer.acc_exp.iter().map(|&e| pow2(e)).collect();
+                        for (y, x) in (0..map.height()).flat_map(|y| (0..map.width()).map(move |x| (y, x))) {
+                            r[l] = map.pixel(y, x).iter().zip(&unit).fold(r[l], |m, (&v, &u)| m.max(v * u));
+                        }
+                    }
+                    cpu::requantize(map, &layer.to_grid(self.act_exp[l]), ACT_LEVELS);
                 }
-            }
-            cpu::requantize(dst, &layer.to_grid(self.act_exp[l]), ACT_LEVELS);
-        };
-        for k in 0..5 {
-            let src = if k == 0 {
-                &s.input
-            } else {
-                cpu::pool2(&s.skips[k - 1], &mut s.pooled, threads);
-                cpu::requantize(&mut s.pooled, &ones[..WIDTHS[k - 1]], ACT_LEVELS);
-                &s.pooled
-            };
-            conv(2 * k, src, &mut s.t);
-            let dst = if k < 4 { &mut s.skips[k] } else { &mut s.h };
-            conv(2 * k + 1, &s.t, dst);
-        }
-        for k in (0..4).rev() {
-            cpu::up2_concat(&s.h, &s.skips[k], DECODER_CROP[k], &mut s.cat, threads);
-            conv(10 + 2 * k, &s.cat, &mut s.t);
-            conv(11 + 2 * k, &s.t, &mut s.h);
-        }
-        let out = &self.layers[18];
-        cpu::conv_impl(&out.conv, &s.h, &mut s.out, Post::None, threads, kernels);
-        let unit = pow2(out.acc_exp[0]);
-        let off = (DECODER_CROP[0] - TILE_PX) / 2;
-        let mut tile = Vec::with_capacity(TILE_PX * TILE_PX);
-        for y in 0..TILE_PX {
-            for xx in 0..TILE_PX {
-                tile.push(s.out.pixel(y + off, xx + off)[0] * unit);
-            }
-        }
-        tile
+                None => cpu::requantize(map, &ones[..map.channels()], ACT_LEVELS),
+            },
+        );
+        let unit = pow2(self.layers[18].acc_exp[0]);
+        tile.into_iter().map(|v| v * unit).collect()
     }
 
     /// This network's integer weights in a burn generator on `device` (for

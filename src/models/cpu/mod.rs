@@ -676,7 +676,7 @@ fn for_row_runs(rows: &mut [f32], row_len: usize, threads: usize, f: impl Fn(usi
 }
 
 /// Rounds every interior value of `map` to its channel's integer grid: channel `k`'s value `v`
-/// becomes min(⌊v · `scale[k]` + ½⌋, `max`).
+/// becomes ⌊v · `scale[k]` + ½⌋ clamped to ±`max`.
 /// With each `scale[k]` a power of two and |v · scale[k]| < 2²³, every step is exact in f32,
 /// so every machine, kernel and backend gives the same bits ([`crate::models::exact`]).
 pub fn requantize(map: &mut Map, scale: &[f32], max: f32) {
@@ -690,7 +690,7 @@ pub fn requantize(map: &mut Map, scale: &[f32], max: f32) {
                 // f32::floor is a library call (x86-64 without SSE4.1).
                 let x = *v * k + 0.5;
                 let t = x as i32 as f32;
-                *v = if t > x { t - 1.0 } else { t }.min(max);
+                *v = if t > x { t - 1.0 } else { t }.clamp(-max, max);
             }
         }
     }
