@@ -119,7 +119,7 @@ fn learned(c: &mut Criterion) {
         let (x, n64, n32) = grow::assemble(&window, 7, 0, 0);
         let mut s = GrowScratch::default();
         g.bench_function(format!("x4 step 128 -> 32 m, {threads} thread(s)"), |b| b.iter(|| black_box(up.forward(&x, &n64, &n32, grow::WINDOW, &mut s, threads))));
-        let models = Arc::new(LearnedModels::from_parts(tcm.clone(), None, up.clone(), "bench"));
+        let models = Arc::new(LearnedModels::from_parts(tcm.clone(), None, up.clone(), None, "bench"));
         let mut seed = 0;
         // A tile is drained over its second-stage block of 2×2 tiles, each drained before over
         // its first-stage block: the first tile of a fresh world makes the 4×4 ×4 steps under

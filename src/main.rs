@@ -250,11 +250,40 @@ enum Command {
         #[arg(long)]
         weights: Option<PathBuf>,
     },
+    /// Time the learned world's tiles with the networks run one batch at a time (each phase's
+    /// 128 m tiles together, then the ×4 windows) on the CPU kernels or (`--gpu`) burn's wgpu
+    /// backend: tiles (0, 0), (1, 0), … of seed 1, from empty caches; prints JSON with the
+    /// milliseconds per world tile in all and by part, and the batches' sizes.
+    WorldBench {
+        /// World tiles to make (a row from (0, 0)).
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
+        tiles: u32,
+        /// CPU threads (default: every core).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
+        threads: Option<u32>,
+        /// Run the networks on burn's wgpu backend (the default Vulkan adapter).
+        #[arg(long)]
+        gpu: bool,
+        /// Folder of the world's weights (tcm_128m.bpk, grow_32m.bpk).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+    },
     /// Calibrate the integer-exact TCM for a weight file: its activation grids from the
     /// float world's network inputs (tiles −3…2 of seeds 1…`seeds`); prints the weight file's
     /// hash and the grids as one JSON line, for `models::tcm::EXACT_CALIBRATIONS`.
     TcmCalibrate {
         /// Worlds (seeds 1 and up) whose tiles the network inputs come from.
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
+        seeds: u32,
+        /// Folder of the world's weights (tcm_128m.bpk, grow_32m.bpk).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+    },
+    /// Calibrate the integer-exact ×4 step for a weight file: its grids from the world's ×4
+    /// windows (tiles −3…2 of seeds 1…`seeds`); prints the weight file's hash and the grids as
+    /// one JSON line, for `models::grow::EXACT_CALIBRATIONS`.
+    GrowCalibrate {
+        /// Worlds (seeds 1 and up) whose tiles the windows come from.
         #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
         seeds: u32,
         /// Folder of the world's weights (tcm_128m.bpk, grow_32m.bpk).
@@ -688,6 +717,8 @@ fn main() -> ExitCode {
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),
         Command::TcmCalibrate { seeds, weights } => tcm_calibrate(seeds as u64, weights),
+        Command::GrowCalibrate { seeds, weights } => grow_calibrate(seeds as u64, weights),
+        Command::WorldBench { tiles, threads, gpu, weights } => world_bench(tiles, threads, gpu, weights),
         Command::TemExport { weights, out } => tem_export(weights, &out),
         Command::SketchExport { weights, out } => sketch_export(weights, &out),
         Command::SketchBench { repeats, threads, weights } => sketch_bench(repeats as usize, threads, weights),

@@ -216,7 +216,7 @@ fn sketch_export_and_bench_describe_the_generator() {
 }
 
 /// `terrain tile-bench` prints one line per network and batch size asked for (the TCM, the
-/// ×4 step and the shipped TCM on integer grids at 1 and 3 tiles), each with a positive time
+/// ×4 step and both shipped networks on integer grids at 1 and 3 tiles), each with a positive time
 /// per batch call that is its time per tile times the batch.
 #[test]
 fn tile_bench_times_both_networks_per_batch() {
@@ -225,7 +225,10 @@ fn tile_bench_times_both_networks_per_batch() {
     let lines: Vec<serde_json::Value> = o.stdout.split(|&b| b == b'\n').filter(|l| !l.is_empty()).map(|l| serde_json::from_slice(l).unwrap()).collect();
     let keys: Vec<(String, u64)> = lines.iter().map(|l| (l["model"].as_str().unwrap().to_string(), l["batch"].as_u64().unwrap())).collect();
     let want: Vec<(String, u64)> =
-        [("tcm_128m", 1), ("grow_32m", 1), ("tcm_128m_exact", 1), ("tcm_128m", 3), ("grow_32m", 3), ("tcm_128m_exact", 3)].iter().map(|(m, b)| (m.to_string(), *b)).collect();
+        [("tcm_128m", 1), ("grow_32m", 1), ("tcm_128m_exact", 1), ("grow_32m_exact", 1), ("tcm_128m", 3), ("grow_32m", 3), ("tcm_128m_exact", 3), ("grow_32m_exact", 3)]
+            .iter()
+            .map(|(m, b)| (m.to_string(), *b))
+            .collect();
     assert_eq!(keys, want);
     for l in &lines {
         let (batch, tile) = (l["ms_per_batch"].as_f64().unwrap(), l["ms_per_tile"].as_f64().unwrap());
@@ -233,6 +236,28 @@ fn tile_bench_times_both_networks_per_batch() {
         let on = l["on"].as_str().unwrap();
         assert!(on.starts_with("cpu kernels (") && on.ends_with("), 1 thread"), "{on}");
     }
+}
+
+/// `terrain world-bench --tiles 1` makes one world tile from empty caches on the CPU kernels
+/// with at most one batch of 128 m tiles per phase of the schedule (4), then one of ×4 windows
+/// (as many items as the network tiles it reports), and its parts add up to no more than the
+/// whole.
+#[test]
+fn world_bench_makes_a_tile_in_at_most_five_network_batches() {
+    let o = run(&["world-bench", "--tiles", "1", "--threads", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let batches = v["batches"].as_array().unwrap();
+    let kinds: Vec<&str> = batches.iter().map(|b| b["kind"].as_str().unwrap()).collect();
+    let tcm = kinds.iter().filter(|k| **k == "tcm").count();
+    assert!((1..=4).contains(&tcm) && kinds.len() == tcm + 1 && kinds.last() == Some(&"grow"), "{kinds:?}");
+    let items = |kind: &str| batches.iter().filter(|b| b["kind"] == kind).map(|b| b["items"].as_u64().unwrap()).sum::<u64>();
+    assert_eq!((items("tcm"), items("grow")), (v["network_tiles"]["tcm"].as_u64().unwrap(), v["network_tiles"]["grow"].as_u64().unwrap()));
+    assert!(items("tcm") >= 9 && items("grow") >= 4, "{v}");
+    let parts: f64 = v["by_part_ms_per_world_tile"].as_object().unwrap().values().map(|p| p.as_f64().unwrap()).sum();
+    let total = v["ms_per_world_tile"].as_f64().unwrap();
+    assert!(parts > 0.0 && parts <= total * 1.001, "parts {parts} ms, whole {total} ms");
+    assert!(v["on"].as_str().unwrap().starts_with("cpu kernels ("), "{}", v["on"]);
 }
 
 /// The exported GeoTIFF places its tiles in the world's metric frame: the tiepoint is the

@@ -70,13 +70,14 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
         (None, format!("cpu kernels ({}), {threads} thread{}", terrain::models::cpu::Kernels::chosen().widest(), if threads == 1 { "" } else { "s" }))
     };
     let (tcm_cpu, grow_cpu) = (TcmCpu::from_burnpack(&tcm_bytes).map_err(|e| e.to_string())?, GrowCpu::from_burnpack(&grow_bytes).map_err(|e| e.to_string())?);
-    // The integer-exact TCM the world runs, where these weights have a calibration.
-    let exact = terrain::world::learned::LearnedModels::from_bytes(&tcm_bytes, &grow_bytes).map_err(|e| e.to_string())?.exact;
+    // The integer-exact networks the world runs, where these weights have calibrations.
+    let models = terrain::world::learned::LearnedModels::from_bytes(&tcm_bytes, &grow_bytes).map_err(|e| e.to_string())?;
+    let (exact, grow_exact) = (models.exact, models.grow_exact);
     for &b in batches {
         let b = b as usize;
         let tcm_in: Vec<Vec<f32>> = (0..b).map(|k| tcm_input(k % 4, k)).collect();
         let grow_in: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = (0..b).map(grow_input).collect();
-        let mut exact_gpu = None;
+        let (mut exact_gpu, mut grow_exact_gpu) = (None, None);
         let (tcm_t, grow_t) = match &gpu_models {
             Some((device, tcm, grow)) => {
                 let stack = |parts: Vec<&Vec<f32>>, c: usize, s: usize| {
@@ -98,6 +99,15 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
                         y.into_data().try_to_vec::<f32>().map(drop).map_err(|e| format!("{e:?}"))
                     })?;
                     exact_gpu = Some(t);
+                }
+                if let Some(exact) = &grow_exact {
+                    let m = exact.to_burn(device).map_err(|e| e.to_string())?;
+                    let t = time_calls(repeats, || {
+                        let (x, n64, n32) = (grow_in.iter().map(|g| &g.0).collect(), grow_in.iter().map(|g| &g.1).collect(), grow_in.iter().map(|g| &g.2).collect());
+                        let y = exact.forward_burn(&m, stack(x, 6, WINDOW), stack(n64, 1, 2 * WINDOW), stack(n32, 1, 4 * WINDOW));
+                        y.into_data().try_to_vec::<f32>().map(drop).map_err(|e| format!("{e:?}"))
+                    })?;
+                    grow_exact_gpu = Some(t);
                 }
                 (tcm_t, grow_t)
             }
@@ -123,6 +133,18 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
                 "tcm_128m_exact",
                 time_calls(repeats, || {
                     tcm_in.iter().for_each(|x| drop(std::hint::black_box(exact.forward(x, &mut ts, threads))));
+                    Ok(())
+                })?,
+            ));
+        }
+        if let Some(t) = grow_exact_gpu {
+            rows.push(("grow_32m_exact", t));
+        } else if let (None, Some(exact)) = (&gpu_models, &grow_exact) {
+            let mut gs = GrowScratch::default();
+            rows.push((
+                "grow_32m_exact",
+                time_calls(repeats, || {
+                    grow_in.iter().for_each(|(x, a, c)| drop(std::hint::black_box(exact.forward(x, a, c, WINDOW, &mut gs, threads))));
                     Ok(())
                 })?,
             ));
@@ -160,7 +182,7 @@ pub(crate) fn tcm_calibrate(seeds: u64, weights: Option<PathBuf>) -> Result<(), 
     let (tcm_bytes, grow_bytes) = (read(TCM_FILE)?, read(GROW_FILE)?);
     let tcm = TcmCpu::from_burnpack(&tcm_bytes).map_err(|e| e.to_string())?;
     let grow = terrain::models::grow::GrowCpu::from_burnpack(&grow_bytes).map_err(|e| e.to_string())?;
-    let float = LearnedSource::new(std::sync::Arc::new(LearnedModels::from_parts(tcm.clone(), None, grow, "float")), terrain::models::cpu::default_threads());
+    let float = LearnedSource::new(std::sync::Arc::new(LearnedModels::from_parts(tcm.clone(), None, grow, None, "float")), terrain::models::cpu::default_threads());
     let inputs: Vec<Vec<f32>> =
         (1..=seeds).flat_map(|seed| (0..36).map(move |t| (seed, TileCoord::new(t % 6 - 3, t / 6 - 3)))).map(|(seed, c)| float.network_input(seed, c).0).collect();
     let exps = TcmExact::calibrate(&tcm, &inputs).map_err(|e| e.to_string())?;
@@ -181,6 +203,98 @@ pub(crate) fn tcm_calibrate(seeds: u64, weights: Option<PathBuf>) -> Result<(), 
     println!(
         "{}",
         serde_json::json!({ "tcm_hash": terrain::models::weights_hash(&[&tcm_bytes]), "act_exp": exps, "inputs": inputs.len(), "largest_sum": exact.bound(), "rms_vs_float_m": rms_m, "float_tile_sd_m": sd_m })
+    );
+    Ok(())
+}
+
+/// `terrain grow-calibrate`: the integer-exact ×4 step's grids for the weights in `weights`
+/// (default `weights/`), from the ×4 windows of the world's tiles −3…2 of seeds 1…`seeds`;
+/// prints JSON: the weight file's hash, the grids, the largest sum and the RMS (metres) of
+/// the integer residual from the float one beside the float residual's own.
+pub(crate) fn grow_calibrate(seeds: u64, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::grid::coord::TileCoord;
+    use terrain::models::grow::{GrowCpu, GrowExact, GrowScratch, HEIGHT_SCALE_M, WINDOW};
+    use terrain::world::learned::{GROW_FILE, LearnedModels, LearnedSource};
+    let dir = weights_dir(weights);
+    let grow_bytes = std::fs::read(dir.join(GROW_FILE)).map_err(|e| format!("cannot read {}: {e}", dir.join(GROW_FILE).display()))?;
+    let grow = GrowCpu::from_burnpack(&grow_bytes).map_err(|e| e.to_string())?;
+    let world = LearnedSource::new(std::sync::Arc::new(LearnedModels::load_dir(&dir).map_err(|e| e.to_string())?), terrain::models::cpu::default_threads());
+    let inputs: Vec<_> = (1..=seeds).flat_map(|seed| (0..36).map(move |t| (seed, TileCoord::new(t % 6 - 3, t / 6 - 3)))).map(|(seed, c)| world.grow_input(seed, c).1).collect();
+    let exps = GrowExact::calibrate(&grow, &inputs, WINDOW).map_err(|e| e.to_string())?;
+    let exact = GrowExact::new(&grow, &exps).map_err(|e| e.to_string())?;
+    let (mut sq, mut own, mut n) = (0f64, 0f64, 0f64);
+    let mut s = GrowScratch::default();
+    let threads = terrain::models::cpu::default_threads();
+    for (x, a, b) in &inputs {
+        let (p, q) = (grow.forward(x, a, b, WINDOW, &mut s, threads), exact.forward(x, a, b, WINDOW, &mut s, threads));
+        for (u, v) in p.iter().zip(&q) {
+            sq += ((u - v) as f64).powi(2);
+            own += (*u as f64).powi(2);
+            n += 1.0;
+        }
+    }
+    let m = HEIGHT_SCALE_M as f64;
+    println!(
+        "{}",
+        serde_json::json!({ "grow_hash": terrain::models::weights_hash(&[&grow_bytes]), "exps": exps, "inputs": inputs.len(), "largest_sum": exact.bound(), "rms_vs_float_m": (sq / n).sqrt() * m, "float_residual_rms_m": (own / n).sqrt() * m })
+    );
+    Ok(())
+}
+
+/// `terrain world-bench`: `tiles` world tiles of seed 1 from empty caches, their network work
+/// run batch by batch ([`terrain::world::learned::LearnedSource::network_work`]) on the CPU
+/// kernels (`threads`) or on burn's wgpu backend (`gpu`); prints JSON: where it ran, the
+/// milliseconds per world tile in all and by part, and the batches (kind and items).
+pub(crate) fn world_bench(tiles: u32, threads: Option<u32>, gpu: bool, weights: Option<PathBuf>) -> Result<(), String> {
+    use terrain::grid::coord::TileCoord;
+    use terrain::world::learned::{LearnedModels, LearnedSource, NetworkWork};
+    use terrain::world::tile::{Neighbourhood, TileSource};
+    let threads = threads.map_or_else(terrain::models::cpu::default_threads, |t| t as usize);
+    let mut models = LearnedModels::load_dir(&weights_dir(weights)).map_err(|e| e.to_string())?;
+    let on = if gpu {
+        models = models.with_networks_on(&terrain::models::native_gpu()?)?;
+        adapter_names()
+    } else {
+        format!("cpu kernels ({}), {threads} thread{}", terrain::models::cpu::Kernels::chosen().widest(), if threads == 1 { "" } else { "s" })
+    };
+    let models = std::sync::Arc::new(models);
+    let world = LearnedSource::new(models.clone(), threads);
+    let mut s = Default::default();
+    let (mut batches, mut network_ms) = (Vec::new(), 0.0);
+    let t0 = std::time::Instant::now();
+    for i in 0..tiles as i32 {
+        let c = TileCoord::new(i, 0);
+        loop {
+            let work = world.network_work(1, c);
+            if work == NetworkWork::None {
+                break;
+            }
+            let t = std::time::Instant::now();
+            let out = models.run_work(&work, &mut s, threads)?;
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            network_ms += ms;
+            batches.push(serde_json::json!({ "kind": if matches!(work, NetworkWork::Tcm(_)) { "tcm" } else { "grow" }, "items": work.len(), "ms": ms }));
+            world.accept(1, &work, out, ms);
+        }
+        std::hint::black_box(world.generate(1, c, &Neighbourhood::default()));
+    }
+    let total_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let spent = world.time_spent();
+    let per = |ms: f64| ms / tiles as f64;
+    println!(
+        "{}",
+        serde_json::json!({
+            "on": on,
+            "tiles": tiles,
+            "ms_per_world_tile": per(total_ms),
+            "networks_ms_per_world_tile": per(network_ms),
+            "by_part_ms_per_world_tile": {
+                "tcm": per(spent.tcm.ms), "seams_128m": per(spent.seams_128m.ms), "erosion": per(spent.erosion.ms),
+                "grow": per(spent.grow.ms), "carve_32m": per(spent.carve_32m.ms), "breach_32m": per(spent.breach_32m.ms),
+            },
+            "network_tiles": { "tcm": spent.tcm.runs, "grow": spent.grow.runs },
+            "batches": batches,
+        })
     );
     Ok(())
 }

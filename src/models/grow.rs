@@ -23,6 +23,7 @@ use burn::tensor::{Device, Tensor};
 use crate::dem::Heightfield;
 use crate::grid::mix64;
 use crate::models::cpu::{self, Conv3, Map, Post};
+use crate::models::exact::ExactConv;
 use crate::models::tcm::{COARSE_SPACING_M, TILE_PX, gauss};
 
 /// Samples of the 128 m field read beyond the tile on every side (more than the network's
@@ -222,6 +223,262 @@ impl GrowCpu {
     }
 }
 
+/// Grid exponent of the integer-exact ×4 step's noise channels (1/256 of a σ; [`GrowExact`]).
+pub const EXACT_NOISE_EXP: i32 = -8;
+
+/// Largest input level (magnitude) of the integer-exact ×4 step: its four height features and
+/// its noise (±8 σ) on their grids.
+pub const EXACT_INPUT_LEVELS: f32 = 2047.0;
+
+/// Largest level of the merge layer's output on the head's grid, before the head is added
+/// back (2²⁰): far beyond any value it takes; it only bounds the sum.
+const MERGE_LEVELS: f32 = 1_048_576.0;
+
+/// Rounding points of the integer-exact ×4 step, in running order: the four height features,
+/// the head, the three body layers, the head plus the merge (the skip's sum), the three 64 m
+/// layers and the 32 m layer before the tail.
+pub const EXACT_POINTS: usize = 13;
+const P_HEAD: usize = 4;
+const P_BODY: usize = 5;
+const P_SUM: usize = 8;
+const P_MID: usize = 9;
+const P_FINE: usize = 12;
+
+/// The integer-exact ×4 step's grids ([`GrowExact::calibrate`]) for the weight files they were
+/// calibrated on, by [`crate::models::weights_hash`] of the file: the shipped weights' from the
+/// world's tiles −3…2 of seeds 1–4 (`terrain grow-calibrate`).
+pub const EXACT_CALIBRATIONS: &[(&str, &[i32])] = &[("ec5e0f77", &[-7, -7, -7, -6, -5, -5, -5, -5, -5, -5, -5, -5, -6])];
+
+/// The grids of [`EXACT_CALIBRATIONS`] for the ×4 weight file whose hash is `grow_hash`, if
+/// it has them.
+pub fn exact_calibration(grow_hash: &str) -> Option<&'static [i32]> {
+    EXACT_CALIBRATIONS.iter().find(|(h, _)| *h == grow_hash).map(|(_, e)| *e)
+}
+
+/// `v` on the grid 2^−log2(`scale`): ⌊v · scale + ½⌋ clamped to ±`max` (as
+/// [`cpu::requantize`], for a plain slice).
+fn on_grid(v: &[f32], scale: f32, max: f32) -> Vec<f32> {
+    v.iter().map(|&x| (x * scale + 0.5).floor().clamp(-max, max)).collect()
+}
+
+/// The largest |value| × `unit[c]` of `map` (channel `c`), with `most`.
+fn largest(map: &Map, unit: impl Fn(usize) -> f32, most: f32) -> f32 {
+    let mut m = most;
+    for y in 0..map.height() {
+        for x in 0..map.width() {
+            for (c, &v) in map.pixel(y, x).iter().enumerate() {
+                m = m.max(v.abs() * unit(c));
+            }
+        }
+    }
+    m
+}
+
+/// The ×4 step on integer grids ([`crate::models::exact`]), as [`crate::models::tcm::TcmExact`]
+/// for the TCM: 9-bit weights (fewer where the bound on the sums needs it), 10-bit activations
+/// (signed after the layers without a ReLU) and 11-bit inputs carried in f32, so that every CPU
+/// kernel and a GPU's convolutions give the same bits. The skip (head plus merge) is added on
+/// the head's grid and the sum rounded to its own.
+#[derive(Clone, Debug)]
+pub struct GrowExact {
+    layers: Vec<ExactConv>,
+    /// Grid exponent of each rounding point ([`EXACT_POINTS`], running order).
+    exps: Vec<i32>,
+}
+
+impl GrowExact {
+    /// Quantizes `grow` with the grids `exps` (one per rounding point, [`EXACT_POINTS`], e.g.
+    /// from [`GrowExact::calibrate`]).
+    pub fn new(grow: &GrowCpu, exps: &[i32]) -> Result<Self, cpu::LayerError> {
+        use crate::models::exact::{ACT_LEVELS, quantize};
+        assert_eq!(exps.len(), EXACT_POINTS, "one grid per rounding point");
+        let relu = |p: usize, n: usize| (vec![exps[p]; n], vec![(0.0, ACT_LEVELS); n]);
+        let signed = |p: usize, n: usize| (vec![exps[p]; n], vec![(-ACT_LEVELS, ACT_LEVELS); n]);
+        let with_noise = |(mut e, mut r): (Vec<i32>, Vec<(f32, f32)>), n: usize| {
+            e.extend(std::iter::repeat_n(EXACT_NOISE_EXP, n));
+            r.extend(std::iter::repeat_n((-EXACT_INPUT_LEVELS, EXACT_INPUT_LEVELS), n));
+            (e, r)
+        };
+        let inputs = [
+            with_noise((exps[..4].to_vec(), vec![(-EXACT_INPUT_LEVELS, EXACT_INPUT_LEVELS); 4]), 2),
+            signed(P_HEAD, WIDTH),
+            relu(P_BODY, WIDTH),
+            relu(P_BODY + 1, WIDTH),
+            relu(P_BODY + 2, WIDTH),
+            with_noise(signed(P_SUM, WIDTH / 4), 1),
+            relu(P_MID, 32),
+            relu(P_MID + 1, 32),
+            with_noise(signed(P_MID + 2, 4), 1),
+            relu(P_FINE, 16),
+        ];
+        let layers = grow
+            .convs
+            .iter()
+            .zip(inputs)
+            .map(|(conv, (e, r))| {
+                // Sums of integers below 2²⁴ are exact in any order, fused or not.
+                let mut q = quantize(conv, &e, &r)?;
+                q.conv = q.conv.with_fused(true);
+                Ok(q)
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Self { layers, exps: exps.to_vec() })
+    }
+
+    /// The largest sum any layer can form (below 2²⁴).
+    pub fn bound(&self) -> f64 {
+        self.layers.iter().map(|l| l.bound).fold(0.0, f64::max)
+    }
+
+    fn input_scales(&self) -> [f32; 6] {
+        use crate::models::exact::pow2;
+        let e = &self.exps;
+        [pow2(-e[0]), pow2(-e[1]), pow2(-e[2]), pow2(-e[3]), pow2(-EXACT_NOISE_EXP), pow2(-EXACT_NOISE_EXP)]
+    }
+
+    /// One window, as [`GrowCpu::forward`]: the residual ((4·S)², units of
+    /// [`HEIGHT_SCALE_M`]), a multiple of the tail's grid.
+    pub fn forward(&self, x: &[f32], n64: &[f32], n32: &[f32], side: usize, s: &mut GrowScratch, threads: usize) -> Vec<f32> {
+        self.run(x, n64, n32, side, s, threads, cpu::Kernels::chosen(), None)
+    }
+
+    /// [`GrowExact::forward`] on `kernels`; `record` gets each rounding point's largest
+    /// |value| before rounding (real units).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn run(
+        &self,
+        x: &[f32],
+        n64: &[f32],
+        n32: &[f32],
+        side: usize,
+        s: &mut GrowScratch,
+        threads: usize,
+        kernels: cpu::Kernels,
+        mut record: Option<&mut [f32]>,
+    ) -> Vec<f32> {
+        use crate::models::exact::{ACT_LEVELS, pow2};
+        let (l, e) = (&self.layers, &self.exps);
+        s.x.set_chw(x, 6, side, side);
+        for p in 0..4 {
+            if let Some(r) = record.as_deref_mut() {
+                r[p] = largest(&s.x, |c| if c == p { 1.0 } else { 0.0 }, r[p]);
+            }
+        }
+        cpu::requantize(&mut s.x, &self.input_scales(), EXACT_INPUT_LEVELS);
+        fn slot<'a>(record: &'a mut Option<&mut [f32]>, p: usize) -> Option<&'a mut f32> {
+            record.as_deref_mut().map(|r| &mut r[p])
+        }
+        // Layer `q` with its output on the grid 2^`out_exp` (clamped to ±`max`); with a
+        // `note`, its largest value before rounding goes there, else each thread rounds the
+        // rows it made.
+        let layer = |q: &ExactConv, src: &Map, dst: &mut Map, post: Post, out_exp: i32, max: f32, note: Option<&mut f32>| {
+            let scale = q.to_grid(out_exp);
+            match note {
+                Some(r) => {
+                    cpu::conv_impl(&q.conv, src, dst, post, threads, kernels);
+                    *r = largest(dst, |c| pow2(q.acc_exp[c]), *r);
+                    cpu::requantize(dst, &scale, max);
+                }
+                None => cpu::conv_on_grid(&q.conv, src, dst, post, &scale, max, threads, kernels),
+            }
+        };
+        let act = ACT_LEVELS;
+        layer(&l[0], &s.x, &mut s.head, Post::None, e[P_HEAD], act, slot(&mut record, P_HEAD));
+        layer(&l[1], &s.head, &mut s.a, Post::Relu, e[P_BODY], act, slot(&mut record, P_BODY));
+        layer(&l[2], &s.a, &mut s.b, Post::Relu, e[P_BODY + 1], act, slot(&mut record, P_BODY + 1));
+        layer(&l[3], &s.b, &mut s.a, Post::Relu, e[P_BODY + 2], act, slot(&mut record, P_BODY + 2));
+        // The skip: the merge on the head's grid plus the head (integers, exact), then the
+        // sum on its own grid.
+        layer(&l[4], &s.a, &mut s.b, Post::None, e[P_HEAD], MERGE_LEVELS, None);
+        for y in 0..s.b.height() {
+            for xx in 0..s.b.width() {
+                for (v, h) in s.b.pixel_mut(y, xx).iter_mut().zip(s.head.pixel(y, xx)) {
+                    *v += h;
+                }
+            }
+        }
+        if let Some(r) = slot(&mut record, P_SUM) {
+            *r = largest(&s.b, |_| pow2(e[P_HEAD]), *r);
+        }
+        cpu::requantize(&mut s.b, &[pow2(e[P_HEAD] - e[P_SUM]); WIDTH], act);
+        let noise = pow2(-EXACT_NOISE_EXP);
+        cpu::pixel_shuffle2(&s.b, &mut s.shuffled);
+        with_channel(&s.shuffled, &on_grid(n64, noise, EXACT_INPUT_LEVELS), &mut s.cat);
+        layer(&l[5], &s.cat, &mut s.a, Post::Relu, e[P_MID], act, slot(&mut record, P_MID));
+        layer(&l[6], &s.a, &mut s.b, Post::Relu, e[P_MID + 1], act, slot(&mut record, P_MID + 1));
+        layer(&l[7], &s.b, &mut s.a, Post::None, e[P_MID + 2], act, slot(&mut record, P_MID + 2));
+        cpu::pixel_shuffle2(&s.a, &mut s.shuffled);
+        with_channel(&s.shuffled, &on_grid(n32, noise, EXACT_INPUT_LEVELS), &mut s.cat);
+        layer(&l[8], &s.cat, &mut s.a, Post::Relu, e[P_FINE], act, slot(&mut record, P_FINE));
+        cpu::conv_impl(&l[9].conv, &s.a, &mut s.out, Post::None, threads, kernels);
+        let (m, unit) = (4 * side, pow2(l[9].acc_exp[0]));
+        (0..m * m).map(|p| s.out.pixel(p / m, p % m)[0] * unit).collect()
+    }
+
+    /// This network's integer weights in a burn network on `device` (for
+    /// [`GrowExact::forward_burn`]).
+    pub fn to_burn(&self, device: &Device) -> Result<Grow, crate::models::WeightError> {
+        let convs: Vec<Conv3> = self.layers.iter().map(|l| l.conv.clone()).collect();
+        crate::models::load_burnpack(Grow::new(device), &cpu::convs_to_burnpack(&conv_layers(), &convs))
+    }
+
+    /// [`GrowExact::forward`] on burn's backends: `m` from [`GrowExact::to_burn`], inputs as
+    /// [`Grow::forward`]'s; returns the residual [B, 1, 4S, 4S], the same bits as the CPU
+    /// kernels.
+    pub fn forward_burn(&self, m: &Grow, x: Tensor<4>, n64: Tensor<4>, n32: Tensor<4>) -> Tensor<4> {
+        use crate::models::exact::{ACT_LEVELS, pow2};
+        let (l, e) = (&self.layers, &self.exps);
+        let device = x.device();
+        // ⌊v · scale + ½⌋ per channel, clamped: exact for the powers of two used.
+        let grid = |v: Tensor<4>, scale: &[f32], max: f32| {
+            let s = Tensor::<1>::from_data(burn::tensor::TensorData::new(scale.to_vec(), [scale.len()]), &device).reshape([1, scale.len(), 1, 1]);
+            (v * s + 0.5).floor().clamp(-max, max)
+        };
+        let noise = [pow2(-EXACT_NOISE_EXP)];
+        let x = grid(x, &self.input_scales(), EXACT_INPUT_LEVELS);
+        let head = grid(m.head.forward(x), &l[0].to_grid(e[P_HEAD]), ACT_LEVELS);
+        let mut b = head.clone();
+        for (k, c) in m.body.iter().enumerate() {
+            b = grid(relu(c.forward(b)), &l[1 + k].to_grid(e[P_BODY + k]), ACT_LEVELS);
+        }
+        let b = grid(m.merge.forward(b), &l[4].to_grid(e[P_HEAD]), MERGE_LEVELS) + head;
+        let b = grid(b, &[pow2(e[P_HEAD] - e[P_SUM]); WIDTH], ACT_LEVELS);
+        let mid = Tensor::cat(vec![m.shuffle.forward(b), grid(n64, &noise, EXACT_INPUT_LEVELS)], 1);
+        let mid = grid(relu(m.mid[0].forward(mid)), &l[5].to_grid(e[P_MID]), ACT_LEVELS);
+        let mid = grid(relu(m.mid[1].forward(mid)), &l[6].to_grid(e[P_MID + 1]), ACT_LEVELS);
+        let mid = grid(m.mid[2].forward(mid), &l[7].to_grid(e[P_MID + 2]), ACT_LEVELS);
+        let f = Tensor::cat(vec![m.shuffle.forward(mid), grid(n32, &noise, EXACT_INPUT_LEVELS)], 1);
+        let f = grid(relu(m.fine.forward(f)), &l[8].to_grid(e[P_FINE]), ACT_LEVELS);
+        m.tail.forward(f) * pow2(l[9].acc_exp[0])
+    }
+
+    /// Grids for `grow` from inputs `inputs` ([`assemble`] on `side`² windows): point by point
+    /// in running order, the coarsest power of two on which the point's largest |value| (with
+    /// the grids already chosen before it) needs at most [`EXACT_INPUT_LEVELS`] (the features)
+    /// or [`crate::models::exact::ACT_LEVELS`] levels.
+    pub fn calibrate(grow: &GrowCpu, inputs: &[(Vec<f32>, Vec<f32>, Vec<f32>)], side: usize) -> Result<Vec<i32>, cpu::LayerError> {
+        use crate::models::exact::{ACT_LEVELS, grid_exp};
+        let mut exps = vec![0; EXACT_POINTS];
+        let mut s = GrowScratch::default();
+        let mut p = 0;
+        while p < EXACT_POINTS {
+            let net = Self::new(grow, &exps)?;
+            let mut most = vec![0f32; EXACT_POINTS];
+            for (x, n64, n32) in inputs {
+                net.run(x, n64, n32, side, &mut s, cpu::default_threads(), cpu::Kernels::chosen(), Some(&mut most));
+            }
+            // The four features depend on nothing before them: one pass sets them all.
+            let points = if p == 0 { 0..4 } else { p..p + 1 };
+            for q in points {
+                let levels = if q < 4 { EXACT_INPUT_LEVELS } else { ACT_LEVELS };
+                exps[q] = grid_exp(most[q].max(f32::MIN_POSITIVE) as f64, levels as f64);
+                p = q + 1;
+            }
+        }
+        Ok(exps)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -265,5 +522,53 @@ mod tests {
         assert!(scale > 1e-3, "random network output {scale}");
         assert!(worst < 1e-4, "CPU and burn differ by {worst}");
         assert!(g.parameters() < 150_000, "{} parameters", g.parameters());
+    }
+
+    /// The shipped ×4 step on integer grids ([`GrowExact`], its calibration) gives the same
+    /// bits on the portable, AVX2 and widest CPU kernels at 1 and 2 threads, on burn's CPU
+    /// backend and on burn's wgpu backend (lavapipe), for a batch of 2 windows; and its
+    /// residual stays within 2 m (root mean square) of the float network's, which moves the
+    /// bicubic base by tens of metres.
+    #[cfg(feature = "train")]
+    #[test]
+    fn the_integer_exact_grow_gives_the_same_bits_on_every_cpu_kernel_and_on_burn_cpu_and_wgpu() {
+        let bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(crate::world::learned::GROW_FILE)).unwrap();
+        let float = GrowCpu::from_burnpack(&bytes).unwrap();
+        let exps = exact_calibration(&crate::models::weights_hash(&[&bytes])).expect("the shipped ×4 step has a calibration");
+        let exact = GrowExact::new(&float, exps).unwrap();
+        assert!(exact.bound() < crate::models::exact::F32_EXACT);
+        let inputs: Vec<_> = (0..2)
+            .map(|k| {
+                let h: Vec<f32> = (0..WINDOW * WINDOW)
+                    .map(|p| 1200.0 + 300.0 * ((p % WINDOW) as f32 * 0.23 + k as f32).sin() * ((p / WINDOW) as f32 * 0.17).cos() + 40.0 * ((p % 7) as f32))
+                    .collect();
+                assemble(&h, 9 + k, -30 + 64 * k as i64, 21)
+            })
+            .collect();
+        let mut s = GrowScratch::default();
+        let cpu_out: Vec<f32> = inputs.iter().flat_map(|(x, a, b)| exact.run(x, a, b, WINDOW, &mut s, 1, cpu::Kernels::Portable, None)).collect();
+        for kernels in [cpu::Kernels::Avx2, cpu::Kernels::Best] {
+            for threads in [1, 2] {
+                let out: Vec<f32> = inputs.iter().flat_map(|(x, a, b)| exact.run(x, a, b, WINDOW, &mut s, threads, kernels, None)).collect();
+                assert!(out.iter().zip(&cpu_out).all(|(a, b)| a.to_bits() == b.to_bits()), "{kernels:?}, {threads} threads");
+            }
+        }
+        let float_out: Vec<f32> = inputs.iter().flat_map(|(x, a, b)| float.forward(x, a, b, WINDOW, &mut s, 1)).collect();
+        let m = HEIGHT_SCALE_M as f64;
+        let rms_m = (float_out.iter().zip(&cpu_out).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / cpu_out.len() as f64).sqrt() * m;
+        let spread_m = (float_out.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / float_out.len() as f64).sqrt() * m;
+        assert!(rms_m < 2.0 && spread_m > 10.0, "integer vs float {rms_m} m RMS, the float residual's {spread_m} m");
+        let stack = |parts: Vec<&Vec<f32>>, side: usize, device: &Device| {
+            Tensor::<4>::from_data(burn::tensor::TensorData::new(parts.into_iter().flatten().copied().collect::<Vec<f32>>(), [2, 1, side, side]), device)
+        };
+        for device in [Device::flex(), crate::models::native_gpu().expect("a Vulkan device (lavapipe)")] {
+            let g = exact.to_burn(&device).unwrap();
+            let x = Tensor::<4>::from_data(burn::tensor::TensorData::new(inputs.iter().flat_map(|i| i.0.clone()).collect::<Vec<f32>>(), [2, 6, WINDOW, WINDOW]), &device);
+            let (n64, n32) = (stack(inputs.iter().map(|i| &i.1).collect(), 2 * WINDOW, &device), stack(inputs.iter().map(|i| &i.2).collect(), 4 * WINDOW, &device));
+            let out: Vec<f32> = exact.forward_burn(&g, x, n64, n32).into_data().try_to_vec::<f32>().unwrap();
+            let differ = out.iter().zip(&cpu_out).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+            assert_eq!(differ, 0, "{device:?}: {differ} of {} samples differ from the CPU kernels", out.len());
+        }
+        println!("integer-exact ×4 step: {rms_m:.3} m RMS from the float network (its residual {spread_m:.1} m RMS); largest sum {}", exact.bound());
     }
 }

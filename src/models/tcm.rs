@@ -360,18 +360,31 @@ impl TcmCpu {
     /// ([`TILE_PX`]², row-major) relative to the macro level in units of [`HEIGHT_SCALE_M`].
     pub fn forward(&self, x: &[f32], s: &mut TcmScratch, threads: usize) -> Vec<f32> {
         s.input.set_chw(x, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX);
-        unet(|l| &self.convs[l], s, threads, cpu::Kernels::chosen(), |_, _| {})
+        unet(|l| &self.convs[l], |_| None, s, threads, cpu::Kernels::chosen(), |_, _| {})
     }
 }
 
 /// The generator's layers on the CPU kernels in the order it runs them, from `s.input`:
 /// `layer(l)` is convolution `l` ([`conv_layers`] order); `after(Some(l), map)` is called on
 /// each ReLU layer's output and `after(None, map)` on each pooled map, before the next layer
-/// reads it (the integer-exact TCM rounds them there). Returns the output layer's centre tile.
-fn unet<'a>(layer: impl Fn(usize) -> &'a Conv3, s: &mut TcmScratch, threads: usize, kernels: cpu::Kernels, mut after: impl FnMut(Option<usize>, &mut Map)) -> Vec<f32> {
-    let conv = |l: usize, src: &Map, dst: &mut Map, after: &mut dyn FnMut(Option<usize>, &mut Map)| {
-        cpu::conv_impl(layer(l), src, dst, Post::Relu, threads, kernels);
-        after(Some(l), dst);
+/// reads it (the integer-exact TCM rounds them there), unless `grid(l)` gives the scales of
+/// the integer grid ([`cpu::requantize`], ±[`crate::models::exact::ACT_LEVELS`]) that the
+/// threads making its rows round them to. Returns the output layer's centre tile.
+#[allow(clippy::too_many_arguments)]
+fn unet<'a>(
+    layer: impl Fn(usize) -> &'a Conv3,
+    grid: impl Fn(usize) -> Option<Vec<f32>>,
+    s: &mut TcmScratch,
+    threads: usize,
+    kernels: cpu::Kernels,
+    mut after: impl FnMut(Option<usize>, &mut Map),
+) -> Vec<f32> {
+    let conv = |l: usize, src: &Map, dst: &mut Map, after: &mut dyn FnMut(Option<usize>, &mut Map)| match grid(l) {
+        Some(scale) => cpu::conv_on_grid(layer(l), src, dst, Post::Relu, &scale, crate::models::exact::ACT_LEVELS, threads, kernels),
+        None => {
+            cpu::conv_impl(layer(l), src, dst, Post::Relu, threads, kernels);
+            after(Some(l), dst);
+        }
     };
     // Encoder: stage k reads the input (k = 0) or the pooled previous stage.
     for k in 0..5 {
@@ -493,8 +506,11 @@ impl TcmExact {
         s.input.set_chw(x, IN_CHANNELS, CONTEXT_PX, CONTEXT_PX);
         cpu::requantize(&mut s.input, &[pow2(-EXACT_INPUT_EXP); IN_CHANNELS], EXACT_INPUT_LEVELS);
         let ones = [1.0; WIDTHS[4]];
+        let recording = record.is_some();
         let tile = unet(
             |l| &self.layers[l].conv,
+            // Without a record, each layer's rows are rounded by the threads that made them.
+            |l| (!recording).then(|| self.layers[l].to_grid(self.act_exp[l])),
             s,
             threads,
             kernels,

@@ -61,7 +61,7 @@ use super::seam;
 use super::tile::{Neighbourhood, Tile, TileSource, cut, paste};
 use crate::grid::coord::{TILE_SAMPLES, TileCoord};
 use crate::grid::schedule::{dependencies, tile_seed};
-use crate::models::grow::{self, GrowCpu, GrowScratch};
+use crate::models::grow::{self, GrowCpu, GrowExact, GrowScratch};
 use crate::models::tcm::{self, HEIGHT_SCALE_M, TILE_PX, TcmCpu, TcmExact, TcmScratch};
 
 // The ×4 step makes exactly one world tile from one 128 m tile.
@@ -275,12 +275,15 @@ pub struct LearnedModels {
     /// ([`tcm::exact_calibration`]): the world's tiles then have the same bits on every
     /// kernel and backend. `None`: the float network [`LearnedModels::tcm`] makes them.
     pub exact: Option<TcmExact>,
-    /// The integer-exact TCM on a burn device, where [`LearnedModels::with_tcm_on`] put it
-    /// (natively: a GPU's Vulkan, or Mesa's lavapipe).
-    #[cfg(not(target_arch = "wasm32"))]
-    tcm_on: Option<(burn::tensor::Device, tcm::Tcm)>,
     /// The ×4 step to 32 m.
     pub grow: GrowCpu,
+    /// The ×4 step on integer grids, where its weights have a calibration
+    /// ([`grow::exact_calibration`]); `None`: the float network [`LearnedModels::grow`].
+    pub grow_exact: Option<GrowExact>,
+    /// Both integer-exact networks on a burn device, where [`LearnedModels::with_networks_on`]
+    /// put them (natively: a GPU's Vulkan, or Mesa's lavapipe).
+    #[cfg(not(target_arch = "wasm32"))]
+    on_device: Option<(burn::tensor::Device, tcm::Tcm, grow::Grow)>,
     /// Short hash of the weight files (names the weights in share links).
     pub hash: String,
 }
@@ -295,53 +298,96 @@ impl LearnedModels {
             Some(exps) => Some(TcmExact::new(&tcm, exps).map_err(|source| crate::models::WeightError::Layer { name: "integer-exact TCM".into(), source }.in_file(TCM_FILE))?),
             None => None,
         };
-        Ok(Self {
-            tcm,
-            exact,
-            #[cfg(not(target_arch = "wasm32"))]
-            tcm_on: None,
-            grow,
-            hash: crate::models::weights_hash(&[tcm_bytes, grow_bytes]),
-        })
+        let grow_exact = match grow::exact_calibration(&crate::models::weights_hash(&[grow_bytes])) {
+            Some(exps) => {
+                Some(GrowExact::new(&grow, exps).map_err(|source| crate::models::WeightError::Layer { name: "integer-exact ×4 step".into(), source }.in_file(GROW_FILE))?)
+            }
+            None => None,
+        };
+        Ok(Self::from_parts(tcm, exact, grow, grow_exact, &crate::models::weights_hash(&[tcm_bytes, grow_bytes])))
     }
 
-    /// Wraps networks already built (tests, training runs); `exact` as [`LearnedModels::exact`].
-    pub fn from_parts(tcm: TcmCpu, exact: Option<TcmExact>, grow: GrowCpu, hash: &str) -> Self {
+    /// Wraps networks already built (tests, training runs); `exact` and `grow_exact` as
+    /// [`LearnedModels::exact`] and [`LearnedModels::grow_exact`].
+    pub fn from_parts(tcm: TcmCpu, exact: Option<TcmExact>, grow: GrowCpu, grow_exact: Option<GrowExact>, hash: &str) -> Self {
         Self {
             tcm,
             exact,
-            #[cfg(not(target_arch = "wasm32"))]
-            tcm_on: None,
             grow,
+            grow_exact,
+            #[cfg(not(target_arch = "wasm32"))]
+            on_device: None,
             hash: hash.into(),
         }
     }
 
-    /// These networks with the integer-exact TCM on burn's `device`: the world's 128 m tiles
-    /// are then made there, one call each, with the same bits as on the CPU kernels. An error
-    /// where the TCM has no integer-exact calibration (the float network's last bits differ
-    /// between backends, and the drainage turns them into metres).
+    /// These networks on integer grids on burn's `device`: [`LearnedModels::run_work`] then
+    /// runs each batch of 128 m tiles or ×4 windows there in one call, with the same bits as on
+    /// the CPU kernels. An error where either network has no integer-exact calibration (a float
+    /// network's last bits differ between backends, and the drainage turns them into metres).
     #[cfg(not(target_arch = "wasm32"))]
-    pub fn with_tcm_on(mut self, device: &burn::tensor::Device) -> Result<Self, String> {
+    pub fn with_networks_on(mut self, device: &burn::tensor::Device) -> Result<Self, String> {
         let exact = self.exact.as_ref().ok_or("this TCM has no integer-exact calibration: its tiles would differ between backends")?;
-        self.tcm_on = Some((device.clone(), exact.to_burn(device).map_err(|e| e.to_string())?));
+        let grow_exact = self.grow_exact.as_ref().ok_or("this ×4 step has no integer-exact calibration: its tiles would differ between backends")?;
+        self.on_device = Some((device.clone(), exact.to_burn(device).map_err(|e| e.to_string())?, grow_exact.to_burn(device).map_err(|e| e.to_string())?));
         Ok(self)
     }
 
-    /// One 128 m tile of the TCM from its input `x` ([`tcm::TcmCpu::forward`]'s units): on the
-    /// integer grids where the weights have a calibration ([`LearnedModels::exact`]), on
-    /// burn's device where [`LearnedModels::with_tcm_on`] put it (natively; a device that
-    /// fails to answer is a panic naming it), else the float network.
+    /// One 128 m tile of the TCM from its input `x` ([`tcm::TcmCpu::forward`]'s units) on the
+    /// CPU kernels: on the integer grids where the weights have a calibration
+    /// ([`LearnedModels::exact`]), else the float network.
     pub fn tcm_forward(&self, x: &[f32], s: &mut TcmScratch, threads: usize) -> Vec<f32> {
-        #[cfg(not(target_arch = "wasm32"))]
-        if let (Some(exact), Some((device, m))) = (&self.exact, &self.tcm_on) {
-            let x = burn::tensor::Tensor::<4>::from_data(burn::tensor::TensorData::new(x.to_vec(), [1, tcm::IN_CHANNELS, tcm::CONTEXT_PX, tcm::CONTEXT_PX]), device);
-            return exact.forward_burn(m, x).into_data().try_to_vec::<f32>().unwrap_or_else(|e| panic!("the TCM's tile from {device:?}: {e:?}"));
-        }
         match &self.exact {
             Some(exact) => exact.forward(x, s, threads),
             None => self.tcm.forward(x, s, threads),
         }
+    }
+
+    /// The ×4 step's residual for one window ([`GrowCpu::forward`]'s inputs and units) on the
+    /// CPU kernels: on the integer grids where the weights have a calibration
+    /// ([`LearnedModels::grow_exact`]), else the float network.
+    pub fn grow_forward(&self, x: &[f32], n64: &[f32], n32: &[f32], side: usize, s: &mut GrowScratch, threads: usize) -> Vec<f32> {
+        match &self.grow_exact {
+            Some(exact) => exact.forward(x, n64, n32, side, s, threads),
+            None => self.grow.forward(x, n64, n32, side, s, threads),
+        }
+    }
+
+    /// Runs one batch of network work ([`LearnedSource::network_work`]): on burn's device in
+    /// one call where [`LearnedModels::with_networks_on`] put the networks (natively; a device
+    /// that fails to answer is an error naming it), else item by item on the CPU kernels.
+    /// Returns one output per item, in order ([`LearnedSource::accept`]).
+    pub fn run_work(&self, work: &NetworkWork, s: &mut (TcmScratch, GrowScratch), threads: usize) -> Result<Vec<Vec<f32>>, String> {
+        #[cfg(not(target_arch = "wasm32"))]
+        if let (Some(tcm_exact), Some(grow_exact), Some((device, tcm_m, grow_m))) = (&self.exact, &self.grow_exact, &self.on_device) {
+            use burn::tensor::{Tensor, TensorData};
+            let stack = |parts: Vec<&Vec<f32>>, c: usize, n: usize| {
+                let b = parts.len();
+                Tensor::<4>::from_data(TensorData::new(parts.into_iter().flatten().copied().collect::<Vec<f32>>(), [b, c, n, n]), device)
+            };
+            let (y, each) = match work {
+                NetworkWork::Tcm(items) if !items.is_empty() => {
+                    (tcm_exact.forward_burn(tcm_m, stack(items.iter().map(|i| &i.1).collect(), tcm::IN_CHANNELS, tcm::CONTEXT_PX)), TILE_PX * TILE_PX)
+                }
+                NetworkWork::Grow(items) if !items.is_empty() => {
+                    let w = grow::WINDOW;
+                    let (x, n64, n32) = (
+                        stack(items.iter().map(|i| &i.1.0).collect(), 6, w),
+                        stack(items.iter().map(|i| &i.1.1).collect(), 1, 2 * w),
+                        stack(items.iter().map(|i| &i.1.2).collect(), 1, 4 * w),
+                    );
+                    (grow_exact.forward_burn(grow_m, x, n64, n32), (w * grow::FACTOR).pow(2))
+                }
+                _ => return Ok(Vec::new()),
+            };
+            let out = y.into_data().try_to_vec::<f32>().map_err(|e| format!("the networks' batch from {device:?}: {e:?}"))?;
+            return Ok(out.chunks(each).map(<[f32]>::to_vec).collect());
+        }
+        Ok(match work {
+            NetworkWork::Tcm(items) => items.iter().map(|(_, x)| self.tcm_forward(x, &mut s.0, threads)).collect(),
+            NetworkWork::Grow(items) => items.iter().map(|(_, (x, n64, n32))| self.grow_forward(x, n64, n32, grow::WINDOW, &mut s.1, threads)).collect(),
+            NetworkWork::None => Vec::new(),
+        })
     }
 
     /// Reads `dir/`[`TCM_FILE`] and `dir/`[`GROW_FILE`].
@@ -356,6 +402,37 @@ impl LearnedModels {
 pub const TCM_FILE: &str = "tcm_128m.bpk";
 /// File name of the ×4 network's weights in `weights/`.
 pub const GROW_FILE: &str = "grow_32m.bpk";
+
+/// One batch of network work a tile still needs ([`LearnedSource::network_work`]): inputs
+/// that can all be run together (one call on a GPU), each with the tile it is for.
+#[derive(Clone, Debug, PartialEq)]
+pub enum NetworkWork {
+    /// 128 m tiles whose schedule dependencies are all made: each with the TCM's input
+    /// ([`tcm::assemble_input`]).
+    Tcm(Vec<(TileCoord, Vec<f32>)>),
+    /// 32 m tiles whose eroded 128 m field is made: each with the ×4 step's inputs
+    /// ([`grow::assemble`] on a [`grow::WINDOW`]² window).
+    #[allow(clippy::type_complexity)]
+    Grow(Vec<(TileCoord, (Vec<f32>, Vec<f32>, Vec<f32>))>),
+    /// Nothing: the tile needs only CPU work now (erosion is done on the way; drainage).
+    None,
+}
+
+impl NetworkWork {
+    /// Items in the batch.
+    pub fn len(&self) -> usize {
+        match self {
+            NetworkWork::Tcm(v) => v.len(),
+            NetworkWork::Grow(v) => v.len(),
+            NetworkWork::None => 0,
+        }
+    }
+
+    /// Whether the batch is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
 
 /// 128 m network tiles by (world seed, tile).
 type CoarseCache = HashMap<(u64, TileCoord), Arc<Vec<f32>>>;
@@ -476,14 +553,18 @@ impl LearnedSource {
             let mut s = self.scratch.lock().unwrap_or_else(|p| p.into_inner());
             self.models.tcm_forward(&x, &mut s.0, self.threads)
         };
-        let t1 = Instant::now();
+        self.spent(|t| t.tcm.add(t0.elapsed()));
+        self.store_coarse(seed, c, out, &deps, level)
+    }
+
+    /// Keeps the TCM's output `out` for tile `c` of world `seed` (units of
+    /// [`HEIGHT_SCALE_M`] from the macro level `level`), joined to its input tiles `deps`.
+    fn store_coarse(&self, seed: u64, c: TileCoord, out: Vec<f32>, deps: &HashMap<TileCoord, Arc<Vec<f32>>>, level: f32) -> Arc<Vec<f32>> {
+        let t0 = Instant::now();
         let mut tile: Vec<f32> = out.into_iter().map(|v| v * HEIGHT_SCALE_M + level).collect();
         let sides = seam::SIDES.map(|(di, dj)| deps.get(&c.offset(di, dj)).map(|t| t.as_slice()));
         seam::join_edges(&mut tile, TILE_PX, sides);
-        self.spent(|t| {
-            t.tcm.add(t1 - t0);
-            t.seams_128m.add(t1.elapsed());
-        });
+        self.spent(|t| t.seams_128m.add(t0.elapsed()));
         let tile = Arc::new(tile);
         let mut cache = self.coarse.lock().unwrap_or_else(|p| p.into_inner());
         if cache.len() >= COARSE_CACHE_TILES {
@@ -618,6 +699,103 @@ impl LearnedSource {
         dependencies(c).find_map(|d| self.missing_coarse(seed, d)).or(Some(c))
     }
 
+    /// The next batch of network work that tile `coord` of world `seed` needs, to be run
+    /// together ([`LearnedModels::run_work`]) and handed back ([`LearnedSource::accept`]):
+    /// every 128 m tile it needs whose schedule dependencies are made (one phase of the
+    /// schedule after another), then, once all are made, the ×4 windows of every 32 m tile it
+    /// needs (the erosion they read is done on the way, on this thread). [`NetworkWork::None`]
+    /// when only CPU work is left ([`TileSource::generate`]). A tile needs at most one batch per
+    /// phase of the schedule, and one of ×4 windows.
+    pub fn network_work(&self, seed: u64, coord: TileCoord) -> NetworkWork {
+        let raw = self.missing_raw(seed, coord);
+        if raw.is_empty() {
+            return NetworkWork::None;
+        }
+        let (mut ready, mut seen) = (Vec::new(), std::collections::HashSet::new());
+        for &t in &raw {
+            for a in around(t).into_iter().filter(|a| !self.pins.contains(*a)) {
+                for r in erosion_region_corners(a) {
+                    if self.eroded.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, r)).is_none() {
+                        for c in tiles_of(r, EROSION_BLOCK_TILES) {
+                            self.ready_coarse(seed, c, &mut ready, &mut seen);
+                        }
+                    }
+                }
+            }
+        }
+        if !ready.is_empty() {
+            return NetworkWork::Tcm(ready.into_iter().map(|c| (c, self.network_input(seed, c).0)).collect());
+        }
+        NetworkWork::Grow(raw.into_iter().map(|t| (t, self.grow_input(seed, t).1)).collect())
+    }
+
+    /// Keeps the outputs of a batch from [`LearnedSource::network_work`] (one per item, as
+    /// [`LearnedModels::run_work`] returns them) that took `ms` milliseconds to run: the
+    /// tiles are then made from them as if the networks had run here.
+    pub fn accept(&self, seed: u64, work: &NetworkWork, outputs: Vec<Vec<f32>>, ms: f64) {
+        assert_eq!(outputs.len(), work.len(), "one output per item of the batch");
+        let per_item = Duration::from_secs_f64(ms / 1e3 / work.len().max(1) as f64);
+        match work {
+            NetworkWork::Tcm(items) => {
+                for ((c, _), out) in items.iter().zip(outputs) {
+                    self.spent(|t| t.tcm.add(per_item));
+                    let (_, deps, level) = self.network_input(seed, *c);
+                    self.store_coarse(seed, *c, out, &deps, level);
+                }
+            }
+            NetworkWork::Grow(items) => {
+                for ((t, _), residual) in items.iter().zip(outputs) {
+                    self.spent(|s| s.grow.add(per_item));
+                    let tile = self.joined_to_pins(*t, grown_from(&self.grow_window(seed, *t), &residual));
+                    self.raw.lock().unwrap_or_else(|p| p.into_inner()).insert((seed, *t), Arc::new(tile));
+                }
+            }
+            NetworkWork::None => {}
+        }
+    }
+
+    /// The 32 m tiles (unpinned, not cached) whose ×4 step tile `coord` of world `seed` still
+    /// needs, as [`LearnedSource::prepare`] walks them: none once its drained block is made.
+    fn missing_raw(&self, seed: u64, coord: TileCoord) -> Vec<TileCoord> {
+        let second = second_block_corner(coord);
+        if self.drained.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, second)).is_some() {
+            return Vec::new();
+        }
+        let mut raw = Vec::new();
+        for c in block_tiles(second) {
+            let first = fill_block_corner(c);
+            if self.filled.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, first)).is_some() {
+                continue;
+            }
+            for t in block_tiles(first) {
+                if !raw.contains(&t) && !self.pins.contains(t) && self.raw.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, t)).is_none() {
+                    raw.push(t);
+                }
+            }
+        }
+        raw
+    }
+
+    /// Whether the 128 m tile `c` of world `seed` is made (or pinned); if not, and every one
+    /// of its schedule dependencies is, it joins `ready` (once: `seen` holds the tiles visited).
+    fn ready_coarse(&self, seed: u64, c: TileCoord, ready: &mut Vec<TileCoord>, seen: &mut std::collections::HashSet<TileCoord>) -> bool {
+        if self.pins.contains(c) || self.coarse.lock().unwrap_or_else(|p| p.into_inner()).contains_key(&(seed, c)) {
+            return true;
+        }
+        if !seen.insert(c) {
+            return false;
+        }
+        let mut all = true;
+        for d in dependencies(c) {
+            // Every dependency is visited (no short cut): the batch holds all that are ready.
+            all &= self.ready_coarse(seed, d, ready, seen);
+        }
+        if all {
+            ready.push(c);
+        }
+        false
+    }
+
     /// The ruggedness ([`tcm::tile_ruggedness`]) of the 128 m tile `c` of world `seed` as the
     /// TCM made it, to compare with the ruggedness the world asked for ([`ruggedness`]).
     pub fn made_ruggedness(&self, seed: u64, c: TileCoord) -> f32 {
@@ -735,37 +913,60 @@ impl LearnedSource {
         if let Some(pin) = self.pins.get(coord) {
             return pin.fine.to_vec();
         }
-        let mut tile = self.grown_tile(seed, coord);
+        self.joined_to_pins(coord, self.grown_tile(seed, coord))
+    }
+
+    /// The ×4 step's tile `coord` joined to the edges of the pinned tiles beside it.
+    fn joined_to_pins(&self, coord: TileCoord, mut tile: Vec<f32>) -> Vec<f32> {
         let sides = seam::SIDES.map(|(di, dj)| self.pins.get(coord.offset(di, dj)).map(|p| p.fine.as_slice()));
         seam::join_edges_holding_others(&mut tile, TILE_SAMPLES, sides);
         tile
     }
 
+    /// The ×4 step's window for the 32 m tile `coord` of world `seed`: its eroded 128 m
+    /// heights ([`grow::WINDOW`]², metres) and the network's inputs from them
+    /// ([`grow::assemble`]: features, 64 m noise, 32 m noise).
+    #[allow(clippy::type_complexity)]
+    pub fn grow_input(&self, seed: u64, coord: TileCoord) -> (Vec<f32>, (Vec<f32>, Vec<f32>, Vec<f32>)) {
+        let window = self.grow_window(seed, coord);
+        let (gx0, gy0) = (coord.i as i64 * TILE_PX as i64 - grow::MARGIN as i64, coord.j as i64 * TILE_PX as i64 - grow::MARGIN as i64);
+        let input = grow::assemble(&window, seed, gx0, gy0);
+        (window, input)
+    }
+
+    /// The eroded 128 m heights of the ×4 step's window for 32 m tile `coord` ([`grow::WINDOW`]²).
+    fn grow_window(&self, seed: u64, coord: TileCoord) -> Vec<f32> {
+        // The 128 m field of the 3×3 tiles, then the window of the tile plus the margin.
+        let field = context(coord, |b| self.eroded_tile(seed, b));
+        let o = TILE_PX - grow::MARGIN;
+        cut(&field, tcm::CONTEXT_PX, grow::WINDOW, o, o)
+    }
+
     /// The ×4 step's 32 m tile `coord` of world `seed` from the 128 m field around it.
     fn grown_tile(&self, seed: u64, coord: TileCoord) -> Vec<f32> {
-        // The 128 m field of the 3×3 tiles, then the window of the tile plus the margin.
-        let n3 = tcm::CONTEXT_PX;
-        let field = context(coord, |b| self.eroded_tile(seed, b));
-        let w = grow::WINDOW;
-        let o = TILE_PX - grow::MARGIN;
-        let window = cut(&field, n3, w, o, o);
-        let (gx0, gy0) = (coord.i as i64 * TILE_PX as i64 - grow::MARGIN as i64, coord.j as i64 * TILE_PX as i64 - grow::MARGIN as i64);
-        let (x, n64, n32) = grow::assemble(&window, seed, gx0, gy0);
+        let (window, (x, n64, n32)) = self.grow_input(seed, coord);
         let t0 = Instant::now();
         let residual = {
             let mut s = self.scratch.lock().unwrap_or_else(|p| p.into_inner());
-            self.models.grow.forward(&x, &n64, &n32, w, &mut s.1, self.threads)
+            self.models.grow_forward(&x, &n64, &n32, grow::WINDOW, &mut s.1, self.threads)
         };
         self.spent(|t| t.grow.add(t0.elapsed()));
-        let base = grow::base(&window);
-        let (m, off) = (w * grow::FACTOR, grow::MARGIN * grow::FACTOR);
-        (0..TILE_SAMPLES * TILE_SAMPLES)
-            .map(|p| {
-                let q = (off + p / TILE_SAMPLES) * m + off + p % TILE_SAMPLES;
-                base[q] + residual[q] * grow::HEIGHT_SCALE_M
-            })
-            .collect()
+        grown_from(&window, &residual)
     }
+}
+
+/// The ×4 step's 32 m tile from its 128 m window (metres) and the network's residual on it
+/// (units of [`grow::HEIGHT_SCALE_M`], ([`grow::WINDOW`]·4)²): the bicubic base plus the
+/// residual, cut to the tile.
+fn grown_from(window: &[f32], residual: &[f32]) -> Vec<f32> {
+    let base = grow::base(window);
+    let (m, off) = (grow::WINDOW * grow::FACTOR, grow::MARGIN * grow::FACTOR);
+    (0..TILE_SAMPLES * TILE_SAMPLES)
+        .map(|p| {
+            let q = (off + p / TILE_SAMPLES) * m + off + p % TILE_SAMPLES;
+            base[q] + residual[q] * grow::HEIGHT_SCALE_M
+        })
+        .collect()
 }
 
 /// The tiles `tile(b)` ([`TILE_PX`]² each) of the 3×3 block centred on `c` as one field
@@ -819,7 +1020,7 @@ mod tests {
     use crate::grid::mix64;
 
     fn random_models() -> Arc<LearnedModels> {
-        Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), None, GrowCpu::randomized(2, 0.05), "test"))
+        Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), None, GrowCpu::randomized(2, 0.05), None, "test"))
     }
 
     /// A tile prepared piece by piece is bit-identical to one made in one go; the pieces are
@@ -863,25 +1064,44 @@ mod tests {
         assert!(!src.prepare(seed, same));
     }
 
-    /// Three visit orders of a 6×6 region (shuffled, each with a fresh source and cache) make
-    /// bit-identical tiles; the tiles are not flat and differ between seeds.
-    /// The learned world made with its TCM on burn's wgpu backend (lavapipe here) is the CPU
-    /// kernels' world bit for bit: a 32 m tile of seed 5 (its 128 m tiles, their erosion and
-    /// both drainage stages under it), and the device made every 128 m tile it needed.
+    /// The learned world made with both its networks on burn's wgpu backend (lavapipe here),
+    /// one device call per batch of network work, is the CPU kernels' world bit for bit: a 32 m
+    /// tile of seed 5 (its 128 m tiles, their erosion, the ×4 step and both drainage stages
+    /// under it). The batches: at most one per phase of the schedule (4) and one of ×4
+    /// windows, together every 128 m tile and ×4 window the CPU made one by one.
     #[test]
-    fn world_tiles_with_the_tcm_on_wgpu_are_the_cpu_kernels_tiles_bit_for_bit() {
+    fn world_tiles_made_in_batches_on_wgpu_are_the_cpu_kernels_tiles_bit_for_bit() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
         let cpu = LearnedSource::new(Arc::new(LearnedModels::load_dir(&dir).unwrap()), 1);
-        let on_gpu = LearnedModels::load_dir(&dir).unwrap().with_tcm_on(&crate::models::native_gpu().expect("a Vulkan device (lavapipe)")).unwrap();
-        let gpu = LearnedSource::new(Arc::new(on_gpu), 1);
+        let on_gpu = Arc::new(LearnedModels::load_dir(&dir).unwrap().with_networks_on(&crate::models::native_gpu().expect("a Vulkan device (lavapipe)")).unwrap());
+        let gpu = LearnedSource::new(on_gpu.clone(), 1);
         let c = TileCoord::new(1, 0);
+        let mut s = Default::default();
+        let mut batches = Vec::new();
+        loop {
+            let work = gpu.network_work(5, c);
+            if work == NetworkWork::None {
+                break;
+            }
+            let out = on_gpu.run_work(&work, &mut s, 1).unwrap();
+            batches.push((matches!(work, NetworkWork::Tcm(_)), work.len()));
+            gpu.accept(5, &work, out, 1.0);
+            assert!(batches.len() <= 5, "batches {batches:?}");
+        }
         let (a, b) = (cpu.generate(5, c, &Neighbourhood::default()).heights, gpu.generate(5, c, &Neighbourhood::default()).heights);
         let differ = a.iter().zip(&b).filter(|(p, q)| p.to_bits() != q.to_bits()).count();
         assert_eq!(differ, 0, "{differ} of {} samples differ", a.len());
-        let (made_cpu, made_gpu) = (cpu.time_spent().tcm.runs, gpu.time_spent().tcm.runs);
-        assert!(made_gpu == made_cpu && made_gpu >= 9, "128 m tiles made: {made_cpu} on the CPU, {made_gpu} on the device");
+        let (spent_cpu, spent_gpu) = (cpu.time_spent(), gpu.time_spent());
+        let tcm_items: usize = batches.iter().filter(|b| b.0).map(|b| b.1).sum();
+        let grow_items: usize = batches.iter().filter(|b| !b.0).map(|b| b.1).sum();
+        assert!(batches.iter().filter(|b| b.0).count() <= 4 && batches.last().is_some_and(|b| !b.0), "batches {batches:?}");
+        assert_eq!((tcm_items as u64, grow_items as u64), (spent_cpu.tcm.runs, spent_cpu.grow.runs), "batches {batches:?}");
+        assert_eq!((spent_gpu.tcm.runs, spent_gpu.grow.runs), (spent_cpu.tcm.runs, spent_cpu.grow.runs), "the device made every network tile");
+        println!("batches (TCM?, items): {batches:?}");
     }
 
+    /// Three visit orders of a 6×6 region (shuffled, each with a fresh source and cache) make
+    /// bit-identical tiles; the tiles are not flat and differ between seeds.
     #[test]
     fn tiles_are_bit_identical_for_any_visit_order() {
         let models = random_models();
@@ -1204,7 +1424,7 @@ mod shipped_tests {
     /// The bounds can fail: an untrained TCM's world (random weights) is outside them.
     #[test]
     fn an_untrained_tcm_region_is_outside_the_drainage_bounds() {
-        let src = LearnedSource::new(Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), None, GrowCpu::randomized(2, 0.05), "test")), 1);
+        let src = LearnedSource::new(Arc::new(LearnedModels::from_parts(TcmCpu::randomized(1, 0.05), None, GrowCpu::randomized(2, 0.05), None, "test")), 1);
         let f = region_figures(&src, 1);
         eprintln!("untrained: {f:?}");
         assert!(!within_bounds(&f), "{f:?}");

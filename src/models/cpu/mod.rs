@@ -683,7 +683,33 @@ pub fn requantize(map: &mut Map, scale: &[f32], max: f32) {
     assert_eq!(scale.len(), map.c, "one scale per channel");
     let (h, w, c) = (map.h, map.w, map.c);
     let row_len = (w + 2) * c;
-    for row in map.data[row_len..row_len * (h + 1)].chunks_exact_mut(row_len) {
+    requantize_rows(&mut map.data[row_len..row_len * (h + 1)], w, c, scale, max);
+}
+
+/// [`conv_impl`], then every output value on its channel's integer grid as [`requantize`]
+/// rounds it, each thread rounding the rows it made (the same bits as the two calls).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn conv_on_grid(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, scale: &[f32], max: f32, threads: usize, kernels: Kernels) {
+    assert_eq!(src.c, layer.cin, "input channels");
+    assert_eq!(scale.len(), layer.cout, "one scale per channel");
+    if let Post::Add(s) = post {
+        assert!(s.h == src.h && s.w == src.w && s.c == layer.cout, "skip shape");
+    }
+    dst.reset(src.h, src.w, layer.cout);
+    let row_len = (src.w + 2) * layer.cout;
+    let (h, w) = (src.h, src.w);
+    let rows = &mut dst.data[row_len..row_len * (h + 1)];
+    for_row_runs(rows, row_len, threads, |y0, run| {
+        conv_rows(layer, src, run, y0, run.len() / row_len, w, post, kernels);
+        requantize_rows(run, w, layer.cout, scale, max);
+    });
+}
+
+/// [`requantize`] on whole padded rows (`w` pixels of `c` channels between one padding pixel
+/// on each side).
+fn requantize_rows(rows: &mut [f32], w: usize, c: usize, scale: &[f32], max: f32) {
+    let row_len = (w + 2) * c;
+    for row in rows.chunks_exact_mut(row_len) {
         for px in row[c..(w + 1) * c].chunks_exact_mut(c) {
             for (v, &k) in px.iter_mut().zip(scale) {
                 // ⌊·⌋ by truncation and a correction: exact below 2³¹, and vectorised where
