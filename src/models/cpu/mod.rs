@@ -355,6 +355,12 @@ impl Kernels {
 
 /// [`conv`] on the given set of kernels (tests run each).
 pub(crate) fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize, kernels: Kernels) {
+    conv_then(layer, src, dst, post, threads, kernels, |_| {});
+}
+
+/// [`conv_impl`], then `finish` on each run of output rows (padded rows of `dst`) in the
+/// thread that made it.
+fn conv_then(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, threads: usize, kernels: Kernels, finish: impl Fn(&mut [f32]) + Sync) {
     assert_eq!(src.c, layer.cin, "input channels");
     if let Post::Add(s) = post {
         assert!(s.h == src.h && s.w == src.w && s.c == layer.cout, "skip shape");
@@ -364,7 +370,10 @@ pub(crate) fn conv_impl(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, thr
     let (h, w) = (src.h, src.w);
     // Output rows 0..h are padded rows 1..=h of dst.
     let rows = &mut dst.data[row_len..row_len * (h + 1)];
-    for_row_runs(rows, row_len, threads, |y0, run| conv_rows(layer, src, run, y0, run.len() / row_len, w, post, kernels));
+    for_row_runs(rows, row_len, threads, |y0, run| {
+        conv_rows(layer, src, run, y0, run.len() / row_len, w, post, kernels);
+        finish(run);
+    });
 }
 
 /// Whether this CPU runs the AVX2 + FMA kernels.
@@ -690,19 +699,8 @@ pub fn requantize(map: &mut Map, scale: &[f32], max: f32) {
 /// rounds it, each thread rounding the rows it made (the same bits as the two calls).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn conv_on_grid(layer: &Conv3, src: &Map, dst: &mut Map, post: Post, scale: &[f32], max: f32, threads: usize, kernels: Kernels) {
-    assert_eq!(src.c, layer.cin, "input channels");
     assert_eq!(scale.len(), layer.cout, "one scale per channel");
-    if let Post::Add(s) = post {
-        assert!(s.h == src.h && s.w == src.w && s.c == layer.cout, "skip shape");
-    }
-    dst.reset(src.h, src.w, layer.cout);
-    let row_len = (src.w + 2) * layer.cout;
-    let (h, w) = (src.h, src.w);
-    let rows = &mut dst.data[row_len..row_len * (h + 1)];
-    for_row_runs(rows, row_len, threads, |y0, run| {
-        conv_rows(layer, src, run, y0, run.len() / row_len, w, post, kernels);
-        requantize_rows(run, w, layer.cout, scale, max);
-    });
+    conv_then(layer, src, dst, post, threads, kernels, |run| requantize_rows(run, src.w, layer.cout, scale, max));
 }
 
 /// [`requantize`] on whole padded rows (`w` pixels of `c` channels between one padding pixel
