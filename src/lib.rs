@@ -33,9 +33,10 @@ pub mod world;
 #[cfg(target_arch = "wasm32")]
 mod web;
 
-/// Polls `f` to its end on this thread: the tests' executor (the native runners and native
-/// wgpu answer without waiting on anything else).
-#[cfg(test)]
+/// Polls `f` to its end on this thread, natively: the tests' executor and
+/// [`world::learned::LearnedModels::run_work`]'s (the native runners and native wgpu's
+/// readback answer without waiting on anything else).
+#[cfg(not(target_arch = "wasm32"))]
 pub(crate) fn block_on<F: Future>(f: F) -> F::Output {
     let mut f = std::pin::pin!(f);
     let mut cx = std::task::Context::from_waker(std::task::Waker::noop());

@@ -129,4 +129,59 @@ mod tests {
         let alone: Runners<NativeRunner> = Runners::new(None, None);
         assert!(matches!(block_on(alone.call(Target::Worker, tile())), Delivery::WorkerGone { .. }));
     }
+
+    /// A learned world's tile made by the CPU worker (a thread here) with its network work run
+    /// by the GPU runner (burn on wgpu: lavapipe here), message by message as the page passes
+    /// them (world-work, run-work, accept-work until none is left, then the tile), is the tile
+    /// the CPU makes alone, bit for bit, after at most 5 batches; a batch of the wrong size is
+    /// refused by the GPU and by the worker, and outputs that do not fit their batch by the
+    /// worker, saying so.
+    #[test]
+    fn a_world_tile_with_its_networks_on_the_gpu_runner_is_the_cpu_tile_bit_for_bit() {
+        use crate::world::learned::{GROW_FILE, NetworkWork, TCM_FILE};
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let (tcm, grow) = (std::fs::read(dir.join(TCM_FILE)).unwrap(), std::fs::read(dir.join(GROW_FILE)).unwrap());
+        let gpu = GpuRunner::new(crate::models::native_gpu().expect("a Vulkan device (lavapipe)"));
+        let runners = Runners::new(Some(Rc::new(NativeRunner::spawn(1))), Some(gpu));
+        let call = |target: Target, request: Request| match block_on(runners.call(target, Envelope { id: next_id(), epoch: 0, rest_per_work: 0.0, request })) {
+            Delivery::Answer(a) => a.reply,
+            other => panic!("{other:?}"),
+        };
+        for target in [Target::Worker, Target::Gpu, Target::MainThread] {
+            let r = call(target, Request::LoadWorld { tcm: tcm.clone(), grow: grow.clone() });
+            assert!(matches!(r, Reply::Loaded { .. }), "{target:?}: {r:?}");
+        }
+        let (seed, tile) = (5, TileCoord::new(1, 0));
+        let mut batches = Vec::new();
+        loop {
+            let work = match call(Target::Worker, Request::WorldWork { seed, tile }) {
+                Reply::Work(w) => w,
+                other => panic!("{other:?}"),
+            };
+            if work == NetworkWork::None {
+                break;
+            }
+            let (outputs, ms) = match call(Target::Gpu, Request::RunWork { work: work.clone() }) {
+                Reply::Outputs { outputs, ms } => (outputs, ms),
+                other => panic!("{other:?}"),
+            };
+            batches.push(work.len());
+            assert_eq!(call(Target::Worker, Request::AcceptWork { seed, keys: work.keys(), outputs, ms }), Reply::Accepted);
+            assert!(batches.len() <= 5, "batches {batches:?}");
+        }
+        let tile_of = |target| match call(target, Request::Tile { seed, tile, noise: None }) {
+            Reply::Heights { heights, .. } => heights,
+            other => panic!("{other:?}"),
+        };
+        let (made, alone) = (tile_of(Target::Worker), tile_of(Target::MainThread));
+        let differ = made.iter().zip(&alone).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+        assert!(batches.len() >= 2 && differ == 0, "{differ} of {} samples differ; batches {batches:?}", made.len());
+        let broken = NetworkWork::Tcm(vec![(tile, vec![0.0; 10])]);
+        for target in [Target::Gpu, Target::Worker] {
+            let r = call(target, Request::RunWork { work: broken.clone() });
+            assert!(matches!(&r, Reply::Failed(w) if w.contains("not the networks' sizes")), "{target:?}: {r:?}");
+        }
+        let r = call(Target::Worker, Request::AcceptWork { seed, keys: broken.keys(), outputs: Vec::new(), ms: 1.0 });
+        assert!(matches!(&r, Reply::Failed(w) if w.contains("0 outputs for 1 tiles")), "{r:?}");
+    }
 }

@@ -1,7 +1,7 @@
-//! The requests the GPU answers: TEM batches and sketches on burn's wgpu backend, on the
-//! renderer's device in the page (WebGPU) or on Vulkan natively. The same [`Envelope`] and
-//! [`Answer`] as the CPU runner, so the core sends work to either the same way; only the
-//! readback is asynchronous (browsers require it).
+//! The requests the GPU answers: TEM batches, sketches and the learned world's network
+//! batches on burn's wgpu backend, on the renderer's device in the page (WebGPU) or on Vulkan
+//! natively. The same [`Envelope`] and [`Answer`] as the CPU runner, so the core sends work to
+//! either the same way; only the readback is asynchronous (browsers require it).
 
 use std::cell::RefCell;
 use std::rc::Rc;
@@ -12,23 +12,26 @@ use super::protocol::{Answer, Envelope, Reply, Request};
 use crate::models::sketch::SketchGenGpu;
 use crate::models::tem::{Exec, LEVELS, PROBE_SIDE, TemSet, probe_input};
 use crate::models::weights_hash;
+use crate::world::learned::{LearnedModels, NetworksOn};
 
 /// The models loaded onto one GPU device.
 pub struct GpuRunner {
     device: Device,
     tem: RefCell<Option<Rc<TemSet>>>,
     sketch: RefCell<Option<Rc<SketchGenGpu>>>,
+    world: RefCell<Option<Rc<NetworksOn>>>,
 }
 
 impl GpuRunner {
     /// A runner on `device` with no models loaded.
     pub fn new(device: Device) -> Self {
-        Self { device, tem: RefCell::default(), sketch: RefCell::default() }
+        Self { device, tem: RefCell::default(), sketch: RefCell::default(), world: RefCell::default() }
     }
 
-    /// Answers a request: the TEM's and the sketch generator's loads (the TEM is warmed up on
-    /// the probe windows, so its kernels compile now and not in the middle of a flight), TEM
-    /// batches and sketches. Other requests are CPU work: an error reply says so.
+    /// Answers a request: the TEM's, the sketch generator's and the learned world's loads (the
+    /// TEM is warmed up on the probe windows, so its kernels compile now and not in the middle
+    /// of a flight), TEM batches, sketches and batches of the world's network work. Other
+    /// requests are CPU work: an error reply says so.
     pub async fn handle(&self, env: Envelope) -> Answer {
         let t0 = web_time::Instant::now();
         let ms = || t0.elapsed().as_secs_f64() * 1e3;
@@ -47,6 +50,26 @@ impl GpuRunner {
                 }
                 Err(e) => Reply::Failed(e.to_string()),
             },
+            Request::LoadWorld { tcm, grow } => {
+                match LearnedModels::from_bytes(&tcm, &grow).map_err(|e| e.to_string()).and_then(|m| Ok((NetworksOn::new(&m, &self.device)?, m.hash))) {
+                    Ok((networks, hash)) => {
+                        *self.world.borrow_mut() = Some(Rc::new(networks));
+                        Reply::Loaded { hash }
+                    }
+                    Err(e) => Reply::Failed(e),
+                }
+            }
+            Request::RunWork { work } => {
+                let world = self.world.borrow().clone();
+                match (world, work.check()) {
+                    (Some(networks), Ok(())) => match networks.run(&work).await {
+                        Ok(outputs) => Reply::Outputs { outputs, ms: ms() },
+                        Err(e) => Reply::Failed(e),
+                    },
+                    (None, _) => Reply::Failed("the GPU has no learned world loaded".into()),
+                    (_, Err(e)) => Reply::Failed(e),
+                }
+            }
             Request::Enhance { level, n, side, input } => {
                 let tem = self.tem.borrow().clone();
                 match tem {

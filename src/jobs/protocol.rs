@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 use crate::grid::TileCoord;
 use crate::sketch::Sketch;
 use crate::world::NoiseParams;
+use crate::world::learned::{NetworkWork, WorkKeys};
 
 /// What the core asks of a model runner.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -83,6 +84,34 @@ pub enum Request {
         /// The pinned tiles and their heights.
         tiles: Vec<(TileCoord, Vec<f32>)>,
     },
+    /// The next batch of network work that tile `tile` of learned world `seed` needs
+    /// ([`crate::world::learned::LearnedSource::network_work`]): the CPU worker answers
+    /// [`Reply::Work`], to be run elsewhere ([`Request::RunWork`]) and handed back
+    /// ([`Request::AcceptWork`]).
+    WorldWork {
+        /// The world's seed.
+        seed: u64,
+        /// Which tile.
+        tile: TileCoord,
+    },
+    /// Run a batch of the learned world's network work (on the GPU in one call, or on the CPU
+    /// kernels): [`Reply::Outputs`], one per item.
+    RunWork {
+        /// The batch.
+        work: NetworkWork,
+    },
+    /// Keep the outputs of a batch run elsewhere in the learned world of `seed`
+    /// ([`crate::world::learned::LearnedSource::accept`]): [`Reply::Accepted`].
+    AcceptWork {
+        /// The world's seed.
+        seed: u64,
+        /// The batch's network and tiles.
+        keys: WorkKeys,
+        /// One output per tile, as [`Reply::Outputs`] gave them.
+        outputs: Vec<Vec<f32>>,
+        /// Milliseconds the batch took where it ran.
+        ms: f64,
+    },
     /// The 128 m network tile `tile` of learned world `seed` ([`crate::models::tcm::TILE_PX`]²
     /// heights, metres, joined to its schedule's neighbours): cheap, so the view draws it while
     /// the 32 m tile is made.
@@ -103,7 +132,7 @@ impl Request {
     /// Whether the request belongs to a world (a tile, a TEM batch): its epoch is checked, and
     /// it is dropped unmade once a newer world's request has arrived.
     pub fn of_world(&self) -> bool {
-        matches!(self, Request::Tile { .. } | Request::Enhance { .. } | Request::Coarse { .. })
+        matches!(self, Request::Tile { .. } | Request::Enhance { .. } | Request::Coarse { .. } | Request::WorldWork { .. } | Request::RunWork { .. })
     }
 
     /// A short name for messages ("tile", "enhance", …).
@@ -119,6 +148,9 @@ impl Request {
             Request::Blend { .. } => "blend",
             Request::Coarse { .. } => "coarse",
             Request::Pin { .. } => "pin",
+            Request::WorldWork { .. } => "world-work",
+            Request::RunWork { .. } => "run-work",
+            Request::AcceptWork { .. } => "accept-work",
         }
     }
 }
@@ -163,6 +195,17 @@ pub enum Reply {
         /// Milliseconds of work.
         ms: f64,
     },
+    /// The next batch of network work a learned tile needs ([`Request::WorldWork`]).
+    Work(NetworkWork),
+    /// A batch's outputs, one per item ([`Request::RunWork`]), and the milliseconds it took.
+    Outputs {
+        /// The outputs, in the batch's order.
+        outputs: Vec<Vec<f32>>,
+        /// Milliseconds of work.
+        ms: f64,
+    },
+    /// A batch's outputs were kept ([`Request::AcceptWork`]).
+    Accepted,
     /// A newer world's request arrived before this one was made: it was dropped unmade.
     Stale,
     /// The request could not be answered (a broken weight file, a malformed request, models

@@ -239,6 +239,22 @@ impl Runner {
                 let s = m.vae.interpolate(&a, &b, alpha, &mut Default::default(), self.threads);
                 Ok(self.terrains(vec![s]))
             }
+            Request::WorldWork { seed, tile } => {
+                let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
+                Ok(Reply::Work(world.network_work(seed, tile)))
+            }
+            Request::RunWork { work } => {
+                let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
+                work.check()?;
+                let t0 = web_time::Instant::now();
+                let outputs = world.models().run_work(&work, &mut Default::default(), self.threads)?;
+                Ok(Reply::Outputs { outputs, ms: t0.elapsed().as_secs_f64() * 1e3 })
+            }
+            Request::AcceptWork { seed, keys, outputs, ms } => {
+                let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
+                world.accept(seed, &keys, outputs, ms)?;
+                Ok(Reply::Accepted)
+            }
             Request::Tile { .. } | Request::Enhance { .. } => unreachable!("tiles and TEM batches are tasks"),
         }
     }
@@ -481,7 +497,8 @@ mod tests {
     /// Malformed payloads are error replies that say what is wrong, never a panic: truncated
     /// bytes, an empty message, a sketch pixel out of range, TEM windows of the wrong size or
     /// level, 0 variants, a blend α of 2, broken weight bytes, and requests before their
-    /// models are loaded; 2000 random byte strings too.
+    /// models are loaded (the learned world's network work among them); 2000 random byte
+    /// strings too.
     #[test]
     fn malformed_payloads_get_clear_error_replies_never_a_panic() {
         let mut r = Runner::new(1);
@@ -505,6 +522,9 @@ mod tests {
             (Request::Sketch { sketch: (&Sketch::filled(0)).into() }, "no sketch models loaded"),
             (Request::Tile { seed: 1, tile: TileCoord::new(0, 0), noise: None }, "no learned world loaded"),
             (Request::Enhance { level: 0, n: 1, side: 4, input: vec![0.0; 16] }, "no TEM loaded"),
+            (Request::WorldWork { seed: 1, tile: TileCoord::new(0, 0) }, "no learned world loaded"),
+            (Request::RunWork { work: crate::world::learned::NetworkWork::None }, "no learned world loaded"),
+            (Request::AcceptWork { seed: 1, keys: crate::world::learned::NetworkWork::None.keys(), outputs: Vec::new(), ms: 0.0 }, "no learned world loaded"),
         ];
         for (k, (req, says)) in cases.into_iter().enumerate() {
             let a = r.handle(env(100 + k as u32, 0, req));

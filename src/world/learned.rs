@@ -283,7 +283,7 @@ pub struct LearnedModels {
     /// Both integer-exact networks on a burn device, where [`LearnedModels::with_networks_on`]
     /// put them (natively: a GPU's Vulkan, or Mesa's lavapipe).
     #[cfg(not(target_arch = "wasm32"))]
-    on_device: Option<(burn::tensor::Device, tcm::Tcm, grow::Grow)>,
+    on_device: Option<NetworksOn>,
     /// Short hash of the weight files (names the weights in share links).
     pub hash: String,
 }
@@ -327,9 +327,7 @@ impl LearnedModels {
     /// network's last bits differ between backends, and the drainage turns them into metres).
     #[cfg(not(target_arch = "wasm32"))]
     pub fn with_networks_on(mut self, device: &burn::tensor::Device) -> Result<Self, String> {
-        let exact = self.exact.as_ref().ok_or("this TCM has no integer-exact calibration: its tiles would differ between backends")?;
-        let grow_exact = self.grow_exact.as_ref().ok_or("this ×4 step has no integer-exact calibration: its tiles would differ between backends")?;
-        self.on_device = Some((device.clone(), exact.to_burn(device).map_err(|e| e.to_string())?, grow_exact.to_burn(device).map_err(|e| e.to_string())?));
+        self.on_device = Some(NetworksOn::new(&self, device)?);
         Ok(self)
     }
 
@@ -359,29 +357,8 @@ impl LearnedModels {
     /// Returns one output per item, in order ([`LearnedSource::accept`]).
     pub fn run_work(&self, work: &NetworkWork, s: &mut (TcmScratch, GrowScratch), threads: usize) -> Result<Vec<Vec<f32>>, String> {
         #[cfg(not(target_arch = "wasm32"))]
-        if let (Some(tcm_exact), Some(grow_exact), Some((device, tcm_m, grow_m))) = (&self.exact, &self.grow_exact, &self.on_device) {
-            use burn::tensor::{Tensor, TensorData};
-            let stack = |parts: Vec<&Vec<f32>>, c: usize, n: usize| {
-                let b = parts.len();
-                Tensor::<4>::from_data(TensorData::new(parts.into_iter().flatten().copied().collect::<Vec<f32>>(), [b, c, n, n]), device)
-            };
-            let (y, each) = match work {
-                NetworkWork::Tcm(items) if !items.is_empty() => {
-                    (tcm_exact.forward_burn(tcm_m, stack(items.iter().map(|i| &i.1).collect(), tcm::IN_CHANNELS, tcm::CONTEXT_PX)), TILE_PX * TILE_PX)
-                }
-                NetworkWork::Grow(items) if !items.is_empty() => {
-                    let w = grow::WINDOW;
-                    let (x, n64, n32) = (
-                        stack(items.iter().map(|i| &i.1.0).collect(), 6, w),
-                        stack(items.iter().map(|i| &i.1.1).collect(), 1, 2 * w),
-                        stack(items.iter().map(|i| &i.1.2).collect(), 1, 4 * w),
-                    );
-                    (grow_exact.forward_burn(grow_m, x, n64, n32), (w * grow::FACTOR).pow(2))
-                }
-                _ => return Ok(Vec::new()),
-            };
-            let out = y.into_data().try_to_vec::<f32>().map_err(|e| format!("the networks' batch from {device:?}: {e:?}"))?;
-            return Ok(out.chunks(each).map(<[f32]>::to_vec).collect());
+        if let Some(on) = &self.on_device {
+            return crate::block_on(on.run(work));
         }
         Ok(match work {
             NetworkWork::Tcm(items) => items.iter().map(|(_, x)| self.tcm_forward(x, &mut s.0, threads)).collect(),
@@ -398,6 +375,59 @@ impl LearnedModels {
     }
 }
 
+/// Both networks of the learned world on integer grids on one burn device (a GPU's WebGPU or
+/// Vulkan, Mesa's lavapipe): a batch of network work ([`LearnedSource::network_work`]) in one
+/// call each, with the same bits as the CPU kernels.
+#[derive(Debug)]
+pub struct NetworksOn {
+    device: burn::tensor::Device,
+    tcm_exact: TcmExact,
+    tcm: tcm::Tcm,
+    grow_exact: GrowExact,
+    grow: grow::Grow,
+}
+
+impl NetworksOn {
+    /// `models`' integer-exact networks on `device`; an error where either has no
+    /// integer-exact calibration (a float network's last bits differ between backends, and the
+    /// drainage turns them into metres).
+    pub fn new(models: &LearnedModels, device: &burn::tensor::Device) -> Result<Self, String> {
+        let tcm_exact = models.exact.clone().ok_or("this TCM has no integer-exact calibration: its tiles would differ between backends")?;
+        let grow_exact = models.grow_exact.clone().ok_or("this ×4 step has no integer-exact calibration: its tiles would differ between backends")?;
+        let tcm = tcm_exact.to_burn(device).map_err(|e| e.to_string())?;
+        let grow = grow_exact.to_burn(device).map_err(|e| e.to_string())?;
+        Ok(Self { device: device.clone(), tcm_exact, tcm, grow_exact, grow })
+    }
+
+    /// Runs `work` in one call on the device and reads the outputs back (asynchronously, as
+    /// browsers require): one per item, as [`LearnedModels::run_work`] returns them.
+    pub async fn run(&self, work: &NetworkWork) -> Result<Vec<Vec<f32>>, String> {
+        use burn::tensor::{Tensor, TensorData};
+        let stack = |parts: Vec<&Vec<f32>>, c: usize, n: usize| {
+            let b = parts.len();
+            Tensor::<4>::from_data(TensorData::new(parts.into_iter().flatten().copied().collect::<Vec<f32>>(), [b, c, n, n]), &self.device)
+        };
+        let (y, each) = match work {
+            NetworkWork::Tcm(items) if !items.is_empty() => {
+                (self.tcm_exact.forward_burn(&self.tcm, stack(items.iter().map(|i| &i.1).collect(), tcm::IN_CHANNELS, tcm::CONTEXT_PX)), TILE_PX * TILE_PX)
+            }
+            NetworkWork::Grow(items) if !items.is_empty() => {
+                let w = grow::WINDOW;
+                let (x, n64, n32) = (
+                    stack(items.iter().map(|i| &i.1.0).collect(), 6, w),
+                    stack(items.iter().map(|i| &i.1.1).collect(), 1, 2 * w),
+                    stack(items.iter().map(|i| &i.1.2).collect(), 1, 4 * w),
+                );
+                (self.grow_exact.forward_burn(&self.grow, x, n64, n32), (w * grow::FACTOR).pow(2))
+            }
+            _ => return Ok(Vec::new()),
+        };
+        let data = y.into_data_async().await.map_err(|e| format!("the networks' batch from {:?}: {e:?}", self.device))?;
+        let out = data.try_to_vec::<f32>().map_err(|e| format!("the networks' batch from {:?}: {e:?}", self.device))?;
+        Ok(out.chunks(each).map(<[f32]>::to_vec).collect())
+    }
+}
+
 /// File name of the TCM's weights in `weights/`.
 pub const TCM_FILE: &str = "tcm_128m.bpk";
 /// File name of the ×4 network's weights in `weights/`.
@@ -405,7 +435,7 @@ pub const GROW_FILE: &str = "grow_32m.bpk";
 
 /// One batch of network work a tile still needs ([`LearnedSource::network_work`]): inputs
 /// that can all be run together (one call on a GPU), each with the tile it is for.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum NetworkWork {
     /// 128 m tiles whose schedule dependencies are all made: each with the TCM's input
     /// ([`tcm::assemble_input`]).
@@ -432,6 +462,37 @@ impl NetworkWork {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+
+    /// Whether every input has its network's size (a batch from elsewhere, e.g. a message,
+    /// is checked before a network reads it): why not, if not.
+    pub fn check(&self) -> Result<(), String> {
+        let w = grow::WINDOW;
+        let fits = match self {
+            NetworkWork::Tcm(v) => v.iter().all(|(_, x)| x.len() == tcm::IN_CHANNELS * tcm::CONTEXT_PX * tcm::CONTEXT_PX),
+            NetworkWork::Grow(v) => v.iter().all(|(_, (x, a, b))| x.len() == 6 * w * w && a.len() == 4 * w * w && b.len() == 16 * w * w),
+            NetworkWork::None => true,
+        };
+        if fits { Ok(()) } else { Err("a batch of network work whose inputs are not the networks' sizes".into()) }
+    }
+
+    /// What [`LearnedSource::accept`] needs to know of the batch: its kind and tiles, without
+    /// the inputs.
+    pub fn keys(&self) -> WorkKeys {
+        match self {
+            NetworkWork::Tcm(v) => WorkKeys { grow: false, tiles: v.iter().map(|i| i.0).collect() },
+            NetworkWork::Grow(v) => WorkKeys { grow: true, tiles: v.iter().map(|i| i.0).collect() },
+            NetworkWork::None => WorkKeys { grow: false, tiles: Vec::new() },
+        }
+    }
+}
+
+/// A batch of [`NetworkWork`] without its inputs: which network and which tiles, in order.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct WorkKeys {
+    /// The ×4 step's windows (else the TCM's 128 m tiles).
+    pub grow: bool,
+    /// The tiles, in the batch's order.
+    pub tiles: Vec<TileCoord>,
 }
 
 /// 128 m network tiles by (world seed, tile).
@@ -732,26 +793,31 @@ impl LearnedSource {
     /// Keeps the outputs of a batch from [`LearnedSource::network_work`] (one per item, as
     /// [`LearnedModels::run_work`] returns them) that took `ms` milliseconds to run: the
     /// tiles are then made from them as if the networks had run here.
-    pub fn accept(&self, seed: u64, work: &NetworkWork, outputs: Vec<Vec<f32>>, ms: f64) {
-        assert_eq!(outputs.len(), work.len(), "one output per item of the batch");
-        let per_item = Duration::from_secs_f64(ms / 1e3 / work.len().max(1) as f64);
-        match work {
-            NetworkWork::Tcm(items) => {
-                for ((c, _), out) in items.iter().zip(outputs) {
-                    self.spent(|t| t.tcm.add(per_item));
-                    let (_, deps, level) = self.network_input(seed, *c);
-                    self.store_coarse(seed, *c, out, &deps, level);
-                }
-            }
-            NetworkWork::Grow(items) => {
-                for ((t, _), residual) in items.iter().zip(outputs) {
-                    self.spent(|s| s.grow.add(per_item));
-                    let tile = self.joined_to_pins(*t, grown_from(&self.grow_window(seed, *t), &residual));
-                    self.raw.lock().unwrap_or_else(|p| p.into_inner()).insert((seed, *t), Arc::new(tile));
-                }
-            }
-            NetworkWork::None => {}
+    /// An error (nothing kept) where the outputs do not fit the batch: not one per tile, or
+    /// not the network's output size.
+    pub fn accept(&self, seed: u64, keys: &WorkKeys, outputs: Vec<Vec<f32>>, ms: f64) -> Result<(), String> {
+        let size = if keys.grow { (grow::WINDOW * grow::FACTOR).pow(2) } else { TILE_PX * TILE_PX };
+        if outputs.len() != keys.tiles.len() || outputs.iter().any(|o| o.len() != size) {
+            return Err(format!("{} outputs for {} tiles of {size} samples", outputs.len(), keys.tiles.len()));
         }
+        let per_item = Duration::from_secs_f64(ms.max(0.0) / 1e3 / keys.tiles.len().max(1) as f64);
+        for (&c, out) in keys.tiles.iter().zip(outputs) {
+            if keys.grow {
+                self.spent(|s| s.grow.add(per_item));
+                let tile = self.joined_to_pins(c, grown_from(&self.grow_window(seed, c), &out));
+                self.raw.lock().unwrap_or_else(|p| p.into_inner()).insert((seed, c), Arc::new(tile));
+            } else {
+                self.spent(|t| t.tcm.add(per_item));
+                let (_, deps, level) = self.network_input(seed, c);
+                self.store_coarse(seed, c, out, &deps, level);
+            }
+        }
+        Ok(())
+    }
+
+    /// The networks this source runs.
+    pub fn models(&self) -> &Arc<LearnedModels> {
+        &self.models
     }
 
     /// The 32 m tiles (unpinned, not cached) whose ×4 step tile `coord` of world `seed` still
@@ -1085,7 +1151,7 @@ mod tests {
             }
             let out = on_gpu.run_work(&work, &mut s, 1).unwrap();
             batches.push((matches!(work, NetworkWork::Tcm(_)), work.len()));
-            gpu.accept(5, &work, out, 1.0);
+            gpu.accept(5, &work.keys(), out, 1.0).unwrap();
             assert!(batches.len() <= 5, "batches {batches:?}");
         }
         let (a, b) = (cpu.generate(5, c, &Neighbourhood::default()).heights, gpu.generate(5, c, &Neighbourhood::default()).heights);
