@@ -67,7 +67,7 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
         let grow = terrain::models::load_burnpack(Grow::new(&device), &grow_bytes).map_err(|e| e.to_string())?;
         (Some((device, tcm, grow)), adapter_names())
     } else {
-        (None, format!("cpu kernels ({}), {threads} thread{}", terrain::models::cpu::Kernels::chosen().widest(), if threads == 1 { "" } else { "s" }))
+        (None, cpu_place(threads))
     };
     let (tcm_cpu, grow_cpu) = (TcmCpu::from_burnpack(&tcm_bytes).map_err(|e| e.to_string())?, GrowCpu::from_burnpack(&grow_bytes).map_err(|e| e.to_string())?);
     // The integer-exact networks the world runs, where these weights have calibrations.
@@ -157,6 +157,11 @@ pub(crate) fn tile_bench(batches: &[u32], repeats: usize, threads: Option<u32>, 
         }
     }
     Ok(())
+}
+
+/// Where the CPU kernels run: "cpu kernels (avx512), 2 threads".
+fn cpu_place(threads: usize) -> String {
+    format!("cpu kernels ({}), {threads} thread{}", terrain::models::cpu::Kernels::chosen().widest(), if threads == 1 { "" } else { "s" })
 }
 
 /// Where `--gpu` runs: the Vulkan adapters' names and drivers (the default one among them).
@@ -255,7 +260,7 @@ pub(crate) fn world_bench(tiles: u32, threads: Option<u32>, gpu: bool, weights: 
         models = models.with_networks_on(&terrain::models::native_gpu()?)?;
         adapter_names()
     } else {
-        format!("cpu kernels ({}), {threads} thread{}", terrain::models::cpu::Kernels::chosen().widest(), if threads == 1 { "" } else { "s" })
+        cpu_place(threads)
     };
     let models = std::sync::Arc::new(models);
     let world = LearnedSource::new(models.clone(), threads);

@@ -65,6 +65,27 @@ impl ExactConv {
     }
 }
 
+/// ⌊v · scale[c] + ½⌋ per channel `c` of `v` [B, C, H, W], clamped to ±`max`: burn's twin
+/// of [`crate::models::cpu::requantize`], exact for the powers of two used.
+pub fn grid_burn(v: burn::tensor::Tensor<4>, scale: &[f32], max: f32) -> burn::tensor::Tensor<4> {
+    let s = burn::tensor::Tensor::<1>::from_data(burn::tensor::TensorData::new(scale.to_vec(), [scale.len()]), &v.device()).reshape([1, scale.len(), 1, 1]);
+    (v * s + 0.5).floor().clamp(-max, max)
+}
+
+/// The largest |value| × `unit(c)` of `map` (channel `c`), or `most` if larger: what a
+/// calibration records at a rounding point (real units).
+pub(crate) fn largest(map: &crate::models::cpu::Map, unit: impl Fn(usize) -> f32, most: f32) -> f32 {
+    let mut m = most;
+    for y in 0..map.height() {
+        for x in 0..map.width() {
+            for (c, &v) in map.pixel(y, x).iter().enumerate() {
+                m = m.max(v.abs() * unit(c));
+            }
+        }
+    }
+    m
+}
+
 /// Quantizes `layer` for inputs on grids 2^`in_exp[i]` whose levels lie in `in_range[i]`
 /// (lowest, highest) per input channel (see the module documentation). Deterministic on every
 /// platform: powers of two, exact comparisons and round-half-even only.

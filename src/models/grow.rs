@@ -23,7 +23,7 @@ use burn::tensor::{Device, Tensor};
 use crate::dem::Heightfield;
 use crate::grid::mix64;
 use crate::models::cpu::{self, Conv3, Map, Post};
-use crate::models::exact::ExactConv;
+use crate::models::exact::{ExactConv, largest};
 use crate::models::tcm::{COARSE_SPACING_M, TILE_PX, gauss};
 
 /// Samples of the 128 m field read beyond the tile on every side (more than the network's
@@ -261,19 +261,6 @@ fn on_grid(v: &[f32], scale: f32, max: f32) -> Vec<f32> {
     v.iter().map(|&x| (x * scale + 0.5).floor().clamp(-max, max)).collect()
 }
 
-/// The largest |value| × `unit[c]` of `map` (channel `c`), with `most`.
-fn largest(map: &Map, unit: impl Fn(usize) -> f32, most: f32) -> f32 {
-    let mut m = most;
-    for y in 0..map.height() {
-        for x in 0..map.width() {
-            for (c, &v) in map.pixel(y, x).iter().enumerate() {
-                m = m.max(v.abs() * unit(c));
-            }
-        }
-    }
-    m
-}
-
 /// The ×4 step on integer grids ([`crate::models::exact`]), as [`crate::models::tcm::TcmExact`]
 /// for the TCM: 9-bit weights (fewer where the bound on the sums needs it), 10-bit activations
 /// (signed after the layers without a ReLU) and 11-bit inputs carried in f32, so that every CPU
@@ -428,12 +415,7 @@ impl GrowExact {
     pub fn forward_burn(&self, m: &Grow, x: Tensor<4>, n64: Tensor<4>, n32: Tensor<4>) -> Tensor<4> {
         use crate::models::exact::{ACT_LEVELS, pow2};
         let (l, e) = (&self.layers, &self.exps);
-        let device = x.device();
-        // ⌊v · scale + ½⌋ per channel, clamped: exact for the powers of two used.
-        let grid = |v: Tensor<4>, scale: &[f32], max: f32| {
-            let s = Tensor::<1>::from_data(burn::tensor::TensorData::new(scale.to_vec(), [scale.len()]), &device).reshape([1, scale.len(), 1, 1]);
-            (v * s + 0.5).floor().clamp(-max, max)
-        };
+        let grid = crate::models::exact::grid_burn;
         let noise = [pow2(-EXACT_NOISE_EXP)];
         let x = grid(x, &self.input_scales(), EXACT_INPUT_LEVELS);
         let head = grid(m.head.forward(x), &l[0].to_grid(e[P_HEAD]), ACT_LEVELS);

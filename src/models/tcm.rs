@@ -518,10 +518,7 @@ impl TcmExact {
                 Some(l) => {
                     let layer = &self.layers[l];
                     if let Some(r) = record.as_deref_mut() {
-                        let unit: Vec<f32> = layer.acc_exp.iter().map(|&e| pow2(e)).collect();
-                        for (y, x) in (0..map.height()).flat_map(|y| (0..map.width()).map(move |x| (y, x))) {
-                            r[l] = map.pixel(y, x).iter().zip(&unit).fold(r[l], |m, (&v, &u)| m.max(v * u));
-                        }
+                        r[l] = crate::models::exact::largest(map, |c| pow2(layer.acc_exp[c]), r[l]);
                     }
                     cpu::requantize(map, &layer.to_grid(self.act_exp[l]), ACT_LEVELS);
                 }
@@ -544,12 +541,7 @@ impl TcmExact {
     /// [`assemble_input`]; returns [B, 1, 32, 32], the same bits as the CPU kernels.
     pub fn forward_burn(&self, m: &Tcm, x: Tensor<4>) -> Tensor<4> {
         use crate::models::exact::{ACT_LEVELS, pow2};
-        let device = x.device();
-        // ⌊v · scale + ½⌋ per channel, clamped: exact for the powers of two used.
-        let grid = |v: Tensor<4>, scale: &[f32], max: f32| {
-            let s = Tensor::<1>::from_data(burn::tensor::TensorData::new(scale.to_vec(), [scale.len()]), &device).reshape([1, scale.len(), 1, 1]);
-            (v * s + 0.5).floor().clamp(-max, max)
-        };
+        let grid = crate::models::exact::grid_burn;
         let inputs = vec![pow2(-EXACT_INPUT_EXP); IN_CHANNELS];
         let mut h = grid(x, &inputs, EXACT_INPUT_LEVELS);
         let conv = |l: usize, conv: &Conv2d, v: Tensor<4>| grid(relu(conv.forward(v)), &self.layers[l].to_grid(self.act_exp[l]), ACT_LEVELS);

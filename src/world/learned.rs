@@ -640,14 +640,20 @@ impl LearnedSource {
     /// it was made from (the schedule's dependencies and every pinned neighbour, made if not
     /// cached) and the macro level of `c` (metres).
     pub fn network_input(&self, seed: u64, c: TileCoord) -> (Vec<f32>, HashMap<TileCoord, Arc<Vec<f32>>>, f32) {
-        // The schedule's neighbours, and every pinned one: pins are given whatever their phase.
-        let pinned = around(c).into_iter().filter(|b| self.pins.contains(*b));
-        let deps: HashMap<TileCoord, Arc<Vec<f32>>> = dependencies(c).chain(pinned).map(|d| (d, self.coarse_tile(seed, d))).collect();
+        let deps = self.input_tiles(seed, c);
         let block = around(c);
         let tiles: [Option<&[f32]>; 9] = block.map(|b| deps.get(&b).map(|v| v.as_slice()));
         let centres: [f32; 9] = block.map(|b| macro_height(seed, b));
         let rugged: [f32; 9] = block.map(|b| ruggedness(seed, b));
         (tcm::assemble_input(&tiles, &centres, &rugged, tile_seed(seed, c)), deps, centres[4])
+    }
+
+    /// The 128 m tiles the TCM's input for tile `c` of world `seed` holds: the schedule's
+    /// dependencies and every pinned neighbour (pins are given whatever their phase), made if
+    /// not cached.
+    fn input_tiles(&self, seed: u64, c: TileCoord) -> HashMap<TileCoord, Arc<Vec<f32>>> {
+        let pinned = around(c).into_iter().filter(|b| self.pins.contains(*b));
+        dependencies(c).chain(pinned).map(|d| (d, self.coarse_tile(seed, d))).collect()
     }
 
     /// The 128 m tiles of the 3×3 block centred on `c` of world `seed` as the TCM made them,
@@ -808,8 +814,7 @@ impl LearnedSource {
                 self.raw.lock().unwrap_or_else(|p| p.into_inner()).insert((seed, c), Arc::new(tile));
             } else {
                 self.spent(|t| t.tcm.add(per_item));
-                let (_, deps, level) = self.network_input(seed, c);
-                self.store_coarse(seed, c, out, &deps, level);
+                self.store_coarse(seed, c, out, &self.input_tiles(seed, c), macro_height(seed, c));
             }
         }
         Ok(())
