@@ -306,11 +306,14 @@ impl ShareState {
     }
 }
 
-/// Options of one page load, read from the query string (`?tem=…`).
+/// Options of one page load, read from the query string (`?tem=…&world=…`).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct PageOptions {
     /// Where the TEM runs.
     pub tem: TemChoice,
+    /// Where the learned world's networks (the TCM and the ×4 step) run: `?world=gpu`,
+    /// `cpu`, `probe` or `auto` (`off` is the TEM's alone).
+    pub world: TemChoice,
 }
 
 impl PageOptions {
@@ -322,19 +325,22 @@ impl PageOptions {
         let mut o = PageOptions::default();
         let mut notice = None;
         for (key, value) in form_urlencoded::parse(q.as_bytes()) {
-            if key == "tem" {
-                o.tem = match value.as_ref() {
-                    "auto" => TemChoice::Auto,
-                    "gpu" => TemChoice::Gpu,
-                    "cpu" => TemChoice::Cpu,
-                    "off" => TemChoice::Off,
-                    "probe" => TemChoice::Probe,
-                    other => {
-                        notice = Some(format!("unknown ?tem={} (expected gpu, cpu, off, probe or auto); the page chooses", quoted(other)));
-                        TemChoice::Auto
-                    }
-                };
-            }
+            let (slot, expected) = match key.as_ref() {
+                "tem" => (&mut o.tem, "gpu, cpu, off, probe or auto"),
+                "world" => (&mut o.world, "gpu, cpu, probe or auto"),
+                _ => continue,
+            };
+            *slot = match value.as_ref() {
+                "auto" => TemChoice::Auto,
+                "gpu" => TemChoice::Gpu,
+                "cpu" => TemChoice::Cpu,
+                "off" if key == "tem" => TemChoice::Off,
+                "probe" => TemChoice::Probe,
+                other => {
+                    notice = Some(format!("unknown ?{key}={} (expected {expected}); the page chooses", quoted(other)));
+                    TemChoice::Auto
+                }
+            };
         }
         (o, notice)
     }
@@ -519,6 +525,21 @@ mod tests {
         assert_eq!(tem("?tem=cpu&tem=off"), TemChoice::Off, "the last value wins");
         assert!(PageOptions::from_query("?tem=cpu2").1.unwrap().contains("cpu2"));
         assert!(PageOptions::from_query("?tem=cpu").1.is_none());
+    }
+
+    /// `?world=` is read as `?tem=` is, beside it: gpu, cpu, probe, auto; not off (the learned
+    /// world has no networks to switch off), which gives a notice and the automatic choice.
+    #[test]
+    fn page_options_read_the_world_networks_choice_beside_the_tems() {
+        let o = |q: &str| PageOptions::from_query(q).0;
+        assert_eq!(o("?world=gpu&tem=cpu"), PageOptions { tem: TemChoice::Cpu, world: TemChoice::Gpu });
+        assert_eq!(o("?world=cpu").world, TemChoice::Cpu);
+        assert_eq!(o("?world=probe").world, TemChoice::Probe);
+        assert_eq!(o("?w%6Frld=gpu").world, TemChoice::Gpu);
+        assert_eq!(o("?world=off").world, TemChoice::Auto);
+        assert_eq!(o("?worlds=gpu"), PageOptions::default());
+        let notice = PageOptions::from_query("?world=off").1.unwrap();
+        assert!(notice.contains("?world=off") && notice.contains("gpu, cpu, probe or auto"), "{notice}");
     }
 
     #[test]

@@ -6,7 +6,7 @@
 //! blend), so each reply goes one way back into the app, and a runner that dies fails exactly
 //! the requests it held.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 use glam::DVec3;
@@ -23,6 +23,7 @@ use crate::models::tem::{PROBE_SIDE, probe_input};
 use crate::share::ShareState;
 use crate::share::bundle::WorldBundle;
 use crate::sketch::{SKETCH_PX, Sketch};
+use crate::world::learned::{NetworkWork, WorkKeys};
 use crate::world::pins::Pins;
 use crate::world::refine::INPUT_SIDE;
 use crate::world::{PatchKey, SourceKind};
@@ -95,8 +96,18 @@ enum For {
         set: ModelSet,
         target: Target,
     },
-    Tile(Job<TileCoord>),
+    /// A tile made by the worker, and the milliseconds its network work took elsewhere
+    /// (the GPU) before.
+    Tile(Job<TileCoord>, f64),
     Coarse(Job<TileCoord>),
+    /// The worker's next batch of network work for a tile whose networks run on the GPU.
+    WorldWork(Chain),
+    /// That batch on the GPU.
+    RunWork(Chain, WorkKeys),
+    /// Its outputs, kept by the worker.
+    AcceptWork(Chain),
+    /// A run of the world networks' probe on this backend.
+    WorldProbeRun(Target),
     /// The probe's load of the TEM on the backend it does not run on yet.
     ProbeLoad(Target),
     /// A probe quad on this backend.
@@ -114,6 +125,33 @@ enum For {
     Pin(String),
 }
 
+/// A learned tile (or the far field's eroded 128 m tile) whose network work runs on the GPU:
+/// the worker hands out each batch ([`Request::WorldWork`]), the GPU runs it
+/// ([`Request::RunWork`]), the worker keeps the outputs ([`Request::AcceptWork`]), until none is
+/// left and the worker makes the tile from them ([`Request::Tile`], [`Request::Coarse`]). One
+/// chain runs at a time, so no batch is run twice for two tiles that share it.
+#[derive(Debug)]
+struct Chain {
+    job: Job<TileCoord>,
+    /// The far field's eroded 128 m tile, not the 32 m tile.
+    coarse: bool,
+    /// The seed of the job's world.
+    seed: u64,
+    /// Milliseconds its batches took on the GPU so far.
+    net_ms: f64,
+}
+
+impl For {
+    /// Whether this is a step of a [`Chain`].
+    fn is_chain(&self) -> bool {
+        matches!(self, For::WorldWork(_) | For::RunWork(..) | For::AcceptWork(_))
+    }
+}
+
+/// TCM tiles in the world networks' probe batch ([`NetworkWork::probe`]): a phase of the
+/// schedule hands out 16 to 40.
+pub const WORLD_PROBE_TILES: usize = 16;
+
 /// An edit of the canvas's sketch made by the sketch VAE: at most one of each in flight.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum SketchEdit {
@@ -126,6 +164,8 @@ enum SketchEdit {
 pub struct PageStart {
     /// Where the user wants the TEM (`?tem=`).
     pub tem: TemChoice,
+    /// Where the user wants the learned world's networks (`?world=`).
+    pub world: TemChoice,
     /// The GPU's self-check: passed, or why burn cannot use it.
     pub gpu: Result<(), String>,
     /// Whether the WebGPU adapter is a software rasteriser.
@@ -235,6 +275,18 @@ pub struct PageCore {
     link: (String, f64),
     /// The hash of the pins the CPU worker's learned world has (`None` before it has one).
     pins_sent: Option<String>,
+    /// Where the user wants the learned world's networks (`?world=`).
+    world_choice: TemChoice,
+    /// Where they run once they have loaded there (the probe may change it).
+    world_nets: Backend,
+    /// The world's networks on the GPU: not loaded (yet), loaded, or why they cannot run there.
+    world_gpu: Option<Result<(), String>>,
+    /// The world networks' start-up probe ([`super::probe`]).
+    world_probe: Probe,
+    /// Tiles waiting for their network work to run on the GPU, one [`Chain`] at a time.
+    chains: VecDeque<Chain>,
+    /// Milliseconds of network work run on the GPU for 32 m tiles, and those tiles.
+    world_gpu_ms: (f64, usize),
     /// A heightmap PNG the user opened, waiting for its spacing and heights.
     pub heightmap: Option<PendingPng>,
     /// JSON sidecars the user opened (name, contents), the latest four, for a heightmap PNG
@@ -258,6 +310,7 @@ impl PageCore {
             Backend::Cpu(CpuReason::NoGpuCompute(e)) => format!("{e}; the TEM runs on the CPU"),
             _ => start.status,
         };
+        let world_probe = if runtime::probe_wanted(start.world, start.gpu.is_ok(), start.worker.is_ok(), start.software_adapter) { Probe::Waiting } else { Probe::Off };
         let mut app = TerrainApp::new(share);
         app.continue_epochs_from(EPOCH_BLOCKS.fetch_add(1, Ordering::Relaxed) << 32);
         let mut core = Self {
@@ -295,6 +348,12 @@ impl PageCore {
             edits: JobQueue::new(2),
             link: (String::new(), f64::NEG_INFINITY),
             pins_sent: None,
+            world_choice: start.world,
+            world_nets: runtime::choose(start.world, start.gpu.clone(), start.software_adapter),
+            world_gpu: None,
+            world_probe,
+            chains: VecDeque::new(),
+            world_gpu_ms: (0.0, 0),
             heightmap: None,
             sidecars: Vec::new(),
         };
@@ -418,7 +477,7 @@ impl PageCore {
     fn ready(&mut self, set: ModelSet, hash: String) {
         let backend = match set {
             ModelSet::Tem => self.tem_backend(),
-            ModelSet::World => "CPU worker".into(),
+            ModelSet::World => self.world_backend(),
             ModelSet::Sketch => self.sketch_backend().into(),
         };
         *self.loads.get_mut(set) = Load::Ready { hash: hash.clone(), backend };
@@ -460,6 +519,11 @@ impl PageCore {
             }
             ModelSet::World => {
                 let (grow, tcm) = (files.pop().unwrap_or_default(), files.pop().unwrap_or_default());
+                if self.gpu.is_ok() && (self.world_nets.is_gpu() || self.world_probe == Probe::Waiting) {
+                    // The networks on the GPU too: tiles go there once they load (or the probe
+                    // times them there); until then the worker makes whole tiles.
+                    self.post(Target::Gpu, 0, Request::LoadWorld { tcm: tcm.clone(), grow: grow.clone() }, For::Load { set, target: Target::Gpu });
+                }
                 self.post(Target::Worker, 0, Request::LoadWorld { tcm, grow }, For::Load { set, target: Target::Worker });
             }
             ModelSet::Sketch => {
@@ -675,6 +739,9 @@ impl PageCore {
         if self.loads.sketch != Load::Idle && !matches!(self.loads.sketch, Load::Failed(_)) {
             self.fail(ModelSet::Sketch, &stopped);
         }
+        for ch in std::mem::take(&mut self.chains) {
+            self.drop_chain(ch);
+        }
         self.app.set_procedural_elsewhere(false);
     }
 
@@ -684,6 +751,16 @@ impl PageCore {
             _ => None,
         };
         match (what, reply) {
+            (For::Load { set: ModelSet::World, target: Target::Gpu }, r) => {
+                match r {
+                    Reply::Loaded { .. } => self.world_gpu = Some(Ok(())),
+                    r => {
+                        let why = failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"));
+                        self.world_gpu_failed(format!("they did not load there: {why}"));
+                    }
+                }
+                self.refresh_world_backend();
+            }
             (For::Load { set, target }, Reply::Loaded { hash }) => {
                 if set == ModelSet::Sketch && target == Target::Gpu {
                     self.sketch_gpu_loaded = true;
@@ -710,14 +787,61 @@ impl PageCore {
             }
             (For::Pin(_), Reply::Loaded { hash }) => self.console.push(format!("pins {hash} in the CPU worker")),
             (For::Pin(name), r) => self.message = Some(format!("{name} could not be pinned ({})", failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}")))),
-            (For::Tile(job), Reply::Heights { heights, ms }) => {
-                self.app.tile_done(&job, heights, ms);
+            (For::Tile(job, net_ms), Reply::Heights { heights, ms }) => {
+                self.app.tile_done(&job, heights, ms + net_ms);
             }
-            (For::Tile(job), Reply::Stale) => self.app.tile_failed(&job),
+            (For::Tile(job, _), Reply::Stale) => self.app.tile_failed(&job),
             (For::Coarse(job), Reply::Heights { heights, .. }) => {
                 self.app.coarse_done(&job, heights);
             }
             (For::Coarse(job), _) => self.app.coarse_failed(&job),
+            (For::WorldWork(ch), Reply::Work(NetworkWork::None)) => self.finish_chain(ch),
+            (For::WorldWork(ch), Reply::Work(work)) if self.world_on_gpu() => {
+                let keys = work.keys();
+                self.post(Target::Gpu, ch.job.epoch, Request::RunWork { work }, For::RunWork(ch, keys));
+            }
+            // The GPU failed meanwhile: the worker makes the rest of the tile itself.
+            (For::WorldWork(ch), Reply::Work(_)) => self.finish_chain(ch),
+            (For::RunWork(mut ch, keys), Reply::Outputs { outputs, ms }) => {
+                ch.net_ms += ms;
+                let request = Request::AcceptWork { seed: ch.seed, keys, outputs, ms };
+                self.post(Target::Worker, ch.job.epoch, request, For::AcceptWork(ch));
+            }
+            (For::RunWork(ch, _), r) => {
+                self.world_gpu_failed(format!("a batch failed there: {}", failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"))));
+                self.finish_chain(ch);
+            }
+            (For::AcceptWork(ch), Reply::Accepted) => self.post_world_work(ch),
+            (For::WorldWork(ch) | For::AcceptWork(ch), Reply::Stale) => {
+                self.drop_chain(ch);
+                self.next_chain();
+            }
+            (For::AcceptWork(ch), r) => {
+                // The worker refused the GPU's outputs (not the batch's sizes): the GPU is not
+                // to be trusted with the world; the worker makes the tile itself.
+                self.world_gpu_failed(format!("the worker refused its outputs: {}", failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"))));
+                self.finish_chain(ch);
+            }
+            (For::WorldWork(ch), r) => {
+                let e = failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"));
+                let (coarse, key) = (ch.coarse, ch.job.key);
+                self.drop_chain(ch);
+                if !coarse && self.app.source() == SourceKind::Learned {
+                    self.fail(ModelSet::World, &LoadError::Failed(format!("making tile {}, {} failed ({e})", key.i, key.j)));
+                }
+                self.next_chain();
+            }
+            (For::WorldProbeRun(target), Reply::Outputs { ms, .. }) => {
+                self.world_probe.record(target, ms);
+                self.world_probe_next();
+            }
+            // A new world began while the batch waited: the same run again.
+            (For::WorldProbeRun(_), Reply::Stale) => self.world_probe_next(),
+            (For::WorldProbeRun(target), r) => {
+                let why = format!("a batch on {target:?} failed: {}", failed(&r).unwrap_or_else(|| format!("{r:?}")));
+                self.console.push(format!("the world networks' probe failed ({why}); they stay on {}", self.world_backend()));
+                self.world_probe = Probe::Failed(why);
+            }
             (For::ProbeLoad(_), Reply::Loaded { .. }) => {
                 self.probe = Probe::timing(TIMED_RUNS);
                 self.probe_next();
@@ -740,7 +864,7 @@ impl PageCore {
                 self.sketch_probe = Probe::Failed(why);
                 self.set_sketch_on_gpu(false);
             }
-            (For::Tile(job), r) => {
+            (For::Tile(job, _), r) => {
                 self.app.tile_failed(&job);
                 let e = failed(&r).unwrap_or_default();
                 if self.app.source() == SourceKind::Learned {
@@ -959,13 +1083,140 @@ impl PageCore {
         }
         let seed = self.app.settings().seed;
         let noise = (self.app.source() == SourceKind::Procedural).then(|| self.app.settings().noise);
+        // Learned tiles whose networks run on the GPU go through chains of batches.
+        let chained = noise.is_none() && self.world_on_gpu();
         // Coarse first: the stand-ins of the learned tiles near the eye go out before the tiles.
         for job in self.app.coarse_jobs() {
-            self.post(Target::Worker, job.epoch, Request::Coarse { seed, tile: job.key }, For::Coarse(job));
+            match chained {
+                true => self.chains.push_back(Chain { job, coarse: true, seed, net_ms: 0.0 }),
+                false => self.post(Target::Worker, job.epoch, Request::Coarse { seed, tile: job.key }, For::Coarse(job)),
+            }
         }
         for job in self.app.tile_jobs() {
-            self.post(Target::Worker, job.epoch, Request::Tile { seed, tile: job.key, noise }, For::Tile(job));
+            match chained {
+                true => self.chains.push_back(Chain { job, coarse: false, seed, net_ms: 0.0 }),
+                false => self.post(Target::Worker, job.epoch, Request::Tile { seed, tile: job.key, noise }, For::Tile(job, 0.0)),
+            }
         }
+        self.next_chain();
+        self.start_world_probe();
+    }
+
+    /// Whether learned tiles have their network work run on the GPU now: the networks run
+    /// there ([`Self::world_backend`]) and have loaded.
+    fn world_on_gpu(&self) -> bool {
+        self.world_nets.is_gpu() && matches!(self.world_gpu, Some(Ok(())))
+    }
+
+    /// Where the learned world's networks run, for the overlay: "WebGPU", or "CPU worker" and
+    /// why.
+    pub fn world_backend(&self) -> String {
+        let why = match (&self.world_nets, &self.world_gpu) {
+            (Backend::Gpu, Some(Ok(()))) => return "WebGPU".into(),
+            (_, Some(Err(e))) => format!("WebGPU failed: {e}"),
+            (Backend::Gpu, None) => "until they load on WebGPU".into(),
+            (Backend::Cpu(CpuReason::SoftwareAdapter), _) => "software WebGPU adapter".into(),
+            (Backend::Cpu(CpuReason::Asked), _) => "asked for by ?world=cpu".into(),
+            (Backend::Cpu(CpuReason::NoGpuCompute(_)), _) => "no WebGPU compute".into(),
+            (Backend::Cpu(CpuReason::Faster(t)), _) => format!("faster: {}", t.label(&format!("batch of {WORLD_PROBE_TILES} tiles"))),
+        };
+        format!("CPU worker ({why})")
+    }
+
+    /// Milliseconds of network work the GPU ran per learned 32 m tile made through it (the
+    /// batches it shares with its neighbours counted once), if any was.
+    pub fn world_gpu_ms_per_tile(&self) -> Option<f64> {
+        let (ms, tiles) = self.world_gpu_ms;
+        (tiles > 0).then(|| ms / tiles as f64)
+    }
+
+    /// What the world networks' start-up probe found, or is doing.
+    pub fn world_probe(&self) -> &Probe {
+        &self.world_probe
+    }
+
+    /// The world's networks cannot run on the GPU (why): the worker makes whole tiles from
+    /// now on, the console and the overlay say so.
+    fn world_gpu_failed(&mut self, why: String) {
+        if matches!(self.world_gpu, Some(Err(_))) {
+            return;
+        }
+        self.console.push(format!("the learned world's networks cannot run on WebGPU ({why}); the CPU worker makes its tiles"));
+        self.world_gpu = Some(Err(why.clone()));
+        if matches!(self.world_probe, Probe::Waiting | Probe::Loading | Probe::Timing { .. }) {
+            self.world_probe = Probe::Failed(why);
+        }
+        self.refresh_world_backend();
+    }
+
+    /// The learned world's load says where its networks run now.
+    fn refresh_world_backend(&mut self) {
+        let backend = self.world_backend();
+        if let Load::Ready { backend: b, .. } = &mut self.loads.world {
+            *b = backend;
+        }
+    }
+
+    /// Starts the next queued chain unless one runs; chains of an older world are dropped.
+    fn next_chain(&mut self) {
+        if self.waiting.values().any(For::is_chain) {
+            return;
+        }
+        while let Some(ch) = self.chains.pop_front() {
+            if ch.job.epoch == self.app.epoch() && self.worker.is_ok() {
+                return self.post_world_work(ch);
+            }
+            self.drop_chain(ch);
+        }
+    }
+
+    fn post_world_work(&mut self, ch: Chain) {
+        let request = Request::WorldWork { seed: ch.seed, tile: ch.job.key, coarse: ch.coarse };
+        self.post(Target::Worker, ch.job.epoch, request, For::WorldWork(ch));
+    }
+
+    /// The chain's network work is done (or left to the worker): the worker makes its tile,
+    /// and the next chain starts.
+    fn finish_chain(&mut self, ch: Chain) {
+        let (epoch, tile, seed) = (ch.job.epoch, ch.job.key, ch.seed);
+        if ch.coarse {
+            self.post(Target::Worker, epoch, Request::Coarse { seed, tile }, For::Coarse(ch.job));
+        } else {
+            if ch.net_ms > 0.0 {
+                self.world_gpu_ms = (self.world_gpu_ms.0 + ch.net_ms, self.world_gpu_ms.1 + 1);
+            }
+            self.post(Target::Worker, epoch, Request::Tile { seed, tile, noise: None }, For::Tile(ch.job, ch.net_ms));
+        }
+        self.next_chain();
+    }
+
+    /// A chain that will not be finished: its tile may be asked for again.
+    fn drop_chain(&mut self, ch: Chain) {
+        if ch.coarse { self.app.coarse_failed(&ch.job) } else { self.app.tile_failed(&ch.job) }
+    }
+
+    /// Starts the world networks' probe once they have loaded on the GPU and in the worker
+    /// and the first view is complete: a batch of [`WORLD_PROBE_TILES`] TCM tiles timed on
+    /// each, a warm-up and [`TIMED_RUNS`] timed runs, and the faster runs them from then on.
+    fn start_world_probe(&mut self) {
+        if self.world_probe != Probe::Waiting || self.world_gpu != Some(Ok(())) || !self.loads.world.is_ready() || self.complete_epoch != Some(self.app.epoch()) {
+            return;
+        }
+        self.world_probe = Probe::timing(TIMED_RUNS);
+        self.world_probe_next();
+    }
+
+    /// Posts the world probe's next batch, or, once every run is in, takes the faster backend.
+    fn world_probe_next(&mut self) {
+        if let Some(target) = self.world_probe.next() {
+            let request = Request::RunWork { work: NetworkWork::probe(WORLD_PROBE_TILES) };
+            return self.post(target, self.app.epoch(), request, For::WorldProbeRun(target));
+        }
+        let Probe::Done(timings) = self.world_probe else { return };
+        self.world_nets = runtime::choose_measured(self.world_choice, self.gpu.clone(), self.software_adapter, timings);
+        self.refresh_world_backend();
+        let unit = format!("batch of {WORLD_PROBE_TILES} tiles");
+        self.console.push(format!("world probe: {}; the learned world's networks run on {}", timings.label(&unit), self.world_backend()));
     }
 
     fn start_refinement(&mut self, now: f64) {

@@ -13,7 +13,7 @@ fn weights() -> std::path::PathBuf {
 }
 
 fn start(worker: Result<(), String>) -> PageStart {
-    PageStart { tem: TemChoice::Auto, gpu: Err("no GPU in this test".into()), software_adapter: false, worker, status: String::new() }
+    PageStart { tem: TemChoice::Auto, world: TemChoice::Auto, gpu: Err("no GPU in this test".into()), software_adapter: false, worker, status: String::new() }
 }
 
 /// A stand-in for a file's download: `Some(answer)` for the files it changes.
@@ -64,7 +64,7 @@ impl<'a> Shell<'a> {
                     let answer = match (target, &mut self.gpu) {
                         (Target::Gpu, Some((gpu, gpu_ms))) => {
                             let mut answer = gpu.handle(envelope);
-                            if let Reply::Heights { ms, .. } = &mut answer.reply {
+                            if let Reply::Heights { ms, .. } | Reply::Outputs { ms, .. } = &mut answer.reply {
                                 *ms = *gpu_ms;
                             }
                             answer
@@ -158,7 +158,7 @@ fn with_a_worker_the_core_loads_both_sets_and_makes_tiles_and_detail_through_eff
     let mut shell = Shell::new(&no_swap);
     shell.frames(&mut core, 1);
     let models = LearnedModels::from_bytes(&std::fs::read(weights().join(TCM_FILE)).unwrap(), &std::fs::read(weights().join(GROW_FILE)).unwrap()).unwrap();
-    assert_eq!(core.loads.world, Load::Ready { hash: models.hash.clone(), backend: "CPU worker".into() });
+    assert_eq!(core.loads.world, Load::Ready { hash: models.hash.clone(), backend: "CPU worker (no WebGPU compute)".into() });
     assert!(matches!(&core.loads.tem, Load::Ready { backend, .. } if backend == "CPU (no WebGPU compute)"), "{:?}", core.loads.tem);
     assert!(core.status.ends_with("the TEM runs on the CPU"));
     shell.frames(&mut core, 60);
@@ -777,4 +777,79 @@ fn a_heightmap_png_with_its_sidecar_is_pinned_like_its_geotiff() {
     e.write_header().unwrap().write_image_data(&[0; 6]).unwrap();
     let refused = core.open_file("odd.png", rgb16).unwrap_err();
     assert!(refused.contains("odd.png is a PNG of Rgb at Sixteen") && refused.contains("nor is it a sketch"), "{refused}");
+}
+
+/// With `?world=gpu` and a GPU (a second runner stands in for it: the same kernels, so the same
+/// bits), each learned tile's network work goes to the GPU in batches (world-work and
+/// accept-work to the worker, run-work to the GPU only), and the eye's coarse stand-in and the
+/// tiles are the CPU's bit for bit; the world's load and the overlay say "WebGPU" and the
+/// GPU's milliseconds a tile. A GPU that then fails a batch moves the world's networks to the
+/// CPU worker for good, saying why in the console and the overlay; every tile is still made.
+#[test]
+fn with_the_world_on_the_gpu_tiles_come_from_its_batches_bit_for_bit_and_a_failing_gpu_falls_back_to_the_worker() {
+    use crate::grid::TileCoord;
+    let share = ShareState { radius_tiles: 1.0, position_m: [2048.0, 3000.0, 2048.0], pitch: -1.2, ..ShareState::default() };
+    let mut core = PageCore::new(share, PageStart { gpu: Ok(()), world: TemChoice::Gpu, tem: TemChoice::Cpu, ..start(Ok(())) });
+    assert_eq!(*core.world_probe(), Probe::Off, "no probe where the user chose");
+    let mut shell = Shell::new(&no_swap);
+    shell.gpu = Some((Runner::new(1), 5.0));
+    shell.frames(&mut core, 3);
+    assert_eq!(core.world_backend(), "WebGPU");
+    assert!(matches!(&core.loads.world, Load::Ready { backend, .. } if backend == "WebGPU"), "{:?}", core.loads.world);
+    let cpu = LearnedSource::new(std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap()), 1);
+    let (seed, eye) = (core.app.settings().seed, TileCoord::new(0, 0));
+    assert_eq!(core.app.world.coarse(eye).map(|t| t.to_vec()), Some(cpu.eroded_tile(seed, eye).to_vec()), "the eye's coarse stand-in");
+    shell.frames(&mut core, 200);
+    let s = core.app.stats().clone();
+    assert!(s.tiles_pending == 0 && s.tiles_generated >= 9 && s.tile_jobs.failed == 0, "{s:?}");
+    let count = |shell: &Shell, target, kind: &str| shell.posted.iter().filter(|(t, k)| *t == target && *k == kind).count();
+    let runs = count(&shell, Target::Gpu, "run-work");
+    assert!(runs >= 2 && count(&shell, Target::Worker, "accept-work") == runs && count(&shell, Target::Worker, "run-work") == 0, "{:?}", shell.posted);
+    let tiles = core.app.drawable_tiles();
+    assert!(tiles.len() >= 5, "{tiles:?}");
+    for &c in &tiles {
+        assert!(core.app.tile_heights(c).unwrap() == &cpu.generate(seed, c, &Neighbourhood::default()).heights[..], "tile {c:?} differs");
+    }
+    let gpu_ms = core.world_gpu_ms_per_tile().expect("the GPU's ms a tile");
+    assert!(gpu_ms >= 5.0, "{gpu_ms}");
+    // The stand-in GPU forgets the world's networks: its next batch fails.
+    shell.gpu = Some((Runner::new(1), 5.0));
+    core.app.camera.position_m += DVec3::new(3.0 * crate::grid::TILE_SIZE_M, 0.0, 0.0);
+    shell.frames(&mut core, 200);
+    let s = core.app.stats().clone();
+    assert!(s.tiles_pending == 0 && s.tile_jobs.failed == 0, "{s:?}");
+    assert!(core.world_backend().starts_with("CPU worker (WebGPU failed: a batch failed there: "), "{}", core.world_backend());
+    assert!(matches!(&core.loads.world, Load::Ready { backend, .. } if *backend == core.world_backend()));
+    assert!(core.console.iter().any(|l| l.contains("cannot run on WebGPU")), "{:?}", core.console);
+    assert_eq!(count(&shell, Target::Gpu, "run-work"), runs + 1, "one failed batch, then none");
+    let c = core.app.drawable_tiles().into_iter().find(|c| !tiles.contains(c)).expect("a tile made after the GPU failed");
+    assert!(core.app.tile_heights(c).unwrap() == &cpu.generate(seed, c, &Neighbourhood::default()).heights[..]);
+    assert_eq!(core.message, None);
+}
+
+/// On a hardware adapter whose GPU passed its self-check (`?world=` not given), the learned
+/// world's networks load on the GPU and in the worker; once the first view is complete the
+/// probe times a batch of [`WORLD_PROBE_TILES`] TCM tiles on each (a warm-up and three timed
+/// runs, run-work on both): answered as 10 s on the GPU, the worker wins and the world's
+/// backend says why; answered as 0.001 ms, the GPU keeps them.
+#[test]
+fn the_world_networks_probe_keeps_them_on_the_faster_backend_once_the_first_view_is_complete() {
+    for (gpu_ms, on_gpu) in [(10_000.0, false), (0.001, true)] {
+        let share = ShareState { source: SourceKind::Procedural, position_m: [2048.0, 900.0, 2048.0], pitch: -0.6, ..ShareState::default() };
+        let mut core = PageCore::new(share, PageStart { gpu: Ok(()), tem: TemChoice::Cpu, ..start(Ok(())) });
+        let mut shell = Shell::new(&no_swap);
+        shell.gpu = Some((Runner::new(1), gpu_ms));
+        assert_eq!(*core.world_probe(), Probe::Waiting);
+        shell.frames(&mut core, 1);
+        assert_eq!(core.world_backend(), "WebGPU", "loaded there before the probe");
+        shell.frames(&mut core, 120);
+        assert_eq!(core.app.stats().tiles_uncovered, 0);
+        let Probe::Done(t) = *core.world_probe() else { panic!("{:?}", core.world_probe()) };
+        assert!(t.gpu_ms == gpu_ms && t.cpu_ms > 0.0 && t.cpu_ms < 10_000.0, "{t:?}");
+        let runs = |target| shell.posted.iter().filter(|(t, k)| *t == target && *k == "run-work").count();
+        assert_eq!((runs(Target::Gpu), runs(Target::Worker)), (1 + TIMED_RUNS, 1 + TIMED_RUNS));
+        let want = if on_gpu { "WebGPU".to_string() } else { format!("CPU worker (faster: {})", t.label(&format!("batch of {WORLD_PROBE_TILES} tiles"))) };
+        assert_eq!(core.world_backend(), want);
+        assert!(core.console.iter().any(|l| l.starts_with("world probe: WebGPU")), "{:?}", core.console);
+    }
 }

@@ -154,7 +154,7 @@ mod tests {
         let (seed, tile) = (5, TileCoord::new(1, 0));
         let mut batches = Vec::new();
         loop {
-            let work = match call(Target::Worker, Request::WorldWork { seed, tile }) {
+            let work = match call(Target::Worker, Request::WorldWork { seed, tile, coarse: false }) {
                 Reply::Work(w) => w,
                 other => panic!("{other:?}"),
             };

@@ -85,14 +85,17 @@ pub enum Request {
         tiles: Vec<(TileCoord, Vec<f32>)>,
     },
     /// The next batch of network work that tile `tile` of learned world `seed` needs
-    /// ([`crate::world::learned::LearnedSource::network_work`]): the CPU worker answers
-    /// [`Reply::Work`], to be run elsewhere ([`Request::RunWork`]) and handed back
-    /// ([`Request::AcceptWork`]).
+    /// ([`crate::world::learned::LearnedSource::network_work`]; with `coarse`, its 128 m tile
+    /// of [`Request::Coarse`]: [`crate::world::learned::LearnedSource::coarse_work`]): the CPU
+    /// worker answers [`Reply::Work`], to be run elsewhere ([`Request::RunWork`]) and handed
+    /// back ([`Request::AcceptWork`]).
     WorldWork {
         /// The world's seed.
         seed: u64,
         /// Which tile.
         tile: TileCoord,
+        /// The work of its eroded 128 m tile (the far field's), not of its 32 m tile.
+        coarse: bool,
     },
     /// Run a batch of the learned world's network work (on the GPU in one call, or on the CPU
     /// kernels): [`Reply::Outputs`], one per item.

@@ -239,9 +239,9 @@ impl Runner {
                 let s = m.vae.interpolate(&a, &b, alpha, &mut Default::default(), self.threads);
                 Ok(self.terrains(vec![s]))
             }
-            Request::WorldWork { seed, tile } => {
+            Request::WorldWork { seed, tile, coarse } => {
                 let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
-                Ok(Reply::Work(world.network_work(seed, tile)))
+                Ok(Reply::Work(if coarse { world.coarse_work(seed, tile) } else { world.network_work(seed, tile) }))
             }
             Request::RunWork { work } => {
                 let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
@@ -522,7 +522,7 @@ mod tests {
             (Request::Sketch { sketch: (&Sketch::filled(0)).into() }, "no sketch models loaded"),
             (Request::Tile { seed: 1, tile: TileCoord::new(0, 0), noise: None }, "no learned world loaded"),
             (Request::Enhance { level: 0, n: 1, side: 4, input: vec![0.0; 16] }, "no TEM loaded"),
-            (Request::WorldWork { seed: 1, tile: TileCoord::new(0, 0) }, "no learned world loaded"),
+            (Request::WorldWork { seed: 1, tile: TileCoord::new(0, 0), coarse: false }, "no learned world loaded"),
             (Request::RunWork { work: crate::world::learned::NetworkWork::None }, "no learned world loaded"),
             (Request::AcceptWork { seed: 1, keys: crate::world::learned::NetworkWork::None.keys(), outputs: Vec::new(), ms: 0.0 }, "no learned world loaded"),
         ];

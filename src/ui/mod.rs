@@ -47,6 +47,12 @@ pub struct Environment {
     pub cpu_ms: f64,
     /// Where the sketch generator runs ("WebGPU" or "CPU worker").
     pub sketch_backend: &'static str,
+    /// Where the learned world's networks run ("WebGPU", or "CPU worker" and why).
+    pub world_backend: String,
+    /// The world networks' probe, if it has something to say.
+    pub world_probe: Option<String>,
+    /// Milliseconds of network work the GPU ran per learned tile made through it.
+    pub world_gpu_ms_per_tile: Option<f64>,
     /// Your terrain pinned into the learned world: its file's name and tiles.
     pub pinned: Option<(String, usize)>,
 }
@@ -68,6 +74,9 @@ impl Environment {
         };
         self.tem_ready = core.loads.tem.is_ready();
         self.sketch_backend = core.sketch_backend();
+        self.world_backend = core.world_backend();
+        self.world_probe = core.world_probe().label("world networks", &format!("batch of {} tiles", crate::app::page::WORLD_PROBE_TILES));
+        self.world_gpu_ms_per_tile = core.world_gpu_ms_per_tile();
         self.worker_rest_per_work = core.rest_per_work();
         self.source = core.app.source_name();
         self.pinned = core.pinned.clone();
@@ -144,6 +153,7 @@ pub fn stats_json(
         "message": core.message, "device_restarts": device_restarts, "link": app.share_state().to_fragment(),
         "mode": format!("{:?}", app.controller.mode), "sketch_canvas": panel.canvas_rect.filter(|_| sketch).map(rect),
         "sketch_models": format!("{:?}", app.sketch_models()), "sketch_backend": env.sketch_backend,
+        "world_backend": env.world_backend, "world_probe": env.world_probe, "world_gpu_ms_per_tile": env.world_gpu_ms_per_tile,
         "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "link_too_long": link_too_long,
         "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter,
         "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
@@ -404,7 +414,7 @@ impl Overlay {
             }
         }
         ui.label(format!("ML: {}", env.ml_status));
-        for probe in [&env.tem_probe, &env.sketch_probe].into_iter().flatten() {
+        for probe in [&env.tem_probe, &env.sketch_probe, &env.world_probe].into_iter().flatten() {
             ui.label(probe);
         }
         if stats.source == SourceKind::Sketch.label() && stats.sketch_shown > 0 {
@@ -417,6 +427,8 @@ impl Overlay {
                 stats.tile_jobs.in_flight,
                 stats.ms_per_tile
             ));
+            let gpu_ms = env.world_gpu_ms_per_tile.map(|ms| format!(", {ms:.0} ms/tile there")).unwrap_or_default();
+            ui.monospace(format!("world networks on {}{gpu_ms}", env.world_backend));
         }
         if env.tem_ready {
             let depth_m = crate::world::TILE_SIZE_M / f64::from(1u32 << stats.max_depth_drawn) / crate::world::quadtree::NODE_QUADS as f64;

@@ -220,6 +220,7 @@ impl<P: Platform> PageShell<P> {
         }
         let start = PageStart {
             tem: options.tem,
+            world: options.world,
             gpu: burn.as_ref().map(|_| ()).map_err(Clone::clone),
             software_adapter: adapter.1,
             worker: worker.as_ref().map(|_| ()).map_err(Clone::clone),

@@ -475,6 +475,21 @@ impl NetworkWork {
         if fits { Ok(()) } else { Err("a batch of network work whose inputs are not the networks' sizes".into()) }
     }
 
+    /// A fixed batch of `n` TCM tiles for timing the networks where they may run (the page's
+    /// start-up probe): a context of rolling hills (±300 m) around each tile, a different
+    /// noise seed per tile. The inputs have the networks' sizes ([`NetworkWork::check`]).
+    pub fn probe(n: usize) -> Self {
+        let hills: Vec<f32> = (0..TILE_PX * TILE_PX)
+            .map(|p| {
+                let (u, v) = ((p % TILE_PX) as f32, (p / TILE_PX) as f32);
+                300.0 * (u * 0.19).sin() * (v * 0.23 + 0.7).cos()
+            })
+            .collect();
+        let tiles: [Option<&[f32]>; 9] = std::array::from_fn(|_| Some(hills.as_slice()));
+        let items = (0..n).map(|k| (TileCoord::new(k as i32, 0), tcm::assemble_input(&tiles, &[0.0; 9], &[0.0; 9], k as u64))).collect();
+        NetworkWork::Tcm(items)
+    }
+
     /// What [`LearnedSource::accept`] needs to know of the batch: its kind and tiles, without
     /// the inputs.
     pub fn keys(&self) -> WorkKeys {
@@ -778,22 +793,43 @@ impl LearnedSource {
         if raw.is_empty() {
             return NetworkWork::None;
         }
+        let eroded = raw.iter().flat_map(|&t| around(t)).filter(|a| !self.pins.contains(*a));
+        let ready = self.tcm_work(seed, eroded);
+        if !ready.is_empty() {
+            return ready;
+        }
+        NetworkWork::Grow(raw.into_iter().map(|t| (t, self.grow_input(seed, t).1)).collect())
+    }
+
+    /// The next batch of network work that the eroded 128 m tile `c` of world `seed` needs
+    /// ([`LearnedSource::eroded_tile`], the far field's tiles): the 128 m tiles of its erosion
+    /// regions whose schedule dependencies are made, one phase of the schedule after another;
+    /// [`NetworkWork::None`] when only its erosion is left (or it is pinned or made).
+    pub fn coarse_work(&self, seed: u64, c: TileCoord) -> NetworkWork {
+        if self.pins.contains(c) || self.eroded_tiles.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, c)).is_some() {
+            return NetworkWork::None;
+        }
+        self.tcm_work(seed, [c].into_iter())
+    }
+
+    /// The 128 m tiles, ready for the TCM (their dependencies made), of the erosion regions
+    /// not yet eroded that the eroded 128 m tiles `eroded` read: one batch
+    /// ([`NetworkWork::None`] when there are none).
+    fn tcm_work(&self, seed: u64, eroded: impl Iterator<Item = TileCoord>) -> NetworkWork {
         let (mut ready, mut seen) = (Vec::new(), std::collections::HashSet::new());
-        for &t in &raw {
-            for a in around(t).into_iter().filter(|a| !self.pins.contains(*a)) {
-                for r in erosion_region_corners(a) {
-                    if self.eroded.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, r)).is_none() {
-                        for c in tiles_of(r, EROSION_BLOCK_TILES) {
-                            self.ready_coarse(seed, c, &mut ready, &mut seen);
-                        }
+        for a in eroded {
+            for r in erosion_region_corners(a) {
+                if self.eroded.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, r)).is_none() {
+                    for c in tiles_of(r, EROSION_BLOCK_TILES) {
+                        self.ready_coarse(seed, c, &mut ready, &mut seen);
                     }
                 }
             }
         }
-        if !ready.is_empty() {
-            return NetworkWork::Tcm(ready.into_iter().map(|c| (c, self.network_input(seed, c).0)).collect());
+        if ready.is_empty() {
+            return NetworkWork::None;
         }
-        NetworkWork::Grow(raw.into_iter().map(|t| (t, self.grow_input(seed, t).1)).collect())
+        NetworkWork::Tcm(ready.into_iter().map(|c| (c, self.network_input(seed, c).0)).collect())
     }
 
     /// Keeps the outputs of a batch from [`LearnedSource::network_work`] (one per item, as

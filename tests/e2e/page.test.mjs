@@ -306,6 +306,49 @@ test('the learned world: tiles from the CPU worker match the native CLI within 0
   await page.close();
 });
 
+// The learned world with its networks forced onto WebGPU: on SwiftShader the "GPU" is the CPU
+// emulating one, so this shows the path works and gives the same world, not its speed.
+const LEARNED_STILL_VIEW = 'v=2&seed=7&src=tcm&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6';
+
+test('the learned world with its networks on WebGPU (?world=gpu): its batches run there and the first tile, (0, 2), matches the native CLI within 0.05 m; the overlay says so (timings)', async () => {
+  const t0 = Date.now();
+  const { page, errors } = await open(LEARNED_STILL_VIEW, '?world=gpu&tem=off');
+  await waitFor(page, (s) => s.stats.frames > 0, 'the first frame', 120_000);
+  await page.evaluate(() => window.wasmBindings.terrain_frame_intervals());
+  // The tile under the camera, the first the page makes.
+  await page.evaluate(() => window.wasmBindings.terrain_request_tile(0, 2));
+  let heights = null;
+  for (let k = 0; k < 600 && !heights; k++) {
+    heights = JSON.parse(await page.evaluate(() => window.wasmBindings.terrain_tile_heights()));
+    if (!heights) await page.waitForTimeout(1000);
+  }
+  const firstTileS = (Date.now() - t0) / 1000;
+  assert.ok(heights, 'the page never had tile (0, 2)');
+  const s = await stats(page);
+  const frames = (await page.evaluate(() => Array.from(window.wasmBindings.terrain_frame_intervals()))).sort((a, b) => a - b);
+  const median = frames[Math.floor(frames.length / 2)];
+  const tif = path.join(out, 'learned_tile_webgpu_native.tif');
+  execFileSync(nativeBin, ['world', '--seed', '7', '--tiles', '0', '2', '1', '1', '--out', tif, '--source', 'tcm', '--weights', path.join(repo, 'weights')]);
+  const native = readTiffF32(fs.readFileSync(tif));
+  assert.equal(heights.length, native.length);
+  const diff = Math.max(...heights.map((h, i) => Math.abs(Math.fround(h) - native[i])));
+  const differing = heights.filter((h, i) => Math.fround(h) !== native[i]).length;
+  report.learned_world_webgpu = {
+    world_backend: s.world_backend, tile_0_2_max_abs_diff_vs_native_m: diff, tile_0_2_samples_differing_from_native: differing,
+    first_tile_s: firstTileS, tiles_generated: s.stats.tiles_generated, page_ms_per_tile: s.stats.ms_per_tile,
+    gpu_network_ms_per_tile: s.world_gpu_ms_per_tile, frames: frames.length, frame_ms_median: median,
+    frame_ms_worst: frames[frames.length - 1], worst_over_median: frames[frames.length - 1] / median,
+  };
+  console.log('LEARNED_WEBGPU ' + JSON.stringify(report.learned_world_webgpu));
+  await page.screenshot({ path: path.join(out, 'learned_webgpu.png') });
+  assert.equal(s.world_backend, 'WebGPU');
+  assert.ok(s.world_gpu_ms_per_tile > 0, `no network work ran on WebGPU: ${JSON.stringify(s)}`);
+  assert.ok(diff < 0.05, `page (WebGPU) and native tiles differ by ${diff} m`);
+  assert.ok(s.stats.tile_jobs.failed === 0, JSON.stringify(s.stats.tile_jobs));
+  assert.deepEqual(errors, []);
+  await page.close();
+});
+
 // Sustained speed: the learned world at the default radius (4 tiles) flown by the autopilot
 // at rising speeds, each on its own heading from the same start (90° apart, so each flies
 // over tiles not made yet beyond the start's view), tiles from the CPU worker. Per speed, the
