@@ -802,6 +802,8 @@ impl PageCore {
             }
             // The GPU failed meanwhile: the worker makes the rest of the tile itself.
             (For::WorldWork(ch), Reply::Work(_)) => self.finish_chain(ch),
+            // The worker stopped while the chain ran: nothing of the GPU's is to blame.
+            (For::RunWork(ch, _) | For::AcceptWork(ch), _) if self.worker.is_err() => self.drop_chain(ch),
             (For::RunWork(mut ch, keys), Reply::Outputs { outputs, ms }) => {
                 ch.net_ms += ms;
                 let request = Request::AcceptWork { seed: ch.seed, keys, outputs, ms };
@@ -1179,7 +1181,9 @@ impl PageCore {
     /// and the next chain starts.
     fn finish_chain(&mut self, ch: Chain) {
         let (epoch, tile, seed) = (ch.job.epoch, ch.job.key, ch.seed);
-        if ch.coarse {
+        if self.worker.is_err() {
+            self.drop_chain(ch);
+        } else if ch.coarse {
             self.post(Target::Worker, epoch, Request::Coarse { seed, tile }, For::Coarse(ch.job));
         } else {
             if ch.net_ms > 0.0 {

@@ -853,3 +853,48 @@ fn the_world_networks_probe_keeps_them_on_the_faster_backend_once_the_first_view
         assert!(core.console.iter().any(|l| l.starts_with("world probe: WebGPU")), "{:?}", core.console);
     }
 }
+
+/// A worker that dies while a tile's batch runs on the GPU: the GPU's outputs that come back
+/// after it are dropped with the tile (nothing is blamed on the GPU: the world's networks are
+/// not said to have failed there), and nothing stays in flight.
+#[test]
+fn a_worker_that_dies_while_the_gpu_runs_a_batch_does_not_fail_the_gpu() {
+    let share = ShareState { radius_tiles: 1.0, ..ShareState::default() };
+    let mut core = PageCore::new(share, PageStart { gpu: Ok(()), world: TemChoice::Gpu, tem: TemChoice::Cpu, ..start(Ok(())) });
+    let mut shell = Shell::new(&no_swap);
+    shell.gpu = Some((Runner::new(1), 5.0));
+    shell.frames(&mut core, 1);
+    let mut batch = None;
+    for _ in 0..10 {
+        core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
+        core.start_work(shell.clock_ms);
+        let mut effects = core.take_effects();
+        // Everything but the first batch for the GPU is carried out (the worker answers).
+        while !effects.is_empty() {
+            for e in effects {
+                match e {
+                    Effect::Post { target: Target::Gpu, envelope } if batch.is_none() && envelope.request.kind() == "run-work" => batch = Some(envelope),
+                    e => shell.carry_out_once(&mut core, vec![e]),
+                }
+            }
+            effects = core.take_effects();
+        }
+        if batch.is_some() {
+            break;
+        }
+    }
+    let batch = batch.expect("a batch posted to the GPU");
+    core.deliver(Delivery::WorkerGone { id: 0, why: "out of memory".into() });
+    let answer = shell.gpu.as_mut().unwrap().0.handle(batch);
+    assert!(matches!(answer.reply, Reply::Outputs { .. }), "{answer:?}");
+    core.deliver(Delivery::Answer(answer));
+    for e in core.take_effects() {
+        if let Effect::Post { target: Target::Worker, envelope } = e {
+            core.deliver(Delivery::WorkerGone { id: envelope.id, why: "out of memory".into() });
+        }
+    }
+    assert_eq!(core.in_flight(), 0);
+    assert!(!core.world_backend().contains("WebGPU failed"), "{}", core.world_backend());
+    assert!(!core.console.iter().any(|l| l.contains("cannot run on WebGPU")), "{:?}", core.console);
+    assert_eq!(core.app.source(), SourceKind::Procedural);
+}
