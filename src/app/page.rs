@@ -152,6 +152,11 @@ impl For {
 /// schedule hands out 16 to 40.
 pub const WORLD_PROBE_TILES: usize = 16;
 
+/// One run of the world networks' probe, as its timings name it: "batch of 16 tiles".
+pub fn world_probe_unit() -> String {
+    format!("batch of {WORLD_PROBE_TILES} tiles")
+}
+
 /// An edit of the canvas's sketch made by the sketch VAE: at most one of each in flight.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum SketchEdit {
@@ -750,13 +755,14 @@ impl PageCore {
             Reply::Failed(e) => Some(e.clone()),
             _ => None,
         };
+        // Why a request failed: its runner's reason, or the reply that came instead.
+        let why = |r: &Reply| failed(r).unwrap_or_else(|| format!("unexpected reply {r:?}"));
         match (what, reply) {
             (For::Load { set: ModelSet::World, target: Target::Gpu }, r) => {
                 match r {
                     Reply::Loaded { .. } => self.world_gpu = Some(Ok(())),
                     r => {
-                        let why = failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"));
-                        self.world_gpu_failed(format!("they did not load there: {why}"));
+                        self.world_gpu_failed(format!("they did not load there: {}", why(&r)));
                     }
                 }
                 self.refresh_world_backend();
@@ -778,7 +784,7 @@ impl PageCore {
             }
             (For::Load { set, .. }, _) if matches!(self.loads.get(set), Load::Failed(_)) => {}
             (For::Load { set, target }, r) => {
-                let e = failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"));
+                let e = why(&r);
                 let err = match (set, target) {
                     (ModelSet::Tem, Target::Gpu) if !e.contains(".bpk") => LoadError::Run { backend: self.tem_backend(), why: e },
                     _ => LoadError::Broken(e),
@@ -786,7 +792,7 @@ impl PageCore {
                 self.fail(set, &err);
             }
             (For::Pin(_), Reply::Loaded { hash }) => self.console.push(format!("pins {hash} in the CPU worker")),
-            (For::Pin(name), r) => self.message = Some(format!("{name} could not be pinned ({})", failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}")))),
+            (For::Pin(name), r) => self.message = Some(format!("{name} could not be pinned ({})", why(&r))),
             (For::Tile(job, net_ms), Reply::Heights { heights, ms }) => {
                 self.app.tile_done(&job, heights, ms + net_ms);
             }
@@ -810,7 +816,7 @@ impl PageCore {
                 self.post(Target::Worker, ch.job.epoch, request, For::AcceptWork(ch));
             }
             (For::RunWork(ch, _), r) => {
-                self.world_gpu_failed(format!("a batch failed there: {}", failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"))));
+                self.world_gpu_failed(format!("a batch failed there: {}", why(&r)));
                 self.finish_chain(ch);
             }
             (For::AcceptWork(ch), Reply::Accepted) => self.post_world_work(ch),
@@ -821,15 +827,14 @@ impl PageCore {
             (For::AcceptWork(ch), r) => {
                 // The worker refused the GPU's outputs (not the batch's sizes): the GPU is not
                 // to be trusted with the world; the worker makes the tile itself.
-                self.world_gpu_failed(format!("the worker refused its outputs: {}", failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"))));
+                self.world_gpu_failed(format!("the worker refused its outputs: {}", why(&r)));
                 self.finish_chain(ch);
             }
             (For::WorldWork(ch), r) => {
-                let e = failed(&r).unwrap_or_else(|| format!("unexpected reply {r:?}"));
                 let (coarse, key) = (ch.coarse, ch.job.key);
                 self.drop_chain(ch);
-                if !coarse && self.app.source() == SourceKind::Learned {
-                    self.fail(ModelSet::World, &LoadError::Failed(format!("making tile {}, {} failed ({e})", key.i, key.j)));
+                if !coarse {
+                    self.learned_tile_failed(key, &why(&r));
                 }
                 self.next_chain();
             }
@@ -868,10 +873,7 @@ impl PageCore {
             }
             (For::Tile(job, _), r) => {
                 self.app.tile_failed(&job);
-                let e = failed(&r).unwrap_or_default();
-                if self.app.source() == SourceKind::Learned {
-                    self.fail(ModelSet::World, &LoadError::Failed(format!("making tile {}, {} failed ({e})", job.key.i, job.key.j)));
-                }
+                self.learned_tile_failed(job.key, &failed(&r).unwrap_or_default());
             }
             (For::Tem { epoch, keys }, Reply::Heights { heights, ms }) => {
                 if let Err(e) = self.app.refine_done(epoch, &keys, &heights, ms) {
@@ -924,6 +926,14 @@ impl PageCore {
                 self.message = Some(format!("No blend: {}", failed(&r).unwrap_or_default()));
             }
             (For::File { .. }, _) => {}
+        }
+    }
+
+    /// The worker could not make tile `key` (why): a learned world shown fails with it, and the
+    /// procedural world stands in.
+    fn learned_tile_failed(&mut self, key: TileCoord, e: &str) {
+        if self.app.source() == SourceKind::Learned {
+            self.fail(ModelSet::World, &LoadError::Failed(format!("making tile {}, {} failed ({e})", key.i, key.j)));
         }
     }
 
@@ -1120,7 +1130,7 @@ impl PageCore {
             (Backend::Cpu(CpuReason::SoftwareAdapter), _) => "software WebGPU adapter".into(),
             (Backend::Cpu(CpuReason::Asked), _) => "asked for by ?world=cpu".into(),
             (Backend::Cpu(CpuReason::NoGpuCompute(_)), _) => "no WebGPU compute".into(),
-            (Backend::Cpu(CpuReason::Faster(t)), _) => format!("faster: {}", t.label(&format!("batch of {WORLD_PROBE_TILES} tiles"))),
+            (Backend::Cpu(CpuReason::Faster(t)), _) => format!("faster: {}", t.label(&world_probe_unit())),
         };
         format!("CPU worker ({why})")
     }
@@ -1219,8 +1229,7 @@ impl PageCore {
         let Probe::Done(timings) = self.world_probe else { return };
         self.world_nets = runtime::choose_measured(self.world_choice, self.gpu.clone(), self.software_adapter, timings);
         self.refresh_world_backend();
-        let unit = format!("batch of {WORLD_PROBE_TILES} tiles");
-        self.console.push(format!("world probe: {}; the learned world's networks run on {}", timings.label(&unit), self.world_backend()));
+        self.console.push(format!("world probe: {}; the learned world's networks run on {}", timings.label(&world_probe_unit()), self.world_backend()));
     }
 
     fn start_refinement(&mut self, now: f64) {

@@ -848,7 +848,7 @@ fn the_world_networks_probe_keeps_them_on_the_faster_backend_once_the_first_view
         assert!(t.gpu_ms == gpu_ms && t.cpu_ms > 0.0 && t.cpu_ms < 10_000.0, "{t:?}");
         let runs = |target| shell.posted.iter().filter(|(t, k)| *t == target && *k == "run-work").count();
         assert_eq!((runs(Target::Gpu), runs(Target::Worker)), (1 + TIMED_RUNS, 1 + TIMED_RUNS));
-        let want = if on_gpu { "WebGPU".to_string() } else { format!("CPU worker (faster: {})", t.label(&format!("batch of {WORLD_PROBE_TILES} tiles"))) };
+        let want = if on_gpu { "WebGPU".to_string() } else { format!("CPU worker (faster: {})", t.label(&world_probe_unit())) };
         assert_eq!(core.world_backend(), want);
         assert!(core.console.iter().any(|l| l.starts_with("world probe: WebGPU")), "{:?}", core.console);
     }

@@ -75,7 +75,7 @@ impl Environment {
         self.tem_ready = core.loads.tem.is_ready();
         self.sketch_backend = core.sketch_backend();
         self.world_backend = core.world_backend();
-        self.world_probe = core.world_probe().label("world networks", &format!("batch of {} tiles", crate::app::page::WORLD_PROBE_TILES));
+        self.world_probe = core.world_probe().label("world networks", &crate::app::page::world_probe_unit());
         self.world_gpu_ms_per_tile = core.world_gpu_ms_per_tile();
         self.worker_rest_per_work = core.rest_per_work();
         self.source = core.app.source_name();
