@@ -6,21 +6,20 @@ skip concatenation, output = baseline channel + correction) in ONNX from the shi
 (exported by `terrain sketch-export`), checks that ONNX Runtime gives our output on the probe
 (an example sketch; max difference < 1e-4 of the 0-1 height scale), then times one view (a 256x256
 sketch with its 8 px mirrored margin: 272x272) with 1 thread and all threads in ONNX Runtime and in ours
-(`terrain sketch-bench`, the same thread counts), and prints ms per sketch and ours/reference.
+(`terrain sketch-bench`, the same thread counts), and prints ms per sketch and ours/reference,
+timed in alternation as in tools/tem_vs_onnx.py (`--rounds` rounds of `--repeats` runs each).
 
     pip install onnxruntime onnx numpy
     cargo build --release && python3 tools/sketch_vs_onnx.py [--bin target/release/terrain]
 """
-import json
 import os
-import subprocess
 
 import numpy as np
 import onnx
 import onnxruntime as ort
 from onnx import TensorProto, helper, numpy_helper
 
-from tem_vs_onnx import const_i64, export, parse_args, session, time_ms
+from tem_vs_onnx import alternate, const_i64, export, parse_args, print_header, print_row, session
 
 
 def build(exported):
@@ -81,13 +80,11 @@ def main():
     diff = float(np.abs(got - want).max())
     print(f"sketch generator: ONNX Runtime {ort.__version__} vs ours on the probe: max |difference| {diff:.2e} (heights / 255)")
     assert diff < 1e-4, "the ONNX graph is not our network"
-    print(f"{'threads':>7} {'ORT ms/sketch':>14} {'ours ms/sketch':>15} {'ours/ORT':>9}")
+    print_header("sketch", "threads")
     for threads in sorted({1, os.cpu_count()}):
         s = session(model, threads)
-        ref = time_ms(lambda: s.run(["y"], {"x": x}), a.repeats)
-        out = subprocess.run([a.bin, "sketch-bench", "--repeats", str(a.repeats), "--threads", str(threads), "--weights", a.weights], check=True, capture_output=True, text=True)
-        ours = json.loads(out.stdout)["ms_per_sketch"]
-        print(f"{threads:>7} {ref:>14.2f} {ours:>15.2f} {ours / ref:>9.2f}")
+        cmd = [a.bin, "sketch-bench", "--threads", str(threads), "--weights", a.weights]
+        print_row((threads,), alternate(a, lambda: s.run(["y"], {"x": x}), cmd, 1, "ms_per_sketch"))
 
 
 if __name__ == "__main__":

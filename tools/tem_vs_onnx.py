@@ -6,6 +6,9 @@ ONNX from the shipped weights (exported by `terrain tem-export`), checks that ON
 our output on the fixed probe (max |dh| < 1 mm), then times one quad (input 100x100 incl.
 margin -> 200x200) at batch 1 and 4 with 1 thread and all threads, in ONNX Runtime and in ours
 (`terrain tem-bench`, the same thread counts), and prints ms per quad and ours/reference.
+The two are timed in alternation, `--rounds` rounds of `--repeats` runs each, so that a busy
+neighbour on a shared machine slows both alike: the medians are the medians of the rounds'
+medians; the best are each side's fastest single run.
 
     pip install onnxruntime onnx numpy
     cargo build --release && python3 tools/tem_vs_onnx.py [--bin target/release/terrain]
@@ -98,13 +101,42 @@ def session(model, threads):
 
 
 def time_ms(fn, repeats):
+    """Median and least milliseconds of `repeats` calls of `fn` after one untimed call."""
     fn()
     best = []
     for _ in range(repeats):
         t = time.perf_counter()
         fn()
         best.append((time.perf_counter() - t) * 1e3)
-    return float(np.median(best))
+    return float(np.median(best)), float(min(best))
+
+
+def alternate(a, ref, ours_cmd, per, key):
+    """ONNX Runtime (`ref`, one call) and ours (`ours_cmd`, a bench command printing JSON with
+    `key` and `min_` + `key`) timed in alternation, `a.rounds` rounds of `a.repeats` runs each,
+    both divided by `per`: (ORT median, ours median, ORT best, ours best), the medians the
+    medians of the rounds' medians."""
+    refs, ours = [], []
+    for _ in range(a.rounds):
+        refs.append(time_ms(ref, a.repeats))
+        out = json.loads(subprocess.run(ours_cmd + ["--repeats", str(a.repeats)], check=True, capture_output=True, text=True).stdout)
+        ours.append((out[key], out["min_" + key]))
+    med = lambda v: float(np.median([m for m, _ in v]))
+    best = lambda v: min(b for _, b in v)
+    return med(refs) / per, med(ours), best(refs) / per, best(ours)
+
+
+def print_header(unit, *first):
+    """The table's header: the `first` columns, then ORT and ours per `unit`, median and best."""
+    cols = [f"{c:>7}" for c in first] + [f"{'ORT ms/' + unit:>14}", f"{'ours ms/' + unit:>15}", f"{'ours/ORT':>9}", f"{'best ORT':>9}", f"{'best ours':>10}", f"{'best ratio':>11}"]
+    print(" ".join(cols))
+
+
+def print_row(first, r):
+    """One row of the table: the `first` values, then `alternate`'s four numbers and ratios."""
+    ref, ours, ref_best, ours_best = r
+    cols = [f"{c:>7}" for c in first] + [f"{ref:>14.2f}", f"{ours:>15.2f}", f"{ours / ref:>9.2f}", f"{ref_best:>9.2f}", f"{ours_best:>10.2f}", f"{ours_best / ref_best:>11.2f}"]
+    print(" ".join(cols))
 
 
 def parse_args(doc, *extra):
@@ -116,6 +148,7 @@ def parse_args(doc, *extra):
     ap.add_argument("--bin", default=os.path.join(target, "release", "terrain"))
     ap.add_argument("--weights", default=os.path.join(here, "..", "weights"))
     ap.add_argument("--repeats", type=int, default=10)
+    ap.add_argument("--rounds", type=int, default=5)
     for flag, kind, default in extra:
         ap.add_argument(flag, type=kind, default=default)
     return ap.parse_args()
@@ -143,15 +176,13 @@ def main():
     print(f"level {a.level}: ONNX Runtime {ort.__version__} vs ours on the probe: max |dh| {diff:.2e} m")
     assert diff < 1e-3, "the ONNX graph is not our network"
     cores = os.cpu_count()
-    print(f"{'threads':>7} {'batch':>5} {'ORT ms/quad':>12} {'ours ms/quad':>13} {'ours/ORT':>9}")
+    print_header("quad", "threads", "batch")
     for threads in sorted({1, cores}):
         for batch in (1, 4):
             s = session(model, threads)
             xb = np.repeat(x, batch, axis=0)
-            ref = time_ms(lambda: s.run(["y"], {"x": xb}), a.repeats) / batch
-            out = subprocess.run([a.bin, "tem-bench", "--level", str(a.level), "--batch", str(batch), "--repeats", str(a.repeats), "--threads", str(threads)], check=True, capture_output=True, text=True)
-            ours = json.loads(out.stdout)["ms_per_quad"]
-            print(f"{threads:>7} {batch:>5} {ref:>12.2f} {ours:>13.2f} {ours / ref:>9.2f}")
+            cmd = [a.bin, "tem-bench", "--level", str(a.level), "--batch", str(batch), "--threads", str(threads), "--weights", a.weights]
+            print_row((threads, batch), alternate(a, lambda: s.run(["y"], {"x": xb}), cmd, batch, "ms_per_quad"))
 
 
 if __name__ == "__main__":
