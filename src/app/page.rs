@@ -102,8 +102,8 @@ enum For {
     Coarse(Job<TileCoord>),
     /// The worker's next batch of network work for a tile whose networks run on the GPU.
     WorldWork(Chain),
-    /// That batch on the GPU.
-    RunWork(Chain, WorkKeys),
+    /// That batch on the GPU, a call of a few of its items at a time.
+    RunWork(Chain, GpuBatch),
     /// Its outputs, kept by the worker.
     AcceptWork(Chain),
     /// A run of the world networks' probe on this backend.
@@ -141,6 +141,23 @@ struct Chain {
     net_ms: f64,
 }
 
+/// A batch of network work from the worker on its way through the GPU, a few items a call
+/// ([`PageCore::gpu_call_items`]) so that a frame never waits long behind it; the outputs are
+/// gathered for the worker in one accept-work.
+#[derive(Debug)]
+struct GpuBatch {
+    /// The whole batch's kind and tiles.
+    keys: WorkKeys,
+    /// Its items not sent to the GPU yet.
+    rest: NetworkWork,
+    /// The outputs of the calls answered so far, in order.
+    outputs: Vec<Vec<f32>>,
+    /// Milliseconds those calls took.
+    ms: f64,
+    /// Items in the call in flight.
+    calling: usize,
+}
+
 impl For {
     /// Whether this is a step of a [`Chain`].
     fn is_chain(&self) -> bool {
@@ -151,6 +168,12 @@ impl For {
 /// TCM tiles in the world networks' probe batch ([`NetworkWork::probe`]): a phase of the
 /// schedule hands out 16 to 40.
 pub const WORLD_PROBE_TILES: usize = 16;
+
+/// How long one call of the world's network work on the GPU may take, in median frames: a
+/// batch is sent a few items a call ([`PageCore::gpu_call_items`]), so a frame waits behind at
+/// most about one call. On a software adapter (SwiftShader) a batch of 40 TCM tiles in one call
+/// held the page's frames for 21–26 s.
+pub const GPU_CALL_FRAMES: f64 = 1.0;
 
 /// One run of the world networks' probe, as its timings name it: "batch of 16 tiles".
 pub fn world_probe_unit() -> String {
@@ -292,6 +315,9 @@ pub struct PageCore {
     chains: VecDeque<Chain>,
     /// Milliseconds of network work run on the GPU for 32 m tiles, and those tiles.
     world_gpu_ms: (f64, usize),
+    /// Milliseconds an item of the world's network work took in the GPU's last call (or the
+    /// probe's), if one was timed.
+    world_gpu_item_ms: Option<f64>,
     /// A heightmap PNG the user opened, waiting for its spacing and heights.
     pub heightmap: Option<PendingPng>,
     /// JSON sidecars the user opened (name, contents), the latest four, for a heightmap PNG
@@ -359,6 +385,7 @@ impl PageCore {
             world_probe,
             chains: VecDeque::new(),
             world_gpu_ms: (0.0, 0),
+            world_gpu_item_ms: None,
             heightmap: None,
             sidecars: Vec::new(),
         };
@@ -803,17 +830,30 @@ impl PageCore {
             (For::Coarse(job), _) => self.app.coarse_failed(&job),
             (For::WorldWork(ch), Reply::Work(NetworkWork::None)) => self.finish_chain(ch),
             (For::WorldWork(ch), Reply::Work(work)) if self.world_on_gpu() => {
-                let keys = work.keys();
-                self.post(Target::Gpu, ch.job.epoch, Request::RunWork { work }, For::RunWork(ch, keys));
+                let batch = GpuBatch { keys: work.keys(), rest: work, outputs: Vec::new(), ms: 0.0, calling: 0 };
+                self.post_gpu_call(ch, batch);
             }
             // The GPU failed meanwhile: the worker makes the rest of the tile itself.
             (For::WorldWork(ch), Reply::Work(_)) => self.finish_chain(ch),
             // The worker stopped while the chain ran: nothing of the GPU's is to blame.
             (For::RunWork(ch, _) | For::AcceptWork(ch), _) if self.worker.is_err() => self.drop_chain(ch),
-            (For::RunWork(mut ch, keys), Reply::Outputs { outputs, ms }) => {
+            (For::RunWork(mut ch, mut batch), Reply::Outputs { outputs, ms }) => {
                 ch.net_ms += ms;
-                let request = Request::AcceptWork { seed: ch.seed, keys, outputs, ms };
-                self.post(Target::Worker, ch.job.epoch, request, For::AcceptWork(ch));
+                if batch.calling > 0 {
+                    self.world_gpu_item_ms = Some(ms / batch.calling as f64);
+                }
+                batch.outputs.extend(outputs);
+                batch.ms += ms;
+                if batch.rest.is_empty() {
+                    let request = Request::AcceptWork { seed: ch.seed, keys: batch.keys, outputs: batch.outputs, ms: batch.ms };
+                    self.post(Target::Worker, ch.job.epoch, request, For::AcceptWork(ch));
+                } else if ch.job.epoch != self.app.epoch() {
+                    // A new world began: the rest of the batch is not worth the GPU's time.
+                    self.drop_chain(ch);
+                    self.next_chain();
+                } else {
+                    self.post_gpu_call(ch, batch);
+                }
             }
             (For::RunWork(ch, _), r) => {
                 self.world_gpu_failed(format!("a batch failed there: {}", why(&r)));
@@ -839,6 +879,9 @@ impl PageCore {
                 self.next_chain();
             }
             (For::WorldProbeRun(target), Reply::Outputs { ms, .. }) => {
+                if target == Target::Gpu {
+                    self.world_gpu_item_ms = Some(ms / WORLD_PROBE_TILES as f64);
+                }
                 self.world_probe.record(target, ms);
                 self.world_probe_next();
             }
@@ -1116,7 +1159,7 @@ impl PageCore {
 
     /// Whether learned tiles have their network work run on the GPU now: the networks run
     /// there ([`Self::world_backend`]) and have loaded.
-    fn world_on_gpu(&self) -> bool {
+    pub fn world_on_gpu(&self) -> bool {
         self.world_nets.is_gpu() && matches!(self.world_gpu, Some(Ok(())))
     }
 
@@ -1179,6 +1222,26 @@ impl PageCore {
                 return self.post_world_work(ch);
             }
             self.drop_chain(ch);
+        }
+    }
+
+    /// Posts the next call of `batch` to the GPU: its next [`PageCore::gpu_call_items`] items.
+    fn post_gpu_call(&mut self, ch: Chain, mut batch: GpuBatch) {
+        let work = batch.rest.split_front(self.gpu_call_items());
+        batch.calling = work.len();
+        self.post(Target::Gpu, ch.job.epoch, Request::RunWork { work }, For::RunWork(ch, batch));
+    }
+
+    /// Items of the world's network work in the GPU's next call: as many as take about
+    /// [`GPU_CALL_FRAMES`] median frames at the milliseconds an item took in the last call, at
+    /// least one; one until a call has been timed.
+    pub fn gpu_call_items(&self) -> usize {
+        let frame_ms = self.app.stats().frame_ms_median;
+        let frame_ms = if frame_ms > 0.0 { frame_ms } else { 1000.0 / 60.0 };
+        match self.world_gpu_item_ms {
+            None => 1,
+            Some(ms) if ms > 0.0 => (GPU_CALL_FRAMES * frame_ms / ms).clamp(1.0, 1e6) as usize,
+            Some(_) => 1_000_000,
         }
     }
 

@@ -53,6 +53,8 @@ pub struct Environment {
     pub world_probe: Option<String>,
     /// Milliseconds of network work the GPU ran per learned tile made through it.
     pub world_gpu_ms_per_tile: Option<f64>,
+    /// Items of the world's network work in each of the GPU's calls now, where they run there.
+    pub world_gpu_call_items: Option<usize>,
     /// Your terrain pinned into the learned world: its file's name and tiles.
     pub pinned: Option<(String, usize)>,
 }
@@ -77,6 +79,7 @@ impl Environment {
         self.world_backend = core.world_backend();
         self.world_probe = core.world_probe().label("world networks", &crate::app::page::world_probe_unit());
         self.world_gpu_ms_per_tile = core.world_gpu_ms_per_tile();
+        self.world_gpu_call_items = core.world_on_gpu().then(|| core.gpu_call_items());
         self.worker_rest_per_work = core.rest_per_work();
         self.source = core.app.source_name();
         self.pinned = core.pinned.clone();
@@ -154,6 +157,7 @@ pub fn stats_json(
         "mode": format!("{:?}", app.controller.mode), "sketch_canvas": panel.canvas_rect.filter(|_| sketch).map(rect),
         "sketch_models": format!("{:?}", app.sketch_models()), "sketch_backend": env.sketch_backend,
         "world_backend": env.world_backend, "world_probe": env.world_probe, "world_gpu_ms_per_tile": env.world_gpu_ms_per_tile,
+        "world_gpu_call_items": env.world_gpu_call_items,
         "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "link_too_long": link_too_long,
         "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter,
         "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
@@ -428,7 +432,8 @@ impl Overlay {
                 stats.ms_per_tile
             ));
             let gpu_ms = env.world_gpu_ms_per_tile.map(|ms| format!(", {ms:.0} ms/tile there")).unwrap_or_default();
-            ui.monospace(format!("world networks on {}{gpu_ms}", env.world_backend));
+            let items = env.world_gpu_call_items.map(|k| format!(", {k} a call")).unwrap_or_default();
+            ui.monospace(format!("world networks on {}{gpu_ms}{items}", env.world_backend));
         }
         if env.tem_ready {
             let depth_m = crate::world::TILE_SIZE_M / f64::from(1u32 << stats.max_depth_drawn) / crate::world::quadtree::NODE_QUADS as f64;

@@ -490,6 +490,20 @@ impl NetworkWork {
         NetworkWork::Tcm(items)
     }
 
+    /// The first `k` items (all of them where there are fewer), as a batch of their own; the
+    /// rest stay in `self`, in order.
+    pub fn split_front(&mut self, k: usize) -> NetworkWork {
+        fn front<T>(v: &mut Vec<T>, k: usize) -> Vec<T> {
+            let rest = v.split_off(k.min(v.len()));
+            std::mem::replace(v, rest)
+        }
+        match self {
+            NetworkWork::Tcm(v) => NetworkWork::Tcm(front(v, k)),
+            NetworkWork::Grow(v) => NetworkWork::Grow(front(v, k)),
+            NetworkWork::None => NetworkWork::None,
+        }
+    }
+
     /// What [`LearnedSource::accept`] needs to know of the batch: its kind and tiles, without
     /// the inputs.
     pub fn keys(&self) -> WorkKeys {
