@@ -656,7 +656,7 @@ impl TerrainApp {
         self.stats.refine_backend = self.refine_backend.clone().unwrap_or_default();
         self.stats.source = self.source().label().into();
         self.stats.tile_jobs = self.world.job_stats();
-        self.stats.tiles_stale = self.world.stale_count();
+        self.stats.tiles_stale = ws.pending - ws.uncovered;
         self.stats.eye_m = eye.to_array();
         let sum = tiles.iter().filter_map(|&c| self.world.get(c)).fold(0u64, |acc, t| acc.wrapping_add(mix64(t.checksum ^ tile_seed(0, t.coord))));
         self.stats.view_checksum = format!("{sum:016x}");

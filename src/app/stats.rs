@@ -18,8 +18,10 @@ pub struct AppStats {
     pub tiles_pending: usize,
     /// Wanted tiles with nothing to draw yet, not even a stand-in of an earlier world.
     pub tiles_uncovered: usize,
-    /// Cached tiles of an earlier world drawn until this world's arrive (the surroundings of
-    /// a sketch that changed, while the learned world grows around it again).
+    /// Wanted tiles standing in from an earlier world until this world's arrive (the
+    /// surroundings of a sketch that changed, while the learned world grows around it again);
+    /// cached ones beyond the wanted tiles are not counted (nothing draws them, and they are
+    /// made again only when wanted).
     pub tiles_stale: usize,
     /// Tiles evicted.
     pub tiles_evicted: u64,

@@ -168,11 +168,6 @@ impl WorldStream {
         self.stats.cached = self.tiles.len();
     }
 
-    /// How many cached tiles are stale stand-ins.
-    pub fn stale_count(&self) -> usize {
-        self.stale.len()
-    }
-
     /// Whether cached tile `c` is a stale stand-in from an earlier world
     /// ([`take_over`](Self::take_over)) still waiting for this world's.
     pub fn is_stale(&self, c: TileCoord) -> bool {

@@ -120,53 +120,52 @@ function imageSpread(buf, x0 = 0) {
 // The procedural world (the tests of streaming, links and the TEM do not wait for learned tiles).
 const VIEW = 'v=2&seed=7&src=procedural&cam=3000,2500,9000,0.9,-0.3&r=3&lod=6';
 
-test('the default world is the learned one and renders terrain (its coarse stand-ins first), with no console errors', async () => {
+// One page for the default world's first steps and the first impressions after them: each
+// of the two used to wait for the default view (~45 s).
+test('first impressions: the default world is the learned one, its coarse stand-ins drawn first, the page at +2 s, the view complete with no console errors, the statistics view, a new seed by editing the link (the old picture kept, then the new world) and the sketch world chosen in the settings, framed at once, the learned world grown around it as the native CLI makes it (timings and screenshots)', async () => {
   const t0 = Date.now();
-  const { page, errors } = await open();
+  // The sketch world's screenshot at the size the sketch test uses (its panel beside the view).
+  const { page, errors } = await open('', '', { width: 1280, height: 900 });
+  // The screenshot at +2 s, taken while the first terrain is waited for.
+  const at2s = (async () => {
+    await page.waitForTimeout(Math.max(0, 2000 - (Date.now() - t0)));
+    await page.screenshot({ path: path.join(out, 'startup_2s.png') });
+    const early = await stats(page);
+    report.startup_2s = { nodes_drawn: early?.stats?.nodes_drawn ?? 0, coarse_drawn: early?.stats?.coarse_drawn ?? 0 };
+  })();
   // Coarse first: the learned tiles' 128 m stand-ins are drawn before the tiles are made.
-  const c = await waitFor(page, (s) => s.stats.nodes_drawn > 0, 'the first terrain', 300_000, 100);
+  const c = await waitFor(page, (q) => q.stats.nodes_drawn > 0, 'the first terrain', 300_000, 100);
   report.first_terrain_s = (Date.now() - t0) / 1000;
   report.first_terrain = { coarse_drawn: c.stats.coarse_drawn, nodes_drawn: c.stats.nodes_drawn, tiles_generated: c.stats.tiles_generated };
   assert.ok(c.stats.coarse_drawn > 0, `the first terrain drawn had no coarse stand-in: ${JSON.stringify(c.stats)}`);
   // The view around the eye standing in (20 nodes: about the tiles in view within the radius).
-  const v = await waitFor(page, (s) => s.stats.nodes_drawn >= 20, 'the coarse view', 300_000, 100);
+  const v = await waitFor(page, (q) => q.stats.nodes_drawn >= 20, 'the coarse view', 300_000, 100);
   report.first_view_s = (Date.now() - t0) / 1000;
   report.first_view = { coarse_drawn: v.stats.coarse_drawn, nodes_drawn: v.stats.nodes_drawn, tiles_generated: v.stats.tiles_generated };
+  await at2s;
   await page.screenshot({ path: path.join(out, 'first_view.png') });
-  const s = await waitFor(page, (s) => s.stats.frames > 20 && s.stats.nodes_drawn > 0 && s.stats.tiles_pending === 0, 'the first world to stream in', 300_000);
+  // The view's own tiles, not its far field: the far field's completion is timed in
+  // 'terrain to the horizon' (waiting for it here cost CI ~1.5 min).
+  let s = await waitFor(page, (q) => q.stats.tiles_pending === 0 && q.stats.frames > 20, 'the default view', 400_000);
   report.first_complete_view_s = (Date.now() - t0) / 1000;
   report.default_world = { source: s.source, tiles: s.stats.tiles_generated, ms_per_tile: s.stats.ms_per_tile, tile_jobs: s.stats.tile_jobs, link: s.link };
   assert.equal(s.stats.source, 'learned');
   assert.match(s.source, /^learned \(TCM [0-9a-f]{8}\)$/);
   assert.match(s.link, /^v=2&seed=1&src=tcm&w=[0-9a-f]{8}&/);
   report.adapter = s.adapter;
+  assert.match(s.adapter, /WebGPU/);
+  assert.ok(s.stats.tiles_generated >= 9, `tiles generated ${s.stats.tiles_generated}`);
   await page.waitForTimeout(500);
-  const shot = await page.screenshot({ path: path.join(out, 'default.png') });
-  const spread = imageSpread(shot, 380); // right of the overlay window
+  const view = await page.screenshot({ path: path.join(out, 'default.png') });
+  const spread = imageSpread(view, 380); // right of the overlay window
   report.default_image = spread;
   assert.ok(spread.sd > 8, `canvas looks uniform (luminance sd ${spread.sd})`);
   assert.ok(spread.colours > 100, `canvas has only ${spread.colours} colours`);
-  assert.ok(s.stats.tiles_generated >= 9, `tiles generated ${s.stats.tiles_generated}`);
-  assert.match(s.adapter, /WebGPU/);
-  const ml = await waitFor(page, (s) => !/starting/.test(s.ml_status), 'the burn self-check', 120_000);
+  const ml = await waitFor(page, (q) => !/starting/.test(q.ml_status), 'the burn self-check', 120_000);
   report.ml_status = ml.ml_status;
   assert.match(ml.ml_status, /burn wgpu ready/, ml.ml_status);
   assert.deepEqual(errors, []);
-  await page.close();
-});
-
-test('first impressions: the page at +2 s, the statistics view, a new seed by editing the link (the old picture kept, then the new world) and the sketch world chosen in the settings, framed at once, the learned world grown around it as the native CLI makes it (timings and screenshots)', async () => {
-  const t0 = Date.now();
-  // The sketch world's screenshot at the size the sketch test uses (its panel beside the view).
-  const { page, errors } = await open('', '', { width: 1280, height: 900 });
-  await page.waitForTimeout(Math.max(0, 2000 - (Date.now() - t0)));
-  await page.screenshot({ path: path.join(out, 'startup_2s.png') });
-  const early = await stats(page);
-  report.startup_2s = { nodes_drawn: early?.stats?.nodes_drawn ?? 0, coarse_drawn: early?.stats?.coarse_drawn ?? 0 };
-  // The view's own tiles, not its far field: the far field's completion is timed in
-  // 'terrain to the horizon' (waiting for it here cost CI ~1.5 min).
-  let s = await waitFor(page, (q) => q.stats.tiles_pending === 0 && q.stats.frames > 20, 'the default view', 400_000);
-  report.startup_complete_s = (Date.now() - t0) / 1000;
+  s = await stats(page);
   // The numbers are one click away, and away again.
   assert.equal(s.statistics_shown, false, 'the overlay opens without the statistics');
   await page.mouse.click(...centre(s.overlay_buttons.statistics));
@@ -177,24 +176,24 @@ test('first impressions: the page at +2 s, the statistics view, a new seed by ed
   s = await waitFor(page, (q) => !q.statistics_shown, 'the statistics hidden again', 10_000, 100);
   await page.screenshot({ path: path.join(out, 'overlay.png') });
   // A new seed typed into the address: every frame draws terrain (the old picture until the
-  // new world's nearest tiles are made), then the new world's own.
+  // new world's nearest tiles are made), then the new world's own, watched for 2 s more (its
+  // whole view, ~90 s more, is not waited for: the default view's time is above).
   assert.match(s.link, /&seed=1&|^v=2&seed=1&/);
   const t1 = Date.now();
   await page.evaluate((f) => { location.hash = f; }, s.link.replace('seed=1&', 'seed=2&'));
   let blank = 0;
   let kept = 0;
   let first = null;
-  while (Date.now() - t1 < 400_000) {
+  while (Date.now() - t1 < 400_000 && !(first && Date.now() - t1 > (first + 2) * 1000)) {
     const q = await stats(page);
     if (/seed=2&/.test(q.link)) {
       if (q.stats.nodes_drawn === 0) blank++;
       if (q.stats.previous_world_shown) kept++;
       if (!first && !q.stats.previous_world_shown && q.stats.nodes_drawn > 0) first = (Date.now() - t1) / 1000;
-      if (first && q.stats.tiles_pending === 0) break;
     }
     await page.waitForTimeout(100);
   }
-  report.new_seed = { own_terrain_s: first, view_tiles_s: (Date.now() - t1) / 1000, polls_with_old_picture: kept, polls_blank: blank };
+  report.new_seed = { own_terrain_s: first, polls_with_old_picture: kept, polls_blank: blank };
   await page.screenshot({ path: path.join(out, 'new_seed.png') });
   assert.ok(first !== null, `the new seed's world was never drawn: ${JSON.stringify(report.new_seed)}`);
   assert.equal(blank, 0, 'a frame after the new seed drew nothing');
@@ -232,9 +231,11 @@ test('first impressions: the page at +2 s, the statistics view, a new seed by ed
   await page.close();
 });
 
-test('terrain to the horizon: the learned and the procedural world draw a far field out to 60 km, and seen from 20 km and 60 km up the view is terrain, not a void (screenshots)', async () => {
+// The learned world seen from 60 km only: its far field is the same 60 km around the eye from
+// any height (from 20 km it took as long, ~92 s, and drew half as many far tiles).
+test('terrain to the horizon: the learned and the procedural world draw a far field out to 60 km, and the learned world seen from 60 km up and the procedural from 20 km is terrain, not a void (screenshots)', async () => {
   report.far_field = {};
-  const cases = [['20km', 'tcm', 'learned', '2048,20000,2048,0.6,-0.7'], ['60km', 'tcm', 'learned', '2048,60000,2048,0.6,-1.3'], ['procedural_20km', 'procedural', 'procedural', '2048,20000,2048,0.6,-0.7']];
+  const cases = [['60km', 'tcm', 'learned', '2048,60000,2048,0.6,-1.3'], ['procedural_20km', 'procedural', 'procedural', '2048,20000,2048,0.6,-0.7']];
   for (const [name, src, source, cam] of cases) {
     const { page, errors } = await open(`v=2&seed=7&src=${src}&cam=${cam}&r=3&lod=6`);
     const t0 = Date.now();
@@ -336,7 +337,7 @@ test('the learned world with its networks on WebGPU (?world=gpu): its batches ru
   report.learned_world_webgpu = {
     world_backend: s.world_backend, tile_0_2_max_abs_diff_vs_native_m: diff, tile_0_2_samples_differing_from_native: differing,
     first_tile_s: firstTileS, tiles_generated: s.stats.tiles_generated, page_ms_per_tile: s.stats.ms_per_tile,
-    gpu_network_ms_per_tile: s.world_gpu_ms_per_tile, frames: frames.length, frame_ms_median: median,
+    gpu_network_ms_per_tile: s.world_gpu_ms_per_tile, gpu_call_items: s.world_gpu_call_items, frames: frames.length, frame_ms_median: median,
     frame_ms_worst: frames[frames.length - 1], worst_over_median: frames[frames.length - 1] / median,
   };
   console.log('LEARNED_WEBGPU ' + JSON.stringify(report.learned_world_webgpu));
@@ -356,12 +357,13 @@ test('the learned world with its networks on WebGPU (?world=gpu): its batches ru
 // most at once and at the end, and the tiles made per second. The view stays complete at a
 // speed where the worker keeps up: the backlog never grows past two rows of tiles across the
 // view (2 × (2·4 + 1)) and every tile of the view is made again in the flight's last 5 s.
-const SUSTAINED_SPEEDS_MPS = [250, 500, 1000, 2000];
+// 2000 m/s is not flown: at 1000 m/s the view already falls behind on this machine.
+const SUSTAINED_SPEEDS_MPS = [250, 500, 1000];
 const SUSTAINED_FLIGHT_S = 20;
 const SUSTAINED_BACKLOG_TILES = 18;
 const SUSTAINED_CAUGHT_UP_S = 5;
 
-test('sustained speed: flown at 250 m/s by the autopilot, the learned view at the default radius stays complete (never more than two rows, 18 tiles, pending; all made again in the last 5 s of a 20 s flight; 500 to 2000 m/s reported)', async () => {
+test('sustained speed: flown at 250 m/s by the autopilot, the learned view at the default radius stays complete (never more than two rows, 18 tiles, pending; all made again in the last 5 s of a 20 s flight; 500 and 1000 m/s reported)', async () => {
   const at = (v, k) => `v=2&seed=11&src=tcm&cam=3000,2500,9000,${(0.9 + k * Math.PI / 2).toFixed(4)},-0.3&lod=6&auto=${v}`;
   const { page, errors } = await open(at(0, 0));
   const t0 = Date.now();
@@ -857,12 +859,16 @@ async function flyAwayAndBack(page, tiles) {
   return { again, steps, km: steps * 12.3 };
 }
 
+// The default world and camera with a relevance radius of 1 tile: the pin tests look at the
+// tiles next to the eye, and the default radius kept the worker on ~100 other tiles.
+const NEAR_VIEW = 'v=2&seed=1&src=tcm&cam=2048,2900,2048,0.6,-0.3&r=1&lod=6';
+
 test('your terrain pinned in the page: a GeoTIFF chosen with "Pin terrain…" becomes the tiles around the eye bit for bit, and the learned world beside it is what the native CLI makes with the same pin (within 0.05 m)', async () => {
   // A 2 × 2-tile GeoTIFF at 32 m (a procedural world's, by the CLI) as the user's terrain.
   const tif = path.join(out, 'pin.tif');
   execFileSync(nativeBin, ['world', '--seed', '77', '--tiles', '0', '0', '2', '2', '--out', tif]);
   const { width, data } = readTiff(fs.readFileSync(tif));
-  const { page, errors } = await open('', '', BIG);
+  const { page, errors } = await open(NEAR_VIEW, '', BIG);
   let s = await waitFor(page, (q) => /^learned \(TCM/.test(q.source) && q.tem_ready && q.stats.tiles_generated > 0 && q.overlay_buttons?.pin_dem, 'the learned world and its detail loaded');
   // Clicked where the button stays (the overlay's rows settle as the models load).
   let last = null;
@@ -912,7 +918,7 @@ async function dropFiles(page, files) {
 test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world" downloads a bundle, and that bundle dropped on a fresh page at another seed and place opens the same world (the pinned tile and the learned tile beside it bit for bit); the same terrain as a 16-bit PNG dropped with its sidecar pins within half a unit; a sketch PNG dropped opens the sketch world with it', async () => {
   const tif = path.join(out, 'drop.tif');
   execFileSync(nativeBin, ['world', '--seed', '78', '--tiles', '0', '0', '2', '2', '--out', tif]);
-  const { page, errors } = await open('', '', BIG);
+  const { page, errors } = await open(NEAR_VIEW, '', BIG);
   await waitFor(page, (q) => /^learned \(TCM/.test(q.source) && q.stats.tiles_generated > 0, 'the learned world loaded');
   await dropFile(page, tif, 'drop.tif');
   let s = await waitFor(page, (q) => /^Pinned drop\.tif: 4 tiles from tile \(0, 0\)/.test(q.message ?? ''), 'the pin message after the drop');
@@ -931,7 +937,7 @@ test('your world in a file: a GeoTIFF dropped on the page is pinned, "Save world
   await download.saveAs(bundle);
   await page.close();
   // A fresh page elsewhere in another world.
-  const fresh = await open('v=2&seed=5&src=tcm&cam=50000,2500,0,0,-0.5&r=3&lod=6', '', BIG);
+  const fresh = await open('v=2&seed=5&src=tcm&cam=50000,2500,0,0,-0.5&r=1&lod=6', '', BIG);
   await waitFor(fresh.page, (q) => /^learned \(TCM/.test(q.source) && q.stats.tiles_generated > 0, 'the fresh page\'s learned world');
   await dropFile(fresh.page, bundle, 'terrain-world.json.gz');
   s = await waitFor(fresh.page, (q) => /^Opened terrain-world\.json\.gz: its world and view, with 4 pinned tiles/.test(q.message ?? ''), 'the bundle opened');
