@@ -172,8 +172,10 @@ pub const WORLD_PROBE_TILES: usize = 16;
 /// How long one call of the world's network work on the GPU may take, in median frames: a
 /// batch is sent a few items a call ([`PageCore::gpu_call_items`]), so a frame waits behind at
 /// most about one call. On a software adapter (SwiftShader) a batch of 40 TCM tiles in one call
-/// held the page's frames for 21–26 s.
-pub const GPU_CALL_FRAMES: f64 = 1.0;
+/// held the page's frames for 21–26 s. Less than one: the frames a call slows down make the
+/// median longer, and at a whole frame each call would be allowed more items than the last
+/// without bound; at half, calls settle where they take as long as the rest of a frame.
+pub const GPU_CALL_FRAMES: f64 = 0.5;
 
 /// One run of the world networks' probe, as its timings name it: "batch of 16 tiles".
 pub fn world_probe_unit() -> String {
