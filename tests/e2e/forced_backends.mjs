@@ -5,25 +5,10 @@
 // median and worst interval and worst / median, from the first frame after start-up (the
 // first 20 frames, while the models load, are left out).
 //   node forced_backends.mjs DIST [cpu gpu ...]
-import http from 'node:http';
-import fs from 'node:fs';
 import path from 'node:path';
 import { chromium } from 'playwright-core';
+import { serve, SWIFTSHADER_ARGS as args } from './by_hand.mjs';
 
-const MIME = { '.html': 'text/html', '.js': 'text/javascript', '.wasm': 'application/wasm', '.css': 'text/css', '.json': 'application/json' };
-function serve(dist) {
-  return new Promise((resolve) => {
-    const server = http.createServer((req, res) => {
-      let file = path.join(dist, decodeURIComponent(new URL(req.url, 'http://x').pathname));
-      if (fs.existsSync(file) && fs.statSync(file).isDirectory()) file = path.join(file, 'index.html');
-      if (!fs.existsSync(file)) { res.writeHead(404).end(); return; }
-      res.writeHead(200, { 'content-type': MIME[path.extname(file)] ?? 'application/octet-stream' });
-      fs.createReadStream(file).pipe(res);
-    });
-    server.listen(0, '127.0.0.1', () => resolve([server, `http://127.0.0.1:${server.address().port}/`]));
-  });
-}
-const args = ['--headless=new', '--no-sandbox', '--enable-unsafe-webgpu', '--enable-features=Vulkan', '--use-vulkan=swiftshader', '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--disable-background-networking', '--no-first-run'];
 const [dist, ...choices] = process.argv.slice(2);
 const limitMs = 40 * 60_000;
 for (const world of choices.length ? choices : ['cpu', 'gpu']) {
