@@ -154,8 +154,6 @@ struct GpuBatch {
     outputs: Vec<Vec<f32>>,
     /// Milliseconds those calls took.
     ms: f64,
-    /// Items in the call in flight.
-    calling: usize,
 }
 
 impl For {
@@ -832,7 +830,7 @@ impl PageCore {
             (For::Coarse(job), _) => self.app.coarse_failed(&job),
             (For::WorldWork(ch), Reply::Work(NetworkWork::None)) => self.finish_chain(ch),
             (For::WorldWork(ch), Reply::Work(work)) if self.world_on_gpu() => {
-                let batch = GpuBatch { keys: work.keys(), rest: work, outputs: Vec::new(), ms: 0.0, calling: 0 };
+                let batch = GpuBatch { keys: work.keys(), rest: work, outputs: Vec::new(), ms: 0.0 };
                 self.post_gpu_call(ch, batch);
             }
             // The GPU failed meanwhile: the worker makes the rest of the tile itself.
@@ -841,8 +839,8 @@ impl PageCore {
             (For::RunWork(ch, _) | For::AcceptWork(ch), _) if self.worker.is_err() => self.drop_chain(ch),
             (For::RunWork(mut ch, mut batch), Reply::Outputs { outputs, ms }) => {
                 ch.net_ms += ms;
-                if batch.calling > 0 {
-                    self.world_gpu_item_ms = Some(ms / batch.calling as f64);
+                if !outputs.is_empty() {
+                    self.world_gpu_item_ms = Some(ms / outputs.len() as f64);
                 }
                 batch.outputs.extend(outputs);
                 batch.ms += ms;
@@ -1230,7 +1228,6 @@ impl PageCore {
     /// Posts the next call of `batch` to the GPU: its next [`PageCore::gpu_call_items`] items.
     fn post_gpu_call(&mut self, ch: Chain, mut batch: GpuBatch) {
         let work = batch.rest.split_front(self.gpu_call_items());
-        batch.calling = work.len();
         self.post(Target::Gpu, ch.job.epoch, Request::RunWork { work }, For::RunWork(ch, batch));
     }
 
@@ -1240,11 +1237,8 @@ impl PageCore {
     pub fn gpu_call_items(&self) -> usize {
         let frame_ms = self.app.stats().frame_ms_median;
         let frame_ms = if frame_ms > 0.0 { frame_ms } else { 1000.0 / 60.0 };
-        match self.world_gpu_item_ms {
-            None => 1,
-            Some(ms) if ms > 0.0 => (GPU_CALL_FRAMES * frame_ms / ms).clamp(1.0, 1e6) as usize,
-            Some(_) => 1_000_000,
-        }
+        // An item timed at 0 ms gives no bound but the clamp's.
+        self.world_gpu_item_ms.map_or(1, |ms| (GPU_CALL_FRAMES * frame_ms / ms).clamp(1.0, 1e6) as usize)
     }
 
     fn post_world_work(&mut self, ch: Chain) {
