@@ -312,7 +312,7 @@ test('the learned world: tiles from the CPU worker match the native CLI within 0
 const LEARNED_STILL_VIEW = 'v=2&seed=7&src=tcm&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6';
 
 // Frames while the GPU works: a batch goes to it a few items a call (about half a median frame's
-// work each), so a frame waits behind one call at most. Measured 1.80; sent a whole batch a
+// work each), so a frame waits behind one call at most. Measured 1.80–2.12; sent a whole batch a
 // call, a 40-tile batch held the frames for 21–26 s (worst / median 123–144).
 const GPU_WORLD_FRAME_RATIO_MAX = 4;
 
