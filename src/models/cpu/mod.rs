@@ -7,15 +7,16 @@
 //! registers over the 9 taps × input channels, with bias, ReLU or a skip connection applied
 //! as the block is stored; activation buffers are reused between calls. Kernels: AVX-512 or
 //! AVX2 + FMA intrinsics natively (chosen at run time, the widest the CPU has; AVX-512: 6–8
-//! pixels × 32 channels, or 16 pixels × 24 channels, AVX2: [`BLOCK`] pixels × 32 channels), SIMD128
+//! pixels × up to 64 channels, or 16 pixels × 24 channels, AVX2: [`BLOCK`] pixels × 32 channels), SIMD128
 //! intrinsics in the page (4 pixels × 8 channels, any multiple of 8 channels), and portable
 //! Rust elsewhere. Every kernel accumulates in the same order, and by default each step is a
 //! multiply, then an add, so every kernel on every machine, the page's included, gives the same
 //! bits: a learned tile is a pure function of (seed, weights, tile), and a last-bit
 //! difference cannot flip a drainage choice downstream. A layer made [`Conv3::with_fused`] (the
-//! TEM's, whose output nothing downstream amplifies) lets the x86 kernels fuse the two into one
-//! FMA instead: 25–35 % faster natively, and the page's results then differ in the last bits
-//! (0.24 mm on the TEM probe).
+//! TEM's, whose output nothing downstream amplifies, and the sketch generator's, whose terrain
+//! the page may make on WebGPU with other roundings anyway) lets the x86 kernels fuse the two
+//! into one FMA instead: 25–35 % faster natively, and the page's results then differ in the
+//! last bits (0.24 mm on the TEM probe).
 
 /// Output pixels one kernel call accumulates at once (per row).
 pub const BLOCK: usize = 3;
@@ -481,8 +482,8 @@ fn conv_rows(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: 
 #[cfg(target_arch = "x86_64")]
 mod x86;
 
-/// Any number of output channels with AVX-512F where the CPU has it: 6–8 pixels × 32
-/// channels per block in up to 16 of its 32 vector registers (24 channels: 24 vectors of 16
+/// Any number of output channels with AVX-512F where the CPU has it: 6–8 pixels × up to 64
+/// channels per block in up to 24 of its 32 vector registers (24 channels: 24 vectors of 16
 /// pixels, every lane used), the same sums in the same order as the AVX2 kernels.
 #[cfg(target_arch = "x86_64")]
 mod x86_512;

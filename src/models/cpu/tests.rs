@@ -211,6 +211,8 @@ fn unfused_layers_give_the_portable_bits_on_every_kernel_and_fused_ones_the_same
         (48, 24, 5, 17),
         (64, 16, 3, 34),
         (112, 96, 3, 12),
+        (80, 8, 3, 20),
+        (96, 8, 2, 13),
         (16, 13, 6, 6),
         (1, 8, 6, 11),
         (1, 16, 5, 9),

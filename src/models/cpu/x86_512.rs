@@ -1,9 +1,10 @@
 use super::{Conv3, Map, Post};
 use std::arch::x86_64::*;
 
-/// Output pixels per block at most: 8 pixels × 2 vectors of 16 channels are 16 of AVX-512's 32
-/// vector registers, beside 2 weight vectors and the broadcast input (the AVX2 kernels have 16
-/// registers, so 3 or 4 pixels). Its reads past a row's end stay in a map's slack.
+/// Output pixels per block at most: 8 pixels × 3 vectors of 16 channels are 24 of AVX-512's 32
+/// vector registers, beside 3 weight vectors and the broadcast input (blocks of 4 vectors take
+/// 6 pixels; the AVX2 kernels have 16 registers, so 3 or 4 pixels). Its reads past a row's end
+/// stay in a map's slack.
 pub(super) const PX: usize = 8;
 
 /// The lanes of a vector of 16 channels from `c` that are channels below `cout`.
@@ -12,9 +13,9 @@ fn lanes(c: usize, cout: usize) -> __mmask16 {
     ((1u32 << n) - 1) as __mmask16
 }
 
-/// Any number of output channels with AVX-512: blocks of 6 to [`PX`] pixels ([`block_px`]) × 32
-/// channels (16 where fewer are left), the last vector masked to the channels there are; a
-/// layer of 24 output channels on [`rows_pixels`] instead. Each output is the bias
+/// Any number of output channels with AVX-512: blocks of 6 to [`PX`] pixels ([`block_px`]) × 1
+/// to 4 vectors of 16 channels ([`block_vectors`]), the last vector masked to the channels
+/// there are; a layer of 24 output channels on [`rows_pixels`] instead. Each output is the bias
 /// plus the taps and input channels in the same order as every other kernel; with `F` (a
 /// [`Conv3::with_fused`] layer) each step is one fused multiply-add, as in the AVX2 kernels, else a
 /// multiply, then an add, as in the portable and the page's kernels: either way the AVX2
@@ -52,7 +53,19 @@ fn block_px(w: usize) -> usize {
     [PX, 7, 6].into_iter().min_by_key(|&p| w.div_ceil(p) * p).expect("three sizes")
 }
 
-/// [`rows`] with blocks of `P` pixels (at most [`PX`]).
+/// Vectors of 16 channels in the next block from channel `c0` of `cout`: 3 (48 channels,
+/// 24 accumulators) where 3 or more are left, 4 where that would leave one alone (64: one
+/// block of 4 instead of 3 and a lone vector, whose 8 pixels need 8 broadcasts for 8 products),
+/// else what is left. A block of more vectors shares each broadcast input among more products.
+fn block_vectors(c0: usize, cout: usize) -> usize {
+    match (cout - c0).div_ceil(16) {
+        n @ 4.. if n % 3 == 1 => 4,
+        3.. => 3,
+        n => n,
+    }
+}
+
+/// [`rows`] with blocks of `P` pixels (at most [`PX`]; blocks of 4 vectors at most 6).
 ///
 /// # Safety
 /// AVX-512F, and the bounds asserted by [`rows`].
@@ -60,21 +73,35 @@ fn block_px(w: usize) -> usize {
 unsafe fn rows_of<const P: usize, const F: bool>(layer: &Conv3, src: &Map, out: &mut [f32], y0: usize, n: usize, w: usize, post: Post) {
     let cout = layer.cout;
     for r in 0..n {
-        let mut x0 = 0;
-        while x0 < w {
-            let mut c0 = 0;
-            while c0 < cout {
+        let mut c0 = 0;
+        while c0 < cout {
+            let v = block_vectors(c0, cout);
+            let mut x0 = 0;
+            while x0 < w {
                 // SAFETY: AVX-512F is present (this function's contract); unmasked lanes stay
                 // inside the bounds asserted by `rows`.
-                if cout - c0 > 16 {
-                    unsafe { block::<2, P, F>(layer, src, out, y0, r, x0, c0, w, post) };
-                    c0 += 32;
-                } else {
-                    unsafe { block::<1, P, F>(layer, src, out, y0, r, x0, c0, w, post) };
-                    c0 += 16;
+                unsafe {
+                    match v {
+                        4 => {
+                            block::<4, 6, F>(layer, src, out, y0, r, x0, c0, w, post);
+                            x0 += 6;
+                        }
+                        3 => {
+                            block::<3, P, F>(layer, src, out, y0, r, x0, c0, w, post);
+                            x0 += P;
+                        }
+                        2 => {
+                            block::<2, P, F>(layer, src, out, y0, r, x0, c0, w, post);
+                            x0 += P;
+                        }
+                        _ => {
+                            block::<1, P, F>(layer, src, out, y0, r, x0, c0, w, post);
+                            x0 += P;
+                        }
+                    }
                 }
             }
-            x0 += P;
+            c0 += 16 * v;
         }
     }
 }
