@@ -131,7 +131,8 @@ fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::
         use terrain::world::sketched::{SKETCH_TILES, SketchSource};
         check_relief(relief_m)?;
         let sk = terrain::sketch::Sketch::read_path(file).map_err(|e| format!("--sketch {}: {e}", file.display()))?;
-        let heights = sketch_generator(weights.clone())?.generate(&sk, terrain::world::sketched::SKETCH_EXTENT_M, &mut Default::default(), terrain::models::cpu::default_threads());
+        let heights =
+            sketch_generator(weights.clone())?.exact().generate(&sk, terrain::world::sketched::SKETCH_EXTENT_M, &mut Default::default(), terrain::models::cpu::default_threads());
         let sketched = SketchSource::new(std::sync::Arc::new(heights), relief_m).pins();
         for c in SKETCH_TILES {
             let tile = sketched.get(c).ok_or("a sketch pins its four tiles")?;

@@ -264,11 +264,21 @@ impl SketchGenCpu {
     /// or only multiples of 8 ([`widened_for_kernels`]), and fused: natively each multiply and
     /// add is one FMA, as ONNX Runtime does (a sketch 48 → 41 ms on 1 thread, Zen 4). The
     /// terrain then differs from the page's worker (no FMA in SIMD128) in the last bits, as
-    /// the page's WebGPU terrain already does; the e2e tests hold the page to the native CLI
-    /// within half a 16-bit step, and the world grown beside a pinned sketch within 0.05 m.
+    /// the page's WebGPU terrain already does (the e2e tests hold the page to the native CLI
+    /// within half a 16-bit step). A sketch pinned into the learned world takes
+    /// [`Self::exact`] instead.
     fn with_widths(convs: Vec<Conv3>, any_channels: bool) -> Self {
         let run = widened_for_kernels(&convs, any_channels).into_iter().map(|c| c.with_fused(true)).collect();
         Self { convs, run }
+    }
+
+    /// The same generator with every layer unfused: each step a multiply, then an add, as the
+    /// page's worker runs it (SIMD128 has no FMA), so its terrain is the worker's to the bit.
+    /// A sketch pinned into the learned world (`terrain world --sketch`) must be: downstream, a
+    /// last-bit difference can flip a drainage choice (with the fused generator the world beside
+    /// the sketch was 4.2 m from the page's in the e2e test).
+    pub fn exact(&self) -> Self {
+        Self { convs: self.convs.clone(), run: self.run.iter().map(|c| c.clone().with_fused(false)).collect() }
     }
 
     /// Every layer random (uniform ±`amplitude`, from `seed`), for tests.
@@ -563,6 +573,23 @@ mod tests {
         let worst = ha.iter().zip(&hb).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
         assert!(worst <= 1e-6, "{worst}");
         assert!(ha.iter().any(|&v| v != ha[0]), "a flat output tests nothing");
+    }
+
+    /// The exact generator runs every layer unfused and the default one every layer fused; on
+    /// a CPU with FMA kernels their heights differ somewhere, by last bits only (≤ 1e-5 of the
+    /// 0–1 scale).
+    #[test]
+    fn the_exact_generator_is_the_unfused_one_and_differs_from_the_fused_in_last_bits_only() {
+        let g = SketchGenCpu::randomized(5, 0.1);
+        let e = g.exact();
+        assert!(g.run.iter().all(|c| c.is_fused()) && e.run.iter().all(|c| !c.is_fused()));
+        let x = assemble_input(&lopsided_sketch(), FORMAT_EXTENT_M).0;
+        let (hg, he) = (g.forward(&x, SKETCH_PX, &mut Default::default(), 1), e.forward(&x, SKETCH_PX, &mut Default::default(), 1));
+        let worst = hg.iter().zip(&he).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
+        assert!(worst <= 1e-5, "{worst}");
+        if cpu::Kernels::Best.widest() != "portable" {
+            assert!(worst > 0.0, "fused and unfused gave the same bits");
+        }
     }
 
     /// The margin mirrors the tile without repeating its edge: padded pixel (0, 0) is pixel

@@ -179,6 +179,11 @@ impl Conv3 {
         self
     }
 
+    /// Whether the x86 kernels fuse this layer's multiply-adds ([`Conv3::with_fused`]).
+    pub fn is_fused(&self) -> bool {
+        self.fused
+    }
+
     /// Input channels.
     pub fn cin(&self) -> usize {
         self.cin
