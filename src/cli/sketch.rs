@@ -69,7 +69,10 @@ pub(crate) fn sketch(
         check_relief(relief_m)?;
     }
     let sk = Sketch::read_path(input).map_err(|e| format!("{}: {e}", input.display()))?;
+    // The terrain in metres is the sketch world's, what `terrain world --sketch` pins: the
+    // exact (unfused) generator's, the page worker's bits.
     let generator = sketch_generator(weights)?;
+    let generator = if metres.is_some() { generator.exact() } else { generator };
     let default_extent = if metres.is_some() { terrain::world::sketched::SKETCH_EXTENT_M } else { terrain::models::sketch::FORMAT_EXTENT_M };
     let extent_m = extent_m.unwrap_or(default_extent);
     if !generator.knows_extent() {

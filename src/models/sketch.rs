@@ -274,7 +274,8 @@ impl SketchGenCpu {
 
     /// The same generator with every layer unfused: each step a multiply, then an add, as the
     /// page's worker runs it (SIMD128 has no FMA), so its terrain is the worker's to the bit.
-    /// A sketch pinned into the learned world (`terrain world --sketch`) must be: downstream, a
+    /// A sketch pinned into the learned world (`terrain world --sketch`, and the same terrain in
+    /// metres from `terrain sketch --format`) must be: downstream, a
     /// last-bit difference can flip a drainage choice (with the fused generator the world beside
     /// the sketch was 4.2 m from the page's in the e2e test).
     pub fn exact(&self) -> Self {
