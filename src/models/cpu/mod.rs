@@ -13,8 +13,8 @@
 //! multiply, then an add, so every kernel on every machine, the page's included, gives the same
 //! bits: a learned tile is a pure function of (seed, weights, tile), and a last-bit
 //! difference cannot flip a drainage choice downstream. A layer made [`Conv3::with_fused`] (the
-//! TEM's, whose output nothing downstream amplifies, and the sketch generator's, whose terrain
-//! the page may make on WebGPU with other roundings anyway) lets the x86 kernels fuse the two
+//! TEM's, whose output nothing downstream amplifies, and the sketch generator's, except where
+//! its terrain is pinned into the world: `SketchGenCpu::exact`) lets the x86 kernels fuse the two
 //! into one FMA instead: 25–35 % faster natively, and the page's results then differ in the
 //! last bits (0.24 mm on the TEM probe).
 
