@@ -89,13 +89,18 @@ struct RegionArgs {
     pin: Vec<String>,
     /// The page's sketch world (--source tcm): a sketch PNG (the format's palette) made
     /// into terrain as the page draws it (one view of the generator, weights from
-    /// --weights), --relief metres from its lowest to its highest point, pinned on tiles
-    /// (−1, −1)–(0, 0) with the learned world grown around it.
+    /// --weights), --relief metres from its lowest to its highest point, --extent-m across,
+    /// pinned on the tiles it lies on (8 km: tiles (−1, −1)–(0, 0); 4 km or less: tile (0, 0))
+    /// with the learned world grown around it.
     #[arg(long, value_name = "SKETCH.png")]
     sketch: Option<PathBuf>,
     /// Relief of --sketch: metres from its lowest to its highest point (10–8000).
     #[arg(long, default_value_t = terrain::world::sketched::DEFAULT_RELIEF_M)]
     relief: f64,
+    /// Extent of --sketch: metres across on the ground (512–8192), which the generator is
+    /// told, as the page's extent slider.
+    #[arg(long, value_parser = sketch_world_extent, default_value_t = terrain::world::sketched::SKETCH_EXTENT_M)]
+    extent_m: f64,
 }
 
 /// `terrain export --format`.
@@ -424,8 +429,9 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
         /// Write the sketch's terrain in metres as the page's sketch world has it (256² samples
-        /// at 32 m, 8.2 km square, the relief of --relief) in this format, with the same options
-        /// as `export` (.png and .raw with a JSON sidecar); the --out file's extension must agree.
+        /// at 32 m, 8.2 km square, the relief of --relief; with --extent-m, 256² samples at its
+        /// own spacing, extent / 256) in this format, with the same options as `export` (.png
+        /// and .raw with a JSON sidecar); the --out file's extension must agree.
         #[arg(long, value_enum)]
         format: Option<ExportFormat>,
         /// Relief (metres) from the sketch's lowest to its highest point, with --format.
@@ -841,6 +847,13 @@ fn step_count(s: &str) -> Result<usize, String> {
 fn extent_metres(s: &str) -> Result<f64, String> {
     let (lo, hi) = terrain::models::sketch::EXTENT_RANGE_M;
     s.parse::<f64>().ok().filter(|m| (lo..=hi).contains(m)).ok_or_else(|| format!("a sketch's extent is {lo} to {hi} metres, not '{s}'"))
+}
+
+/// A sketch world's extent (`--extent-m` of `world --sketch`): metres across, within
+/// [`terrain::world::sketched::EXTENT_M`].
+fn sketch_world_extent(s: &str) -> Result<f64, String> {
+    let range = terrain::world::sketched::EXTENT_M;
+    s.parse::<f64>().ok().filter(|m| range.contains(m)).ok_or_else(|| format!("a sketch world is {} to {} metres across, not '{s}'", range.start(), range.end()))
 }
 
 /// A batch size: a whole number from 1 to 4096.

@@ -5,7 +5,8 @@
 //! with metres for positions, radians for angles, tiles for R, pixels for PX and m/s for V.
 //! SOURCE is `tcm` (the learned world), `procedural` or `sketch`; HASH names the learned world's
 //! weights, or the sketch models' (absent for the procedural world). A sketch world adds
-//! `&sk=CODE&relief=M`: the sketch ([`crate::sketch::code`]) and its relief in metres.
+//! `&sk=CODE&relief=M&extent=E`: the sketch ([`crate::sketch::code`]), its relief and its extent
+//! (across) in metres (a link without `extent` is an 8 km sketch).
 //! Version-1 links (no `src`, no `w`) were made when the world was procedural: they open the
 //! procedural world, and the page says the world may differ. Unknown keys are ignored so older pages can open newer links. Keys and values are
 //! percent-decoded (`application/x-www-form-urlencoded`, as browsers encode them).
@@ -63,6 +64,9 @@ pub struct ShareState {
     pub sketch: Option<String>,
     /// Relief of a sketch world (metres from its lowest to its highest point).
     pub relief_m: f64,
+    /// Extent of a sketch world's sketch (metres across,
+    /// [`crate::world::sketched::EXTENT_M`]).
+    pub extent_m: f64,
 }
 
 impl Default for ShareState {
@@ -81,6 +85,7 @@ impl Default for ShareState {
             autopilot_mps: 0.0,
             sketch: None,
             relief_m: crate::world::sketched::DEFAULT_RELIEF_M,
+            extent_m: crate::world::sketched::SKETCH_EXTENT_M,
         }
     }
 }
@@ -177,7 +182,7 @@ impl ShareState {
             if let Some(code) = &self.sketch {
                 weights.push_str(&format!("&sk={code}"));
             }
-            weights.push_str(&format!("&relief={}", self.relief_m));
+            weights.push_str(&format!("&relief={}&extent={}", self.relief_m, self.extent_m));
         }
         format!(
             "v={LINK_VERSION}&seed={}&src={}{weights}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}",
@@ -292,6 +297,14 @@ impl ShareState {
                     }
                     s.relief_m = r;
                 }
+                "extent" => {
+                    let [e] = numbers::<1>(key, value)?;
+                    let range = crate::world::sketched::EXTENT_M;
+                    if !range.contains(&e) {
+                        return Err(ShareError(format!("sketch extent {e} m is outside {}..{} m", range.start(), range.end())));
+                    }
+                    s.extent_m = e;
+                }
                 "auto" => {
                     let [v] = numbers::<1>(key, value)?;
                     if !AUTOPILOT_MPS.contains(&v) {
@@ -390,15 +403,22 @@ mod tests {
     #[test]
     fn a_sketch_link_round_trips_its_sketch_and_relief_and_refuses_broken_ones() {
         let code = crate::sketch::code::encode(&crate::sketch::examples::first().1);
-        let s = ShareState { source: SourceKind::Sketch, weights: Some("00ff00ff".into()), sketch: Some(code.clone()), relief_m: 2345.5, ..ShareState::default() };
+        let s =
+            ShareState { source: SourceKind::Sketch, weights: Some("00ff00ff".into()), sketch: Some(code.clone()), relief_m: 2345.5, extent_m: 700.25, ..ShareState::default() };
         let f = s.to_fragment();
-        assert!(f.contains("src=sketch") && f.contains(&format!("sk={code}")) && f.contains("relief=2345.5"), "{f}");
+        assert!(f.contains("src=sketch") && f.contains(&format!("sk={code}")) && f.contains("relief=2345.5&extent=700.25"), "{f}");
         assert_eq!(ShareState::from_fragment(&f).unwrap(), s);
         let broken = f.replace(&code, &code[..code.len() / 2]);
         let err = ShareState::from_fragment(&broken).unwrap_err();
         assert!(err.0.contains("sketch code"), "{err}");
         let err = ShareState::from_fragment(&f.replace("relief=2345.5", "relief=1e9")).unwrap_err();
         assert!(err.0.contains("relief"), "{err}");
+        for bad in ["extent=100", "extent=9000", "extent=NaN"] {
+            let err = ShareState::from_fragment(&f.replace("extent=700.25", bad)).unwrap_err();
+            assert!(err.0.contains("extent"), "{bad}: {err}");
+        }
+        let old = ShareState::from_fragment(&f.replace("&extent=700.25", "")).unwrap();
+        assert_eq!(old.extent_m, crate::world::sketched::SKETCH_EXTENT_M, "a link without extent is an 8 km sketch");
     }
 
     /// A link gives back every setting exactly and the camera to the centimetre (angles to
@@ -420,6 +440,7 @@ mod tests {
             autopilot_mps: 250.0,
             sketch: None,
             relief_m: crate::world::sketched::DEFAULT_RELIEF_M,
+            extent_m: crate::world::sketched::SKETCH_EXTENT_M,
         };
         let link = s.to_fragment();
         assert!(link.contains("&cam=-123456.79,1234.5,0.3,-2.12346,0.33333&"), "{link}");

@@ -365,6 +365,40 @@ fn sketch_writes_its_terrain_in_metres_in_the_export_formats() {
     }
 }
 
+/// A sketch 0.5 km across (`--extent-m 512`) lies in the middle of tile (0, 0) with its own
+/// 2 m samples: `terrain export --sketch … --spacing 2` of that tile holds, in the 256² square
+/// at 2 m pixels 896–1151, `terrain sketch --format tif --extent-m 512`'s terrain bit for bit
+/// (256² samples at 2 m), and its 32 m tile (`terrain world`) is their area mean; an extent
+/// outside 512–8192 m is refused.
+#[test]
+fn a_half_km_sketch_exported_at_2_m_is_the_sketchs_own_terrain_bit_for_bit() {
+    let input = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/sketch/examples/montblanc.png");
+    let input = input.to_str().unwrap();
+    let (own, at2, at32) = (tmp("sk512.tif"), tmp("sk512_export.tif"), tmp("sk512_world.tif"));
+    let o = run(&["sketch", "--input", input, "--out", own.to_str().unwrap(), "--format", "tif", "--relief", "375", "--extent-m", "512", "--views", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let sketch = ["--seed", "1", "--source", "tcm", "--sketch", input, "--relief", "375", "--extent-m", "512", "--tiles", "0", "0", "1", "1"];
+    let o = run(&[&["export"][..], &sketch[..], &["--spacing", "2", "--out", at2.to_str().unwrap()]].concat());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run(&[&["world"][..], &sketch[..], &["--out", at32.to_str().unwrap()]].concat());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("512 m across) on tile(s) (0, 0)"), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, e, w) = (read(&own), read(&at2), read(&at32));
+    assert_eq!((a.width, a.spacing_m, e.width, e.spacing_m, w.width), (256, 2.0, 2048, 2.0, 128));
+    for y in 0..256 {
+        for x in 0..256 {
+            assert_eq!(a.data[y * 256 + x].to_bits(), e.data[(896 + y) * 2048 + 896 + x].to_bits(), "2 m sample ({x}, {y})");
+        }
+    }
+    let (lo, hi) = a.data.iter().fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    assert!(lo >= 0.0 && hi <= 375.0 && hi - lo > 180.0, "{lo}..{hi} m");
+    // 32 m sample 60 covers 2 m pixels 960–975: sketch samples 64–79.
+    let mean: f32 = (0..256).map(|k| a.data[(64 + k / 16) * 256 + 64 + k % 16]).sum::<f32>() / 256.0;
+    assert!((w.data[60 * 128 + 60] - mean).abs() < 0.01, "{} vs {mean}", w.data[60 * 128 + 60]);
+    let o = run(&[&["world"][..], &sketch[..8], &["--extent-m", "100", "--tiles", "0", "0", "1", "1", "--out", at32.to_str().unwrap()]].concat());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("a sketch world is 512 to 8192 metres across, not '100'"), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// `terrain export --spacing 8` of a region with an 8 m GeoTIFF pinned on its second tile:
 /// that tile is the GeoTIFF's own samples bit for bit (its 8 m detail, not the TEM's), the
 /// first tile is the learned world refined, and the CLI says the detail is kept.

@@ -30,7 +30,7 @@ use crate::world::learned::{PIN_ERODED_REACH_TILES, PIN_REACH_TILES};
 use crate::world::pins::Pins;
 use crate::world::quadtree::{BASE_DATA_DEPTH, NodeCache, NodeData};
 use crate::world::refine::{PatchKey, PatchStore, RefineJob};
-use crate::world::sketched::{SKETCH_TILES, SketchSource};
+use crate::world::sketched::SketchSource;
 use crate::world::{ProceduralSource, SourceKind, TILE_SIZE_M, Tile, TileCoord, TileSource, WorldStream};
 
 /// Milliseconds per frame that tile generation may use at least before it waits for the next
@@ -111,8 +111,11 @@ pub struct TerrainApp {
     /// A canvas revision whose terrain came back unusable: not asked for again until the
     /// canvas changes (else it would be asked for every frame).
     sketch_rejected: Option<u64>,
-    /// The terrain of the sketch shown (0–255 scale) and its canvas revision.
-    sketch_terrain: Option<(u64, Arc<Vec<f32>>)>,
+    /// The terrain of the sketch shown (0–255 scale), its canvas revision and the extent
+    /// (metres across) it was made for.
+    sketch_terrain: Option<(u64, Arc<Vec<f32>>, f64)>,
+    /// The extent (metres across) the sketch job in flight was asked for.
+    sketch_job_extent_m: f64,
     /// The canvas's code and the revision it was made at (share links).
     sketch_code: (u64, String),
     /// When (app time, seconds) the sketch last changed: a stroke, or its terrain shown.
@@ -125,11 +128,15 @@ pub struct TerrainApp {
     worker_pins: Arc<(String, Pins)>,
 }
 
-/// A camera pose that shows the whole sketch (8.2 km square centred on the origin) from the
-/// south, 35° down, about 6.4 km from its centre (the square fills about 70 % of the view's
-/// width at 16:10, nearer than the fog): position (metres), heading and pitch (radians).
-pub fn sketch_overview(relief_m: f64) -> ([f64; 3], f32, f32) {
-    ([0.0, 0.5 * relief_m + 3700.0, 5200.0], 0.0, -0.61)
+/// A camera pose that shows the whole sketch of `relief_m` and `extent_m` (metres across,
+/// [`crate::world::sketched`]: an 8.2 km square centred on the origin, a smaller one in the
+/// middle of tile (0, 0)) from the south, 35° down, about 0.78 extents from its centre (the
+/// square fills about 70 % of the view's width at 16:10, nearer than the fog): position
+/// (metres), heading and pitch (radians).
+pub fn sketch_overview(relief_m: f64, extent_m: f64) -> ([f64; 3], f32, f32) {
+    let k = extent_m.clamp(*crate::world::sketched::EXTENT_M.start(), *crate::world::sketched::EXTENT_M.end()) / crate::world::sketched::SKETCH_EXTENT_M;
+    let x = crate::world::sketched::centre_m(extent_m) + 0.5 * crate::world::BASE_SPACING_M;
+    ([x, 0.5 * relief_m + 3700.0 * k, x + 5200.0 * k], 0.0, -0.61)
 }
 
 /// Seconds the learned world around a sketch waits after the sketch last changed before its
@@ -178,6 +185,7 @@ impl TerrainApp {
             sketch_jobs: JobQueue::new(SKETCH_JOBS_IN_FLIGHT),
             sketch_rejected: None,
             sketch_terrain: None,
+            sketch_job_extent_m: crate::world::sketched::SKETCH_EXTENT_M,
             sketch_code: (0, code),
             sketch_changed_s: f64::NEG_INFINITY,
             user_pins: Pins::new(),
@@ -187,14 +195,14 @@ impl TerrainApp {
         app
     }
 
-    fn make_world(s: &ShareState, learned: &LearnedStatus, sketch: Option<&Arc<Vec<f32>>>, procedural_elsewhere: bool) -> WorldStream {
+    fn make_world(s: &ShareState, learned: &LearnedStatus, sketch: Option<(&Arc<Vec<f32>>, f64)>, procedural_elsewhere: bool) -> WorldStream {
         match (s.source, learned) {
             // The sketch pinned into the learned world, which grows around it.
             (SourceKind::Sketch, LearnedStatus::Ready { hash }) if sketch.is_some() => {
                 WorldStream::made_elsewhere(s.seed, format!("sketch in the learned world (TCM {hash})"), s.radius_tiles)
             }
             (SourceKind::Sketch, _) => match sketch {
-                Some(h) => WorldStream::new(s.seed, Box::new(SketchSource::new(h.clone(), s.relief_m)), s.radius_tiles),
+                Some((h, extent_m)) => WorldStream::new(s.seed, Box::new(SketchSource::with_extent(h.clone(), s.relief_m, extent_m)), s.radius_tiles),
                 None => WorldStream::made_elsewhere(s.seed, "sketch (its terrain is being made…)".into(), s.radius_tiles),
             },
             (SourceKind::Learned, LearnedStatus::Ready { hash }) => WorldStream::made_elsewhere(s.seed, format!("learned (TCM {hash})"), s.radius_tiles),
@@ -260,26 +268,38 @@ impl TerrainApp {
         // Every new world gets a new epoch (after `epoch`): results of jobs (tiles, TEM
         // batches) made for an older one are dropped.
         let epoch = self.world.successor_epoch(epoch);
-        let new = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| &t.1), self.procedural_elsewhere).at_epoch(epoch);
+        let new = Self::make_world(&self.settings, &self.learned, self.sketch_terrain.as_ref().map(|t| (&t.1, t.2)), self.procedural_elsewhere).at_epoch(epoch);
         let old = std::mem::replace(&mut self.world, new);
         self.nodes = NodeCache::new();
         self.coarse_nodes.clear();
         let (last, at) = std::mem::take(&mut self.last_nodes);
         self.stand_in = (!last.is_empty()).then_some((last, at));
-        let pins = match self.sketch_terrain.as_ref().filter(|_| self.sketch_in_learned()) {
-            Some((_, h)) => {
-                let sketch = SketchSource::new(h.clone(), self.settings.relief_m);
+        let sketch = self.sketch_terrain.as_ref().filter(|_| self.settings.source == SourceKind::Sketch);
+        let sketch = sketch.map(|(_, h, extent_m)| SketchSource::with_extent(h.clone(), self.settings.relief_m, *extent_m));
+        let pins = match sketch.as_ref().filter(|_| self.sketch_in_learned()) {
+            Some(sketch) => {
                 let pins = sketch.pins();
-                self.take_over_sketch(old, &sketch, &pins);
+                self.take_over_sketch(old, sketch, &pins);
                 // Its own tiles and the old ones stay drawn: no picture of the old world.
                 self.stand_in = None;
                 pins
             }
             None => self.user_pins.clone(),
         };
-        // The user's terrain keeps its own detail where the TEM refines the learned world
-        // (another world shown does not hold the pins).
-        let detail = if self.source() == SourceKind::Learned { pins.clone() } else { Pins::new() };
+        // The user's terrain keeps its own detail where the TEM refines the learned world, and
+        // a sketch finer than the world's 32 m its own (another world shown does not hold the
+        // user's pins).
+        let detail = match (self.source(), &sketch) {
+            (SourceKind::Learned, _) => pins.clone(),
+            (SourceKind::Sketch, Some(sketch)) if sketch.detail_level().is_some() => {
+                if self.sketch_in_learned() {
+                    pins.clone()
+                } else {
+                    sketch.pins()
+                }
+            }
+            _ => Pins::new(),
+        };
         self.refine = PatchStore::new(0, epoch).with_pins(detail, TileCoord::new(0, 0));
         if pins != self.worker_pins.1 {
             self.worker_pins = Arc::new((pins.hash(), pins));
@@ -293,7 +313,7 @@ impl TerrainApp {
     fn sketch_unsettled(&self) -> bool {
         self.sketch_in_learned()
             && (self.sketch_jobs.stats().in_flight > 0
-                || self.sketch_terrain.as_ref().is_some_and(|t| t.0 != self.canvas.revision() + 1)
+                || self.sketch_terrain.as_ref().is_some_and(|t| t.0 != self.canvas.revision() + 1 || t.2 != self.settings.extent_m)
                 || self.time_s - self.sketch_changed_s < SKETCH_SETTLE_S)
     }
 
@@ -310,11 +330,12 @@ impl TerrainApp {
     /// weights) is the same beyond the pins' reach: those tiles are kept as they are.
     fn take_over_sketch(&mut self, old: WorldStream, sketch: &SketchSource, pins: &Pins) {
         let same = old.seed() == self.world.seed() && old.source_name() == self.world.source_name();
-        let fixed = SKETCH_TILES.iter().map(|&c| Tile::new(c, pins.get(c).expect("a sketch pins its four tiles").fine.to_vec())).collect();
+        let tiles = sketch.tiles();
+        let fixed = tiles.iter().map(|&c| Tile::new(c, pins.get(c).expect("a sketch pins the tiles it lies on").fine.to_vec())).collect();
         let beyond = |c: TileCoord| !pins.within(c, PIN_REACH_TILES);
         let coarse_beyond = |c: TileCoord| !pins.within(c, PIN_ERODED_REACH_TILES);
         self.world.take_over(old, fixed, same.then_some((&beyond as &dyn Fn(TileCoord) -> bool, &coarse_beyond as &dyn Fn(TileCoord) -> bool)));
-        for c in SKETCH_TILES.iter().flat_map(|c| c.window3x3()) {
+        for c in tiles.iter().flat_map(|c| c.window3x3()) {
             if !self.world.contains(c) {
                 self.world.insert_stale(sketch.tile(c));
             }
@@ -361,6 +382,7 @@ impl TerrainApp {
     pub fn apply(&mut self, s: ShareState) {
         let mut world_changed = s.seed != self.settings.seed || s.source != self.settings.source || s.noise != self.settings.noise || s.radius_tiles != self.settings.radius_tiles;
         world_changed |= s.source == SourceKind::Sketch && s.relief_m != self.settings.relief_m;
+        // A new extent asks for a new terrain (sketch_jobs); the world follows when it comes.
         if let Some(sketch) = s.sketch.as_deref().filter(|c| *c != self.sketch_code.1).and_then(|c| crate::sketch::code::decode(c).ok()) {
             // A link with another sketch: draw it (undoable); its terrain follows as a job.
             self.canvas.load(sketch);
@@ -380,7 +402,7 @@ impl TerrainApp {
         s.pitch = now.pitch;
         if s.source == SourceKind::Sketch && now.source != SourceKind::Sketch {
             // Entering the sketch world: look at the sketch from the south.
-            (s.position_m, s.yaw, s.pitch) = sketch_overview(s.relief_m);
+            (s.position_m, s.yaw, s.pitch) = sketch_overview(s.relief_m, s.extent_m);
         }
         if s.source != now.source {
             // Weights a link named belong to its world, not to the one chosen now.
@@ -490,16 +512,22 @@ impl TerrainApp {
     /// [`sketch_failed`](Self::sketch_failed). With the generator failed, the band
     /// interpolation is made here at once instead.
     pub fn sketch_jobs(&mut self) -> Vec<(Job<u64>, Sketch)> {
-        let rev = self.canvas.revision() + 1;
-        if self.source() != SourceKind::Sketch || self.sketch_terrain.as_ref().is_some_and(|t| t.0 == rev) || self.sketch_rejected == Some(rev) {
+        let (rev, extent_m) = (self.canvas.revision() + 1, self.settings.extent_m);
+        if self.source() != SourceKind::Sketch || self.sketch_terrain.as_ref().is_some_and(|t| t.0 == rev && t.2 == extent_m) || self.sketch_rejected == Some(rev) {
             return Vec::new();
         }
         match &self.sketch_models {
-            LearnedStatus::Ready { .. } => self.sketch_jobs.start([rev]).into_iter().map(|j| (j, self.canvas.sketch().clone())).collect(),
+            LearnedStatus::Ready { .. } => {
+                let jobs: Vec<_> = self.sketch_jobs.start([rev]).into_iter().map(|j| (j, self.canvas.sketch().clone())).collect();
+                if !jobs.is_empty() {
+                    self.sketch_job_extent_m = extent_m;
+                }
+                jobs
+            }
             LearnedStatus::Failed(_) => {
                 let t = web_time::Instant::now();
                 let h = crate::sketch::baseline::interpolate(self.canvas.sketch());
-                self.show_sketch_terrain(rev, h, t.elapsed().as_secs_f64() * 1e3);
+                self.show_sketch_terrain(rev, h, extent_m, t.elapsed().as_secs_f64() * 1e3);
                 Vec::new()
             }
             LearnedStatus::Loading => Vec::new(),
@@ -517,10 +545,13 @@ impl TerrainApp {
             self.sketch_rejected = Some(job.key);
             return Err(format!("the generator returned {} heights, {bad} of them not finite numbers, for {}", heights.len(), SKETCH_PX * SKETCH_PX));
         }
-        if self.sketch_jobs.finish(job) == Outcome::Stale || self.sketch_terrain.as_ref().is_some_and(|t| t.0 >= job.key) {
+        let extent_m = self.sketch_job_extent_m;
+        // A terrain for the same canvas is shown again only when it was made for another
+        // extent (the user changed it).
+        if self.sketch_jobs.finish(job) == Outcome::Stale || self.sketch_terrain.as_ref().is_some_and(|t| t.0 > job.key || (t.0 == job.key && t.2 == extent_m)) {
             return Ok(false);
         }
-        self.show_sketch_terrain(job.key, heights, ms);
+        self.show_sketch_terrain(job.key, heights, extent_m, ms);
         Ok(true)
     }
 
@@ -529,14 +560,20 @@ impl TerrainApp {
         self.sketch_jobs.fail(job);
     }
 
-    fn show_sketch_terrain(&mut self, rev: u64, heights: Vec<f32>, ms: f64) {
-        self.sketch_terrain = Some((rev, Arc::new(heights)));
+    fn show_sketch_terrain(&mut self, rev: u64, heights: Vec<f32>, extent_m: f64, ms: f64) {
+        self.sketch_terrain = Some((rev, Arc::new(heights), extent_m));
         self.sketch_changed_s = self.time_s;
         self.stats.sketch_ms = ms;
         self.stats.sketch_shown = rev;
         if self.settings.source == SourceKind::Sketch {
             self.new_world();
         }
+    }
+
+    /// The extent (metres across) the terrain of the sketch shown was made for, once there is
+    /// one.
+    pub fn sketch_terrain_extent_m(&self) -> Option<f64> {
+        self.sketch_terrain.as_ref().map(|t| t.2)
     }
 
     /// The terrain of the sketch shown (0–255 scale, [`SKETCH_PX`]²), once there is one.
@@ -809,7 +846,7 @@ impl TerrainApp {
 
     /// Puts the camera where it shows the whole sketch ([`sketch_overview`]).
     pub fn frame_sketch(&mut self) {
-        let (p, yaw, pitch) = sketch_overview(self.settings.relief_m);
+        let (p, yaw, pitch) = sketch_overview(self.settings.relief_m, self.settings.extent_m);
         (self.camera.position_m, self.camera.yaw, self.camera.pitch) = (DVec3::from_array(p), yaw, pitch);
         if self.controller.mode == crate::render::CameraMode::Orbit {
             self.set_camera_mode(crate::render::CameraMode::Fly);

@@ -1090,7 +1090,8 @@ impl PageCore {
     fn sketch_probe_next(&mut self) {
         if let Some(target) = self.sketch_probe.next() {
             let sketch = self.app.canvas.sketch().into();
-            return self.post(target, 0, Request::Sketch { sketch }, For::SketchProbeRun(target));
+            let extent_m = self.app.settings().extent_m;
+            return self.post(target, 0, Request::Sketch { sketch, extent_m }, For::SketchProbeRun(target));
         }
         let Probe::Done(timings) = self.sketch_probe else { return };
         let gpu = runtime::choose_measured(self.tem_choice, self.gpu.clone(), self.software_adapter, timings).is_gpu();
@@ -1356,7 +1357,8 @@ impl PageCore {
         }
         let target = if self.sketch_on_gpu { Target::Gpu } else { Target::Worker };
         for (job, sketch) in self.app.sketch_jobs() {
-            self.post(target, 0, Request::Sketch { sketch: (&sketch).into() }, For::Sketch(job, target));
+            let extent_m = self.app.settings().extent_m;
+            self.post(target, 0, Request::Sketch { sketch: (&sketch).into(), extent_m }, For::Sketch(job, target));
         }
     }
 }

@@ -89,4 +89,19 @@ impl PageCore {
         self.app.apply_settings(s.clone());
         s
     }
+
+    /// The sketch panel's extent slider: the sketch `extent_m` metres across (its terrain is
+    /// made again for it), with the relief that fits it
+    /// ([`crate::world::sketched::default_relief_m`]) unless the user chose another, and the
+    /// camera where it shows the whole sketch; returns the settings for the overlay.
+    pub fn set_extent(&mut self, extent_m: f64) -> ShareState {
+        let now = self.app.share_state();
+        let extent_m = extent_m.clamp(*crate::world::sketched::EXTENT_M.start(), *crate::world::sketched::EXTENT_M.end());
+        let default_relief = crate::world::sketched::default_relief_m;
+        let relief_m = if now.relief_m == default_relief(now.extent_m) { default_relief(extent_m) } else { now.relief_m };
+        let s = ShareState { extent_m, relief_m, ..now };
+        self.app.apply_settings(s.clone());
+        self.app.frame_sketch();
+        self.app.share_state()
+    }
 }

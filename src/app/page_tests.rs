@@ -382,6 +382,62 @@ fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_fra
     assert_eq!(sketch_posts, 1, "the next stroke is asked for");
 }
 
+/// The sketch panel's extent slider at 0.5 km: the sketch is made again for that extent (the
+/// generator is told it, so the terrain differs from the 8 km one), with the relief that fits
+/// it (375 m, the user had the default), and pinned alone on tile (0, 0) with its own 2 m
+/// detail, the tile drawn being that detail's area mean bit for bit and the tile beside it
+/// the learned world grown around it; the camera frames it from 0.4 km and the link carries
+/// the extent and relief.
+#[test]
+fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_detail() {
+    use crate::world::sketched::SketchSource;
+    let share = ShareState { source: SourceKind::Sketch, position_m: [0.0, 2500.0, 3000.0], pitch: -0.6, radius_tiles: 1.5, ..ShareState::default() };
+    let mut core = PageCore::new(share, start(Ok(())));
+    let mut shell = Shell::new(&no_swap);
+    let settle = |core: &mut PageCore, shell: &mut Shell, extent_m: f64| {
+        for _ in 0..800 {
+            shell.frames(core, 1);
+            let s = core.app.stats();
+            if core.app.sketch_terrain_extent_m() == Some(extent_m) && s.sketch_shown == core.app.canvas.revision() + 1 && s.tiles_pending == 0 && s.tiles_stale == 0 {
+                return;
+            }
+        }
+        panic!("the sketch world did not settle at {extent_m} m: {:?}", core.app.stats());
+    };
+    settle(&mut core, &mut shell, 8192.0);
+    let wide = core.app.sketch_terrain().unwrap().to_vec();
+    let s = core.set_extent(512.0);
+    assert_eq!((s.extent_m, s.relief_m), (512.0, 375.0));
+    let link = s.to_fragment();
+    assert!(link.contains("relief=375&extent=512"), "{link}");
+    let eye = core.app.camera.position_m;
+    let from_centre = ((eye.x - 2032.0).powi(2) + (eye.z - 2032.0).powi(2)).sqrt();
+    assert!((300.0..500.0).contains(&from_centre), "the camera is {from_centre:.0} m from the sketch's centre: {eye:?}");
+    settle(&mut core, &mut shell, 512.0);
+    let small = core.app.sketch_terrain().unwrap().to_vec();
+    // The generator was told 0.5 km: its terrain for that extent (the shipped weights were
+    // trained before the extent channel, so theirs is the 8 km one too).
+    let bytes = std::fs::read(weights().join(crate::models::sketch::WEIGHT_FILE)).unwrap();
+    let generator = crate::models::sketch::SketchGenCpu::from_burnpack(&bytes).unwrap();
+    let want = generator.generate(core.app.canvas.sketch(), 512.0, &mut Default::default(), 1);
+    let off = want.iter().zip(&small).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+    assert!(off < 0.01, "the terrain shown is {off} of 255 from the generator's at 0.5 km");
+    let moved = wide.iter().zip(&small).filter(|(a, b)| (*a - *b).abs() > 1.0).count();
+    assert!(!generator.knows_extent() || moved > 1000, "the terrain made for 0.5 km is the 8 km one: {moved} samples differ by over 1 of 255");
+    let pins = core.app.worker_pins();
+    let c = crate::grid::TileCoord::new(0, 0);
+    assert_eq!(pins.1.coords(), vec![c]);
+    let want = SketchSource::with_extent(std::sync::Arc::new(small), 375.0, 512.0).pins();
+    let (got, want) = (pins.1.get(c).unwrap(), want.get(c).unwrap());
+    assert_eq!(got.detail.len(), 4, "16, 8, 4 and 2 m");
+    assert!(got.detail(3).unwrap().iter().zip(want.detail(3).unwrap()).all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert!(core.app.tile_heights(c).unwrap().iter().zip(want.fine.iter()).all(|(a, b)| a.to_bits() == b.to_bits()), "tile (0, 0) is the pin's");
+    let models = std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap());
+    let beside = crate::grid::TileCoord::new(1, 0);
+    let grown = LearnedSource::new(models, 1).with_pins(pins.1.clone()).generate(core.app.settings().seed, beside, &Neighbourhood::default()).heights;
+    assert_eq!(core.app.tile_heights(beside).expect("the tile beside the sketch"), &grown[..]);
+}
+
 /// The sketch world with the learned world's models ready is the sketch pinned into the
 /// learned world: the worker gets the sketch's pins before any tile of that world; the
 /// sketch's four tiles are its terrain × relief / 255 bit for bit and the tile beside them is

@@ -81,6 +81,14 @@ pub(crate) fn sketch(
     let t = std::time::Instant::now();
     let h = generator.generate_views(&sk, extent_m, views, &mut Default::default(), terrain::models::cpu::default_threads());
     let ms = t.elapsed().as_secs_f64() * 1e3;
+    if let Some((_, relief_m, pow2_plus_1)) = metres.filter(|_| extent_m != terrain::world::sketched::SKETCH_EXTENT_M) {
+        // A sketch of another extent: its own samples in metres at its own spacing.
+        let r = relief_m as f32;
+        let metres = h.iter().map(|v| v / 255.0 * r).collect();
+        let hf = terrain::dem::Heightfield::new(SKETCH_PX, SKETCH_PX, extent_m / SKETCH_PX as f64, metres);
+        eprintln!("the sketch's terrain: {relief_m} m relief ({extent_m} m extent, {} m spacing, {views} views, {ms:.0} ms)", hf.spacing_m);
+        return write_heights(hf, out, pow2_plus_1);
+    }
     if let Some((_, relief_m, pow2_plus_1)) = metres {
         use terrain::world::sketched::{SKETCH_TILES, SketchSource};
         let world = SketchSource::new(std::sync::Arc::new(h), relief_m);

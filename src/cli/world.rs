@@ -122,23 +122,23 @@ fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::
     use terrain::jobs::protocol::{Envelope, Reply, Request};
     let (x0, y0, w, h) = tile_rect(&r.tiles)?;
     let (source, weights) = (r.source, r.weights.clone());
-    let sketch = r.sketch.as_deref().map(|s| (s, r.relief));
+    let sketch = r.sketch.as_deref().map(|s| (s, r.relief, r.extent_m));
     if (!r.pin.is_empty() || sketch.is_some()) && source != Source::Tcm {
         return Err("--pin and --sketch grow the learned world around your terrain: add --source tcm".into());
     }
     let mut pins = read_pins(&r.pin)?;
-    if let Some((file, relief_m)) = sketch {
-        use terrain::world::sketched::{SKETCH_TILES, SketchSource};
+    if let Some((file, relief_m, extent_m)) = sketch {
+        use terrain::world::sketched::SketchSource;
         check_relief(relief_m)?;
         let sk = terrain::sketch::Sketch::read_path(file).map_err(|e| format!("--sketch {}: {e}", file.display()))?;
-        let heights =
-            sketch_generator(weights.clone())?.exact().generate(&sk, terrain::world::sketched::SKETCH_EXTENT_M, &mut Default::default(), terrain::models::cpu::default_threads());
-        let sketched = SketchSource::new(std::sync::Arc::new(heights), relief_m).pins();
-        for c in SKETCH_TILES {
-            let tile = sketched.get(c).ok_or("a sketch pins its four tiles")?;
-            pins.insert(c, tile.fine.to_vec())?;
+        let heights = sketch_generator(weights.clone())?.exact().generate(&sk, extent_m, &mut Default::default(), terrain::models::cpu::default_threads());
+        let sketched = SketchSource::with_extent(std::sync::Arc::new(heights), relief_m, extent_m).pins();
+        // With its own detail where it is finer than 32 m (`export --spacing` keeps it).
+        for (c, tile) in sketched.iter() {
+            pins.insert_tile(c, tile.clone())?;
         }
-        eprintln!("pinned the sketch {} ({relief_m} m relief) on tiles (-1, -1)–(0, 0)", file.display());
+        let tiles: Vec<String> = sketched.coords().iter().map(|c| format!("({}, {})", c.i, c.j)).collect();
+        eprintln!("pinned the sketch {} ({relief_m} m relief, {extent_m} m across) on tile(s) {}", file.display(), tiles.join(", "));
     }
     let runner = terrain::jobs::native::NativeRunner::spawn(terrain::models::cpu::default_threads());
     let ask = |request| -> Result<Reply, String> {

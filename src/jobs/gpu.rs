@@ -81,10 +81,10 @@ impl GpuRunner {
                     None => Reply::Failed("the GPU has no TEM loaded".into()),
                 }
             }
-            Request::Sketch { sketch } => {
+            Request::Sketch { sketch, extent_m } => {
                 let generator = self.sketch.borrow().clone();
                 match (generator, sketch.sketch()) {
-                    (Some(g), Ok(s)) => match g.generate_async(&s, crate::world::sketched::SKETCH_EXTENT_M).await {
+                    (Some(g), Ok(s)) => match g.generate_async(&s, extent_m).await {
                         Ok(heights) => Reply::Heights { heights, ms: ms() },
                         Err(e) => Reply::Failed(e),
                     },

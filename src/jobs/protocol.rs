@@ -56,7 +56,9 @@ pub enum Request {
     },
     /// Turn a sketch into terrain.
     Sketch {
-        /// The sketch.
+        /// Its extent (metres across), which the generator is told.
+        extent_m: f64,
+        /// The sketch (last: its bytes end the message).
         sketch: SketchBytes,
     },
     /// Propose `n` sketches near `sketch` (seeded), each with its terrain.

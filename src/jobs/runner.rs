@@ -216,10 +216,10 @@ impl Runner {
                 let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
                 Ok(Reply::Heights { heights: world.eroded_tile(seed, tile).to_vec(), ms: 0.0 })
             }
-            Request::Sketch { sketch: s } => {
+            Request::Sketch { sketch: s, extent_m } => {
                 let s = sketch_of(&s)?;
                 let m = self.sketch.as_ref().ok_or(NO_SKETCH)?;
-                Ok(Reply::Heights { heights: m.generator.generate(&s, crate::world::sketched::SKETCH_EXTENT_M, &mut Default::default(), self.threads), ms: 0.0 })
+                Ok(Reply::Heights { heights: m.generator.generate(&s, extent_m, &mut Default::default(), self.threads), ms: 0.0 })
             }
             Request::Variants { sketch: s, n, seed } => {
                 if !(1..=MAX_VARIANTS).contains(&n) {
@@ -444,7 +444,9 @@ mod tests {
 
         let (_, sketch) = crate::sketch::examples::all().swap_remove(0);
         let want = sketch_models.generator.generate(&sketch, crate::world::sketched::SKETCH_EXTENT_M, &mut Default::default(), 1);
-        assert_eq!(heights(r.call(&env(13, 0, Request::Sketch { sketch: (&sketch).into() })).unwrap()), want);
+        assert_eq!(heights(r.call(&env(13, 0, Request::Sketch { sketch: (&sketch).into(), extent_m: crate::world::sketched::SKETCH_EXTENT_M })).unwrap()), want);
+        let want = sketch_models.generator.generate(&sketch, 512.0, &mut Default::default(), 1);
+        assert_eq!(heights(r.call(&env(13, 0, Request::Sketch { sketch: (&sketch).into(), extent_m: 512.0 })).unwrap()), want, "the generator is told the request's extent");
         match r.call(&env(14, 0, Request::Variants { sketch: (&sketch).into(), n: 2, seed: 5 })).unwrap().reply {
             Reply::Sketches { sketches, heights, .. } => {
                 let sketches: Vec<Sketch> = sketches.iter().map(|s| s.sketch().unwrap()).collect();
@@ -478,14 +480,14 @@ mod tests {
         assert_eq!(r.step(&mut old).0, Some(Answer { id: 1, reply: Reply::Stale }));
         assert_eq!(r.handle(env(3, 2, Request::Enhance { level: 0, n: 1, side: 4, input: vec![0.0; 16] })), Answer { id: 3, reply: Reply::Stale });
         // Loads and sketches belong to no world: their epoch is not checked.
-        assert!(!matches!(r.handle(env(4, 0, Request::Sketch { sketch: (&Sketch::filled(1)).into() })).reply, Reply::Stale));
+        assert!(!matches!(r.handle(env(4, 0, Request::Sketch { sketch: (&Sketch::filled(1)).into(), extent_m: crate::world::sketched::SKETCH_EXTENT_M })).reply, Reply::Stale));
     }
 
     /// Bytes that name no request kind (variant 99) get an error reply to their id that says
     /// the request is malformed.
     #[test]
     fn an_unknown_request_kind_gets_an_error_reply_to_its_id() {
-        let mut bytes = env(77, 0, Request::Sketch { sketch: (&Sketch::filled(0)).into() }).encode();
+        let mut bytes = env(77, 0, Request::Sketch { sketch: (&Sketch::filled(0)).into(), extent_m: crate::world::sketched::SKETCH_EXTENT_M }).encode();
         // id (1 byte varint), epoch (1 byte), rest (8 bytes), then the variant index.
         assert_eq!(bytes[10], 5, "Sketch is variant 5");
         bytes[10] = 99;
@@ -502,7 +504,7 @@ mod tests {
     #[test]
     fn malformed_payloads_get_clear_error_replies_never_a_panic() {
         let mut r = Runner::new(1);
-        let full = env(9, 0, Request::Sketch { sketch: (&Sketch::filled(0)).into() }).encode();
+        let full = env(9, 0, Request::Sketch { sketch: (&Sketch::filled(0)).into(), extent_m: crate::world::sketched::SKETCH_EXTENT_M }).encode();
         let Accepted::Now(a) = r.accept_bytes(&full[..full.len() / 2]) else { panic!() };
         assert_eq!(a.id, 9);
         assert!(failed(&a).contains("malformed request"));
@@ -519,7 +521,7 @@ mod tests {
             (Request::Blend { a: (&Sketch::filled(0)).into(), b: (&Sketch::filled(1)).into(), alpha: 2.0 }, "not 2"),
             (Request::LoadWorld { tcm: vec![1, 2, 3], grow: vec![] }, ""),
             (Request::LoadTem { files: vec![vec![0; 10]; 5] }, ""),
-            (Request::Sketch { sketch: (&Sketch::filled(0)).into() }, "no sketch models loaded"),
+            (Request::Sketch { sketch: (&Sketch::filled(0)).into(), extent_m: crate::world::sketched::SKETCH_EXTENT_M }, "no sketch models loaded"),
             (Request::Tile { seed: 1, tile: TileCoord::new(0, 0), noise: None }, "no learned world loaded"),
             (Request::Enhance { level: 0, n: 1, side: 4, input: vec![0.0; 16] }, "no TEM loaded"),
             (Request::WorldWork { seed: 1, tile: TileCoord::new(0, 0), coarse: false }, "no learned world loaded"),

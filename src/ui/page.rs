@@ -76,8 +76,8 @@ impl PageUi {
                 self.panel.set_variants(ctx, v);
             }
             let busy = core.sketch_busy() || stats.sketch_jobs.in_flight > 0;
-            let relief = core.app.settings().relief_m;
-            let sk = self.panel.show(ctx, &mut core.app.canvas, relief, busy, &self.examples);
+            let (relief, extent) = (core.app.settings().relief_m, core.app.settings().extent_m);
+            let sk = self.panel.show(ctx, &mut core.app.canvas, relief, extent, busy, &self.examples);
             (asks.export_sketch, asks.import_sketch) = (sk.export, sk.import);
             if sk.variants {
                 core.ask_variants();
@@ -87,6 +87,9 @@ impl PageUi {
             }
             if let Some(r) = sk.relief_m {
                 self.overlay.reset(core.set_relief(r));
+            }
+            if let Some(e) = sk.extent_m {
+                self.overlay.reset(core.set_extent(e));
             }
             if sk.frame {
                 core.app.frame_sketch();

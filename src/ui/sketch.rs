@@ -5,7 +5,7 @@
 
 use crate::sketch::canvas::{BRUSH_PX, Canvas, Tool};
 use crate::sketch::{SKETCH_PX, Sketch};
-use crate::world::sketched::RELIEF_M;
+use crate::world::sketched::{EXTENT_M, RELIEF_M};
 
 /// What the user asked of the shell this frame.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -20,6 +20,8 @@ pub struct SketchActions {
     pub blend: Option<f32>,
     /// A new relief (metres).
     pub relief_m: Option<f64>,
+    /// A new extent (metres across).
+    pub extent_m: Option<f64>,
     /// Put the camera where it shows the whole sketch.
     pub frame: bool,
 }
@@ -80,9 +82,9 @@ impl SketchPanel {
             .collect();
     }
 
-    /// Draws the panel for `canvas` with `relief_m`; `busy` says a terrain or variants are
-    /// being made.
-    pub fn show(&mut self, ctx: &egui::Context, canvas: &mut Canvas, relief_m: f64, busy: bool, examples: &[(&str, Sketch)]) -> SketchActions {
+    /// Draws the panel for `canvas` with `relief_m` and `extent_m` (metres across); `busy`
+    /// says a terrain or variants are being made.
+    pub fn show(&mut self, ctx: &egui::Context, canvas: &mut Canvas, relief_m: f64, extent_m: f64, busy: bool, examples: &[(&str, Sketch)]) -> SketchActions {
         let mut act = SketchActions::default();
         self.buttons.clear();
         let mut rects = std::collections::BTreeMap::new();
@@ -162,6 +164,17 @@ impl SketchPanel {
             let mut relief = relief_m;
             if ui.add(egui::Slider::new(&mut relief, RELIEF_M).logarithmic(true).text("relief m")).drag_stopped() || (relief != relief_m && !ui.ctx().egui_is_using_pointer()) {
                 act.relief_m = Some(relief);
+            }
+            // Kilometres on the slider, metres in the link; a drag asks for one terrain, at its
+            // end.
+            let mut km = extent_m / 1000.0;
+            let range = (EXTENT_M.start() / 1000.0)..=(EXTENT_M.end() / 1000.0);
+            let r = ui
+                .add(egui::Slider::new(&mut km, range).logarithmic(true).max_decimals(2).text("extent km"))
+                .on_hover_text("how wide the sketch is on the ground: 0.5 km (the sketch format's scale, with 2 m detail) to 8 km");
+            note("extent", &r);
+            if r.drag_stopped() || (km != extent_m / 1000.0 && !ui.ctx().egui_is_using_pointer()) {
+                act.extent_m = Some(km * 1000.0);
             }
             ui.separator();
             ui.horizontal(|ui| {
@@ -291,7 +304,7 @@ mod tests {
     fn frame(ctx: &egui::Context, panel: &mut SketchPanel, canvas: &mut Canvas, events: Vec<egui::Event>, t: f64) -> SketchActions {
         let input = egui::RawInput { screen_rect: Some(egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1280.0, 900.0))), time: Some(t), events, ..Default::default() };
         let mut act = SketchActions::default();
-        ctx.run_pass(input, |ctx| act = panel.show(ctx, canvas, 800.0, false, &[])).drop_without_applying_deltas();
+        ctx.run_pass(input, |ctx| act = panel.show(ctx, canvas, 800.0, 8192.0, false, &[])).drop_without_applying_deltas();
         act
     }
 

@@ -1,10 +1,15 @@
-//! The world of a sketch: the terrain made from the sketch canvas ([`crate::sketch`]) placed
-//! on the 2 × 2 tiles around the origin (its 256² samples at the world's 32 m: 8,192 m
-//! across), heights = the terrain's 0–255 scale × relief / 255 metres. Around it the ground
-//! falls smoothly from the sketch's edge to 0 m over [`FADE_M`]; beyond that it is flat. The
-//! falling ground follows the sketch's edge smoothed more the farther out it is (a box mean
-//! of the sketch around the nearest edge sample, as wide as the distance), so the edge's
-//! valleys and ridges do not run out as straight stripes across the plain.
+//! The world of a sketch: the terrain made from the sketch canvas ([`crate::sketch`]) laid on
+//! the ground at the extent the user gave it ([`EXTENT_M`]: 0.5–8 km across), heights = the
+//! terrain's 0–255 scale × relief / 255 metres. At the default 8 km
+//! ([`SKETCH_EXTENT_M`]) its 256² samples are the world's 32 m samples on the 2 × 2 tiles
+//! around the origin ([`SKETCH_TILES`]); a sketch 4 km across or less lies in the middle of
+//! tile (0, 0) alone, its samples finer than the world's, and the tiles it covers keep them
+//! as their own detail at the TEM level nearest its spacing ([`SketchSource::detail_level`]:
+//! 2 m at 0.5 km), the 32 m tile being their area mean. Around it the ground falls smoothly
+//! from the sketch's edge to 0 m ([`SketchSource::fade_m`]: [`FADE_M`] at 8 km); beyond that
+//! it is flat. The falling ground follows the sketch's edge smoothed more the farther out it is (a
+//! box mean of the sketch around the nearest edge sample, as wide as the distance), so the
+//! edge's valleys and ridges do not run out as straight stripes across the plain.
 //!
 //! Where the learned world's models are at hand the sketch's tiles are pinned into it instead
 //! ([`SketchSource::pins`]) and the learned world grows around them; this fading plain is the
@@ -12,38 +17,73 @@
 
 use std::sync::Arc;
 
-use super::pins::Pins;
+use super::pins::{PinnedTile, Pins, detail_side};
 use super::{BASE_SPACING_M, Neighbourhood, TILE_SAMPLES, Tile, TileCoord, TileSource};
+use crate::models::tem::{LEVEL_SPACING_M, LEVELS};
 use crate::sketch::SKETCH_PX;
 
-/// Ground extent of the sketch's tile (metres): its [`SKETCH_PX`] samples at the world's
-/// 32 m, 8,192 m (the generator is told it: [`crate::models::sketch::extent_value`]).
+/// Ground extent of the sketch's tile at the default scale (metres): its [`SKETCH_PX`]
+/// samples at the world's 32 m, 8,192 m (the generator is told the extent:
+/// [`crate::models::sketch::extent_value`]).
 pub const SKETCH_EXTENT_M: f64 = SKETCH_PX as f64 * BASE_SPACING_M;
 
-/// Distance over which the ground around the sketch falls to 0 m (metres).
+/// Extents a sketch may be given (metres across): from the sketch format's own scale (~0.5 km,
+/// [`crate::models::sketch::FORMAT_EXTENT_M`]) to [`SKETCH_EXTENT_M`].
+pub const EXTENT_M: std::ops::RangeInclusive<f64> = 512.0..=SKETCH_EXTENT_M;
+/// Distance over which the ground around an 8 km sketch falls to 0 m (metres); a smaller
+/// sketch's ground falls over half its extent.
 pub const FADE_M: f64 = 4096.0;
-/// Default relief of a sketch (metres between its lowest and highest point).
+/// Default relief of a sketch 8 km across (metres between its lowest and highest point).
 pub const DEFAULT_RELIEF_M: f64 = 1500.0;
 /// Reliefs a sketch may be given (metres).
 pub const RELIEF_M: std::ops::RangeInclusive<f64> = 10.0..=8000.0;
-/// First world sample (x and z) covered by the sketch: it is centred on the origin.
+/// First world sample (x and z) covered by an 8 km sketch: it is centred on the origin.
 pub const FIRST_SAMPLE: i64 = -(SKETCH_PX as i64) / 2;
-/// The tiles the sketch covers, row-major.
+/// The tiles an 8 km sketch covers, row-major.
 pub const SKETCH_TILES: [TileCoord; 4] = [TileCoord { i: -1, j: -1 }, TileCoord { i: 0, j: -1 }, TileCoord { i: -1, j: 0 }, TileCoord { i: 0, j: 0 }];
+
+/// The relief (metres) a sketch `extent_m` across gets unless the user sets one: relief grows
+/// as the square root of the extent, [`DEFAULT_RELIEF_M`] at 8 km and 375 m at 0.5 km (the
+/// North Tyrol DEMs' 500 m windows span 170–480 m), rounded to 5 m.
+pub fn default_relief_m(extent_m: f64) -> f64 {
+    let e = extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end());
+    (DEFAULT_RELIEF_M * (e / SKETCH_EXTENT_M).sqrt() / 5.0).round() * 5.0
+}
+
+/// World x = z (metres) of the centre of a sketch `extent_m` across (clamped to
+/// [`EXTENT_M`]): the origin's corner of the 2 × 2 tiles around it (−16 m: samples are cell
+/// centres) for one wider than a tile, else the middle of tile (0, 0) (2,032 m).
+pub fn centre_m(extent_m: f64) -> f64 {
+    let half = BASE_SPACING_M / 2.0;
+    if extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end()) > super::TILE_SIZE_M { -half } else { super::TILE_SIZE_M / 2.0 - half }
+}
 
 /// Tile source of a sketch's terrain.
 pub struct SketchSource {
     heights: Arc<Vec<f32>>,
     relief_m: f32,
+    /// Metres across (clamped to [`EXTENT_M`]).
+    extent_m: f64,
+    /// World x = z (metres) of the sketch's north-west corner.
+    corner_m: f64,
+    /// [`fade_m`](Self::fade_m).
+    fade_m: f64,
     /// Summed-area table of the heights ((SKETCH_PX + 1)², row-major): box means in O(1).
     sums: Vec<f64>,
 }
 
 impl SketchSource {
     /// The world of `heights` ([`SKETCH_PX`]² on the 0–255 scale) with `relief_m` metres from
-    /// 0 to 255 (clamped to [`RELIEF_M`]).
+    /// 0 to 255 (clamped to [`RELIEF_M`]), [`SKETCH_EXTENT_M`] across.
     pub fn new(heights: Arc<Vec<f32>>, relief_m: f64) -> Self {
+        Self::with_extent(heights, relief_m, SKETCH_EXTENT_M)
+    }
+
+    /// The world of `heights` ([`SKETCH_PX`]² on the 0–255 scale) with `relief_m` metres from
+    /// 0 to 255 (clamped to [`RELIEF_M`]), `extent_m` metres across (clamped to [`EXTENT_M`]).
+    pub fn with_extent(heights: Arc<Vec<f32>>, relief_m: f64, extent_m: f64) -> Self {
         assert_eq!(heights.len(), SKETCH_PX * SKETCH_PX, "a sketch's terrain is {SKETCH_PX}² samples");
+        let extent_m = if extent_m.is_finite() { extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end()) } else { SKETCH_EXTENT_M };
         let n = SKETCH_PX;
         let mut sums = vec![0f64; (n + 1) * (n + 1)];
         for y in 0..n {
@@ -51,7 +91,41 @@ impl SketchSource {
                 sums[(y + 1) * (n + 1) + x + 1] = heights[y * n + x] as f64 + sums[y * (n + 1) + x + 1] + sums[(y + 1) * (n + 1) + x] - sums[y * (n + 1) + x];
             }
         }
-        Self { heights, relief_m: relief_m.clamp(*RELIEF_M.start(), *RELIEF_M.end()) as f32, sums }
+        let centre = centre_m(extent_m);
+        let half = FADE_M * extent_m / SKETCH_EXTENT_M;
+        let fade_m = if extent_m > super::TILE_SIZE_M { half } else { half.max((super::TILE_SIZE_M - extent_m) / 2.0) };
+        Self { heights, relief_m: relief_m.clamp(*RELIEF_M.start(), *RELIEF_M.end()) as f32, extent_m, corner_m: centre - extent_m / 2.0, fade_m, sums }
+    }
+
+    /// Metres across.
+    pub fn extent_m(&self) -> f64 {
+        self.extent_m
+    }
+
+    /// Distance (metres) over which the ground around the sketch falls to 0 m: half its
+    /// extent ([`FADE_M`] at 8 km), but for a sketch in one tile at least out to the tile's
+    /// edge, so its tile is a broad foot around it rather than a level plain.
+    pub fn fade_m(&self) -> f64 {
+        self.fade_m
+    }
+
+    /// World x = z (metres) of the sketch's centre.
+    pub fn centre_m(&self) -> f64 {
+        self.corner_m + self.extent_m / 2.0
+    }
+
+    /// The tiles the sketch lies on (they are its pins), row-major.
+    pub fn tiles(&self) -> Vec<TileCoord> {
+        if self.extent_m > super::TILE_SIZE_M { SKETCH_TILES.to_vec() } else { vec![TileCoord::new(0, 0)] }
+    }
+
+    /// The TEM level (0 = 16 m … 4 = 1 m) whose samples the sketch's tiles keep as their own
+    /// detail: the finest no finer than 2/3 of the sketch's spacing (its extent / 256), so the
+    /// sketch is never stretched more than 1.5× to it; `None` when that is coarser than 16 m
+    /// (a sketch over 6 km across: the 32 m tiles only).
+    pub fn detail_level(&self) -> Option<usize> {
+        let spacing = self.extent_m / SKETCH_PX as f64;
+        (0..LEVELS).rev().find(|&l| LEVEL_SPACING_M[l] >= spacing / 1.5)
     }
 
     /// Mean height (0–255 scale) of the sketch over the box of half-width `r` samples around
@@ -64,39 +138,78 @@ impl SketchSource {
         sum / ((x1 - x0 + 1) * (y1 - y0 + 1)) as f64
     }
 
-    /// The 2 × 2 tiles the sketch covers ([`SKETCH_TILES`]) as pins of the learned world
-    /// ([`super::learned::LearnedSource::with_pins`]): its terrain in metres, sample for
-    /// sample, so the learned world grows around the sketch.
+    /// The tiles the sketch lies on ([`tiles`](Self::tiles)) as pins of the learned world
+    /// ([`super::learned::LearnedSource::with_pins`]): its terrain in metres, with its own
+    /// detail where it is finer than the world's 32 m, so the learned world grows around the
+    /// sketch.
     pub fn pins(&self) -> Pins {
         let mut pins = Pins::new();
-        for c in SKETCH_TILES {
-            let tile = self.tile(c);
-            pins.insert(c, tile.heights).expect("a sketch's terrain is finite (checked when it arrives)");
+        for c in self.tiles() {
+            pins.insert_tile(c, self.pinned_tile(c)).expect("a sketch's terrain is finite (checked when it arrives) and its detail fits");
         }
         pins
     }
 
-    /// Tile `coord` of this world.
-    pub fn tile(&self, coord: TileCoord) -> Tile {
-        let (x0, z0) = (coord.i as i64 * TILE_SAMPLES as i64, coord.j as i64 * TILE_SAMPLES as i64);
-        let heights = (0..TILE_SAMPLES * TILE_SAMPLES).map(|p| self.height(x0 + (p % TILE_SAMPLES) as i64, z0 + (p / TILE_SAMPLES) as i64)).collect();
-        Tile::new(coord, heights)
+    /// Tile `c` as a pin: its samples at [`detail_level`](Self::detail_level) (pixel centres,
+    /// [`crate::world::refine`]'s geometry) and their area means above, or its 32 m samples.
+    fn pinned_tile(&self, c: TileCoord) -> PinnedTile {
+        match self.detail_level() {
+            Some(level) => {
+                let (side, s) = (detail_side(level), LEVEL_SPACING_M[level]);
+                let (p0, q0) = (c.i as i64 * side as i64, c.j as i64 * side as i64);
+                let centre = |p: i64| s * (p as f64 + 0.5) - BASE_SPACING_M / 2.0;
+                let heights = (0..side * side).map(|k| self.height_m(centre(p0 + (k % side) as i64), centre(q0 + (k / side) as i64))).collect();
+                PinnedTile::with_detail(level, heights).expect("a sketch's terrain is finite")
+            }
+            None => PinnedTile::new(self.point_tile(c)).expect("a sketch's terrain is finite"),
+        }
     }
 
-    /// Height (metres) at world sample (`gx`, `gz`).
+    /// Tile `c`'s 32 m samples taken at their centres.
+    fn point_tile(&self, c: TileCoord) -> Vec<f32> {
+        let (x0, z0) = (c.i as i64 * TILE_SAMPLES as i64, c.j as i64 * TILE_SAMPLES as i64);
+        (0..TILE_SAMPLES * TILE_SAMPLES).map(|p| self.height(x0 + (p % TILE_SAMPLES) as i64, z0 + (p / TILE_SAMPLES) as i64)).collect()
+    }
+
+    /// Tile `coord` of this world: on the sketch's own tiles with detail, the area mean of it
+    /// (the pinned tile's 32 m heights), elsewhere the heights at the samples' centres.
+    pub fn tile(&self, coord: TileCoord) -> Tile {
+        if self.detail_level().is_some() && self.tiles().contains(&coord) {
+            return Tile::new(coord, self.pinned_tile(coord).fine.to_vec());
+        }
+        Tile::new(coord, self.point_tile(coord))
+    }
+
+    /// Height (metres) at the centre of world sample (`gx`, `gz`) (32 m apart).
     pub fn height(&self, gx: i64, gz: i64) -> f32 {
+        self.height_m(gx as f64 * BASE_SPACING_M, gz as f64 * BASE_SPACING_M)
+    }
+
+    /// Height (metres) at world point (`x`, `z`) metres: bilinear between the sketch's
+    /// samples (their centres) on the sketch; beyond its outer samples, the box mean of the
+    /// sketch around the nearest of them, the box as wide as the distance in samples, faded
+    /// to 0 m over half the extent.
+    pub fn height_m(&self, x: f64, z: f64) -> f32 {
         let n = SKETCH_PX as i64;
-        let (u, v) = (gx - FIRST_SAMPLE, gz - FIRST_SAMPLE);
-        let (cu, cv) = (u.clamp(0, n - 1), v.clamp(0, n - 1));
-        if (cu, cv) == (u, v) {
-            return self.heights[(cv * n + cu) as usize] / 255.0 * self.relief_m;
+        let spacing = self.extent_m / SKETCH_PX as f64;
+        let (fu, fv) = ((x - self.corner_m) / spacing - 0.5, (z - self.corner_m) / spacing - 0.5);
+        let last = (n - 1) as f64;
+        let (cu, cv) = (fu.clamp(0.0, last), fv.clamp(0.0, last));
+        if (cu, cv) == (fu, fv) {
+            let (u0, v0) = ((fu.floor() as i64).min(n - 2), (fv.floor() as i64).min(n - 2));
+            let (tu, tv) = ((fu - u0 as f64) as f32, (fv - v0 as f64) as f32);
+            let at = |u: i64, v: i64| self.heights[(v * n + u) as usize];
+            let top = at(u0, v0) * (1.0 - tu) + at(u0 + 1, v0) * tu;
+            let bottom = at(u0, v0 + 1) * (1.0 - tu) + at(u0 + 1, v0 + 1) * tu;
+            return (top * (1.0 - tv) + bottom * tv) / 255.0 * self.relief_m;
         }
         // The first sample out holds the edge sample's height (r = 0); farther out, the box
         // widens with the distance.
-        let r = (u - cu).abs().max((v - cv).abs()) - 1;
-        let h = self.box_mean(cu, cv, r) / 255.0 * self.relief_m as f64;
-        let d = libm::hypot((u - cu) as f64, (v - cv) as f64) * BASE_SPACING_M;
-        let t = (1.0 - d / FADE_M).max(0.0);
+        let (du, dv) = (fu - cu, fv - cv);
+        let r = (du.abs().max(dv.abs()).round() as i64 - 1).max(0);
+        let h = self.box_mean(cu.round() as i64, cv.round() as i64, r) / 255.0 * self.relief_m as f64;
+        let d = libm::hypot(du, dv) * spacing;
+        let t = (1.0 - d / self.fade_m()).max(0.0);
         (h * t * t) as f32
     }
 }
@@ -153,5 +266,59 @@ mod tests {
         eprintln!("variation along the edge {edge:.0} m, 64 samples out {out:.1} m");
         assert!(out < 0.02 * edge, "{out} vs {edge}");
         assert!((src.height(east + 1, 5) - src.height(east, 5) * (1.0 - 32.0 / 4096.0f32).powi(2)).abs() < 1e-3);
+    }
+
+    /// The relief that fits an extent grows as its square root: 1,500 m at 8 km, 375 m at
+    /// 0.5 km; extents outside 0.5–8 km are clamped.
+    #[test]
+    fn the_default_relief_is_1500_m_at_8_km_and_375_m_at_half_a_km() {
+        assert_eq!(default_relief_m(SKETCH_EXTENT_M), 1500.0);
+        assert_eq!(default_relief_m(512.0), 375.0);
+        assert_eq!(default_relief_m(2048.0), 750.0);
+        assert_eq!(default_relief_m(100.0), 375.0);
+    }
+
+    /// Where a sketch lies and what it pins, by extent: 8 km on the four tiles at the origin
+    /// with no detail; 6 km the same with 16 m detail; 4 km in tile (0, 0) alone at 16 m; 0.5 km
+    /// in the middle of tile (0, 0) with 2 m detail (the sketch's own 2 m samples, bilinear at
+    /// worst), the 32 m tile their area mean.
+    #[test]
+    fn a_half_km_sketch_lies_in_tile_0_0_with_its_own_2_m_detail() {
+        // A ramp along x: bilinear interpolation gives it back exactly between samples.
+        let h: Vec<f32> = (0..SKETCH_PX * SKETCH_PX).map(|p| (p % SKETCH_PX) as f32 / (SKETCH_PX - 1) as f32 * 255.0).collect();
+        let at = |e: f64| SketchSource::with_extent(Arc::new(h.clone()), 400.0, e);
+        for (e, tiles, level) in [(8192.0, 4, None), (6000.0, 4, Some(0)), (4096.0, 1, Some(0)), (1000.0, 1, Some(2)), (512.0, 1, Some(3))] {
+            let s = at(e);
+            assert_eq!((s.tiles().len(), s.detail_level()), (tiles, level), "{e} m");
+            let pins = s.pins();
+            let mut tiles = s.tiles();
+            tiles.sort();
+            assert_eq!(pins.coords(), tiles);
+            assert_eq!(pins.iter().next().unwrap().1.detail.len(), level.map_or(0, |l| l + 1), "{e} m");
+        }
+        let s = at(512.0);
+        assert_eq!(s.centre_m(), 2032.0);
+        let pins = s.pins();
+        let tile = pins.get(TileCoord::new(0, 0)).unwrap();
+        let d2 = tile.detail(3).unwrap();
+        let side = detail_side(3);
+        assert_eq!(side, 2048);
+        // 2 m pixel p of tile (0, 0) has its centre at 2p + 1 − 16 m; the sketch starts at
+        // 2032 − 256 = 1776 m, so pixel 896 is the sketch's first sample, 1151 its last.
+        let ramp = |x: f64| (((x - 1776.0) / 2.0 - 0.5) / 255.0 * 400.0) as f32;
+        for (p, q) in [(896, 896), (1000, 1100), (1151, 1151), (1023, 900)] {
+            let x = 2.0 * p as f64 + 1.0 - 16.0;
+            assert!((d2[q * side + p] - ramp(x)).abs() < 1e-3, "({p}, {q}): {} vs {}", d2[q * side + p], ramp(x));
+        }
+        assert_eq!(d2[896 * side + 896], 0.0, "the sketch's lowest sample");
+        assert!((d2[1000 * side + 1151] - 400.0).abs() < 1e-3, "the sketch's highest sample");
+        // Its foot falls to 0 m by the tile's edge (1,792 m from the sketch's).
+        assert_eq!(s.fade_m(), 1792.0);
+        assert_eq!(d2[1000 * side + side - 1], 0.0);
+        assert!(d2[1000 * side + 1200] > 0.0 && d2[1000 * side + 1200] < 400.0);
+        // The 32 m tile is the area mean of the 2 m samples.
+        let mean: f32 = (0..16 * 16).map(|k| d2[(640 + k / 16) * side + 960 + k % 16]).sum::<f32>() / 256.0;
+        assert!((tile.fine[40 * 128 + 60] - mean).abs() < 1e-3, "{} vs {mean}", tile.fine[40 * 128 + 60]);
+        assert_eq!(s.tile(TileCoord::new(0, 0)).heights, tile.fine.to_vec());
     }
 }
