@@ -367,9 +367,10 @@ fn sketch_writes_its_terrain_in_metres_in_the_export_formats() {
 
 /// A sketch 0.5 km across (`--extent-m 512`) lies in the middle of tile (0, 0) with its own
 /// 2 m samples: `terrain export --sketch … --spacing 2` of that tile holds, in the 256² square
-/// at 2 m pixels 896–1151, `terrain sketch --format tif --extent-m 512`'s terrain bit for bit
-/// (256² samples at 2 m), and its 32 m tile (`terrain world`) is their area mean; an extent
-/// outside 512–8192 m is refused.
+/// at 2 m pixels 896–1151, `terrain sketch --format tif --extent-m 512`'s terrain (256² samples
+/// at 2 m) lifted by one constant (to 1 mm), so that its outer samples' mean is the world's
+/// macro level at tile (0, 0) (to 1 cm); its 32 m tile (`terrain world`) is their area mean;
+/// an extent outside 512–8192 m is refused.
 #[test]
 fn a_half_km_sketch_exported_at_2_m_is_the_sketchs_own_terrain_bit_for_bit() {
     let input = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/sketch/examples/montblanc.png");
@@ -385,15 +386,24 @@ fn a_half_km_sketch_exported_at_2_m_is_the_sketchs_own_terrain_bit_for_bit() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("512 m across) on tile(s) (0, 0)"), "{}", String::from_utf8_lossy(&o.stderr));
     let (a, e, w) = (read(&own), read(&at2), read(&at32));
     assert_eq!((a.width, a.spacing_m, e.width, e.spacing_m, w.width), (256, 2.0, 2048, 2.0, 128));
+    let lift = e.data[896 * 2048 + 896] - a.data[0];
+    let mut ring = Vec::new();
     for y in 0..256 {
         for x in 0..256 {
-            assert_eq!(a.data[y * 256 + x].to_bits(), e.data[(896 + y) * 2048 + 896 + x].to_bits(), "2 m sample ({x}, {y})");
+            let own = e.data[(896 + y) * 2048 + 896 + x];
+            assert!((own - a.data[y * 256 + x] - lift).abs() < 1e-3, "2 m sample ({x}, {y}): {own} m, {} m lifted by {lift} m", a.data[y * 256 + x]);
+            if x == 0 || y == 0 || x == 255 || y == 255 {
+                ring.push(own as f64);
+            }
         }
     }
+    let level = terrain::world::learned::macro_height(1, terrain::grid::TileCoord::new(0, 0)) as f64;
+    let ring = ring.iter().sum::<f64>() / ring.len() as f64;
+    assert!((ring - level).abs() < 0.01, "the sketch's outer samples average {ring} m, the world's level there is {level} m");
     let (lo, hi) = a.data.iter().fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
     assert!(lo >= 0.0 && hi <= 375.0 && hi - lo > 180.0, "{lo}..{hi} m");
-    // 32 m sample 60 covers 2 m pixels 960–975: sketch samples 64–79.
-    let mean: f32 = (0..256).map(|k| a.data[(64 + k / 16) * 256 + 64 + k % 16]).sum::<f32>() / 256.0;
+    // 32 m sample 60 covers 2 m pixels 960–975.
+    let mean: f32 = (0..256).map(|k| e.data[(960 + k / 16) * 2048 + 960 + k % 16]).sum::<f32>() / 256.0;
     assert!((w.data[60 * 128 + 60] - mean).abs() < 0.01, "{} vs {mean}", w.data[60 * 128 + 60]);
     let o = run(&[&["world"][..], &sketch[..8], &["--extent-m", "100", "--tiles", "0", "0", "1", "1", "--out", at32.to_str().unwrap()]].concat());
     assert!(String::from_utf8_lossy(&o.stderr).contains("a sketch world is 512 to 8192 metres across, not '100'"), "{}", String::from_utf8_lossy(&o.stderr));

@@ -202,7 +202,7 @@ impl TerrainApp {
                 WorldStream::made_elsewhere(s.seed, format!("sketch in the learned world (TCM {hash})"), s.radius_tiles)
             }
             (SourceKind::Sketch, _) => match sketch {
-                Some((h, extent_m)) => WorldStream::new(s.seed, Box::new(SketchSource::with_extent(h.clone(), s.relief_m, extent_m)), s.radius_tiles),
+                Some((h, extent_m)) => WorldStream::new(s.seed, Box::new(SketchSource::with_extent(h.clone(), s.relief_m, extent_m, s.seed)), s.radius_tiles),
                 None => WorldStream::made_elsewhere(s.seed, "sketch (its terrain is being made…)".into(), s.radius_tiles),
             },
             (SourceKind::Learned, LearnedStatus::Ready { hash }) => WorldStream::made_elsewhere(s.seed, format!("learned (TCM {hash})"), s.radius_tiles),
@@ -275,7 +275,7 @@ impl TerrainApp {
         let (last, at) = std::mem::take(&mut self.last_nodes);
         self.stand_in = (!last.is_empty()).then_some((last, at));
         let sketch = self.sketch_terrain.as_ref().filter(|_| self.settings.source == SourceKind::Sketch);
-        let sketch = sketch.map(|(_, h, extent_m)| SketchSource::with_extent(h.clone(), self.settings.relief_m, *extent_m));
+        let sketch = sketch.map(|(_, h, extent_m)| SketchSource::with_extent(h.clone(), self.settings.relief_m, *extent_m, self.settings.seed));
         let pins = match sketch.as_ref().filter(|_| self.sketch_in_learned()) {
             Some(sketch) => {
                 let pins = sketch.pins();

@@ -427,7 +427,7 @@ fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_de
     let pins = core.app.worker_pins();
     let c = crate::grid::TileCoord::new(0, 0);
     assert_eq!(pins.1.coords(), vec![c]);
-    let want = SketchSource::with_extent(std::sync::Arc::new(small), 375.0, 512.0).pins();
+    let want = SketchSource::with_extent(std::sync::Arc::new(small), 375.0, 512.0, core.app.settings().seed).pins();
     let (got, want) = (pins.1.get(c).unwrap(), want.get(c).unwrap());
     assert_eq!(got.detail.len(), 4, "16, 8, 4 and 2 m");
     assert!(got.detail(3).unwrap().iter().zip(want.detail(3).unwrap()).all(|(a, b)| a.to_bits() == b.to_bits()));

@@ -132,7 +132,7 @@ fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::
         check_relief(relief_m)?;
         let sk = terrain::sketch::Sketch::read_path(file).map_err(|e| format!("--sketch {}: {e}", file.display()))?;
         let heights = sketch_generator(weights.clone())?.exact().generate(&sk, extent_m, &mut Default::default(), terrain::models::cpu::default_threads());
-        let sketched = SketchSource::with_extent(std::sync::Arc::new(heights), relief_m, extent_m).pins();
+        let sketched = SketchSource::with_extent(std::sync::Arc::new(heights), relief_m, extent_m, r.seed).pins();
         // With its own detail where it is finer than 32 m (`export --spacing` keeps it).
         for (c, tile) in sketched.iter() {
             pins.insert_tile(c, tile.clone())?;

@@ -7,7 +7,10 @@
 //! as their own detail at the TEM level nearest its spacing ([`SketchSource::detail_level`]:
 //! 2 m at 0.5 km), the 32 m tile being their area mean. Around it the ground falls smoothly
 //! from the sketch's edge to 0 m ([`SketchSource::fade_m`]: [`FADE_M`] at 8 km); beyond that
-//! it is flat. The falling ground follows the sketch's edge smoothed more the farther out it is (a
+//! it is flat. A sketch in one tile stands at the world's own level instead: its outer
+//! samples' mean is lifted to the macro field of tile (0, 0) ([`super::learned::macro_height`],
+//! the level the learned world around it grows at) and its foot falls to that level by the
+//! tile's edge, so the world beside it does not climb out of a pit. The falling ground follows the sketch's edge smoothed more the farther out it is (a
 //! box mean of the sketch around the nearest edge sample, as wide as the distance), so the
 //! edge's valleys and ridges do not run out as straight stripes across the plain.
 //!
@@ -68,6 +71,10 @@ pub struct SketchSource {
     corner_m: f64,
     /// [`fade_m`](Self::fade_m).
     fade_m: f64,
+    /// [`base_m`](Self::base_m).
+    base_m: f32,
+    /// [`lift_m`](Self::lift_m).
+    lift_m: f32,
     /// Summed-area table of the heights ((SKETCH_PX + 1)², row-major): box means in O(1).
     sums: Vec<f64>,
 }
@@ -76,12 +83,13 @@ impl SketchSource {
     /// The world of `heights` ([`SKETCH_PX`]² on the 0–255 scale) with `relief_m` metres from
     /// 0 to 255 (clamped to [`RELIEF_M`]), [`SKETCH_EXTENT_M`] across.
     pub fn new(heights: Arc<Vec<f32>>, relief_m: f64) -> Self {
-        Self::with_extent(heights, relief_m, SKETCH_EXTENT_M)
+        Self::with_extent(heights, relief_m, SKETCH_EXTENT_M, 0)
     }
 
     /// The world of `heights` ([`SKETCH_PX`]² on the 0–255 scale) with `relief_m` metres from
-    /// 0 to 255 (clamped to [`RELIEF_M`]), `extent_m` metres across (clamped to [`EXTENT_M`]).
-    pub fn with_extent(heights: Arc<Vec<f32>>, relief_m: f64, extent_m: f64) -> Self {
+    /// 0 to 255 (clamped to [`RELIEF_M`]), `extent_m` metres across (clamped to [`EXTENT_M`]),
+    /// in world `seed` (a sketch in one tile stands at its level: [`base_m`](Self::base_m)).
+    pub fn with_extent(heights: Arc<Vec<f32>>, relief_m: f64, extent_m: f64, seed: u64) -> Self {
         assert_eq!(heights.len(), SKETCH_PX * SKETCH_PX, "a sketch's terrain is {SKETCH_PX}² samples");
         let extent_m = if extent_m.is_finite() { extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end()) } else { SKETCH_EXTENT_M };
         let n = SKETCH_PX;
@@ -93,8 +101,18 @@ impl SketchSource {
         }
         let centre = centre_m(extent_m);
         let half = FADE_M * extent_m / SKETCH_EXTENT_M;
-        let fade_m = if extent_m > super::TILE_SIZE_M { half } else { half.max((super::TILE_SIZE_M - extent_m) / 2.0) };
-        Self { heights, relief_m: relief_m.clamp(*RELIEF_M.start(), *RELIEF_M.end()) as f32, extent_m, corner_m: centre - extent_m / 2.0, fade_m, sums }
+        let one_tile = extent_m <= super::TILE_SIZE_M;
+        let fade_m = if one_tile { half.max((super::TILE_SIZE_M - extent_m) / 2.0) } else { half };
+        let relief_m = relief_m.clamp(*RELIEF_M.start(), *RELIEF_M.end()) as f32;
+        let (base_m, lift_m) = if one_tile {
+            let ring: Vec<f32> = (0..n * n).filter(|k| [0, n - 1].contains(&(k % n)) || [0, n - 1].contains(&(k / n))).map(|k| heights[k]).collect();
+            let ring_m = ring.iter().map(|&v| v as f64).sum::<f64>() / ring.len() as f64 / 255.0 * relief_m as f64;
+            let base = super::learned::macro_height(seed, TileCoord::new(0, 0));
+            (base, (base as f64 - ring_m) as f32)
+        } else {
+            (0.0, 0.0)
+        };
+        Self { heights, relief_m, extent_m, corner_m: centre - extent_m / 2.0, fade_m, base_m, lift_m, sums }
     }
 
     /// Metres across.
@@ -107,6 +125,19 @@ impl SketchSource {
     /// edge, so its tile is a broad foot around it rather than a level plain.
     pub fn fade_m(&self) -> f64 {
         self.fade_m
+    }
+
+    /// The level (metres) the ground around the sketch falls to: 0 m for a sketch wider than a
+    /// tile; for one in tile (0, 0), the world's macro field there.
+    pub fn base_m(&self) -> f32 {
+        self.base_m
+    }
+
+    /// Metres added to the sketch's terrain (its 0–255 scale × relief / 255): 0 for a sketch
+    /// wider than a tile; for one in tile (0, 0), what lifts the mean of its outer samples to
+    /// [`base_m`](Self::base_m).
+    pub fn lift_m(&self) -> f32 {
+        self.lift_m
     }
 
     /// World x = z (metres) of the sketch's centre.
@@ -188,7 +219,7 @@ impl SketchSource {
     /// Height (metres) at world point (`x`, `z`) metres: bilinear between the sketch's
     /// samples (their centres) on the sketch; beyond its outer samples, the box mean of the
     /// sketch around the nearest of them, the box as wide as the distance in samples, faded
-    /// to 0 m over half the extent.
+    /// to [`base_m`](Self::base_m) over [`fade_m`](Self::fade_m); plus [`lift_m`](Self::lift_m).
     pub fn height_m(&self, x: f64, z: f64) -> f32 {
         let n = SKETCH_PX as i64;
         let spacing = self.extent_m / SKETCH_PX as f64;
@@ -201,16 +232,17 @@ impl SketchSource {
             let at = |u: i64, v: i64| self.heights[(v * n + u) as usize];
             let top = at(u0, v0) * (1.0 - tu) + at(u0 + 1, v0) * tu;
             let bottom = at(u0, v0 + 1) * (1.0 - tu) + at(u0 + 1, v0 + 1) * tu;
-            return (top * (1.0 - tv) + bottom * tv) / 255.0 * self.relief_m;
+            return (top * (1.0 - tv) + bottom * tv) / 255.0 * self.relief_m + self.lift_m;
         }
         // The first sample out holds the edge sample's height (r = 0); farther out, the box
         // widens with the distance.
         let (du, dv) = (fu - cu, fv - cv);
         let r = (du.abs().max(dv.abs()).round() as i64 - 1).max(0);
-        let h = self.box_mean(cu.round() as i64, cv.round() as i64, r) / 255.0 * self.relief_m as f64;
+        let h = self.box_mean(cu.round() as i64, cv.round() as i64, r) / 255.0 * self.relief_m as f64 + self.lift_m as f64;
         let d = libm::hypot(du, dv) * spacing;
         let t = (1.0 - d / self.fade_m()).max(0.0);
-        (h * t * t) as f32
+        let base = self.base_m as f64;
+        (base + (h - base) * t * t) as f32
     }
 }
 
@@ -281,12 +313,13 @@ mod tests {
     /// Where a sketch lies and what it pins, by extent: 8 km on the four tiles at the origin
     /// with no detail; 6 km the same with 16 m detail; 4 km in tile (0, 0) alone at 16 m; 0.5 km
     /// in the middle of tile (0, 0) with 2 m detail (the sketch's own 2 m samples, bilinear at
-    /// worst), the 32 m tile their area mean.
+    /// worst), lifted so its outer samples' mean is the world's macro level there, its foot
+    /// falling to that level by the tile's edge; the 32 m tile their area mean.
     #[test]
     fn a_half_km_sketch_lies_in_tile_0_0_with_its_own_2_m_detail() {
         // A ramp along x: bilinear interpolation gives it back exactly between samples.
         let h: Vec<f32> = (0..SKETCH_PX * SKETCH_PX).map(|p| (p % SKETCH_PX) as f32 / (SKETCH_PX - 1) as f32 * 255.0).collect();
-        let at = |e: f64| SketchSource::with_extent(Arc::new(h.clone()), 400.0, e);
+        let at = |e: f64| SketchSource::with_extent(Arc::new(h.clone()), 400.0, e, 7);
         for (e, tiles, level) in [(8192.0, 4, None), (6000.0, 4, Some(0)), (4096.0, 1, Some(0)), (1000.0, 1, Some(2)), (512.0, 1, Some(3))] {
             let s = at(e);
             assert_eq!((s.tiles().len(), s.detail_level()), (tiles, level), "{e} m");
@@ -296,8 +329,13 @@ mod tests {
             assert_eq!(pins.coords(), tiles);
             assert_eq!(pins.iter().next().unwrap().1.detail.len(), level.map_or(0, |l| l + 1), "{e} m");
         }
+        assert_eq!((at(8192.0).base_m(), at(8192.0).lift_m()), (0.0, 0.0), "an 8 km sketch stands at 0 m");
         let s = at(512.0);
         assert_eq!(s.centre_m(), 2032.0);
+        // The ramp's outer samples average 127.5 of 255: 200 m.
+        let (base, lift) = (s.base_m(), s.lift_m());
+        assert_eq!(base, crate::world::learned::macro_height(7, TileCoord::new(0, 0)));
+        assert!((lift - (base - 200.0)).abs() < 1e-3, "lift {lift} m, base {base} m");
         let pins = s.pins();
         let tile = pins.get(TileCoord::new(0, 0)).unwrap();
         let d2 = tile.detail(3).unwrap();
@@ -305,17 +343,18 @@ mod tests {
         assert_eq!(side, 2048);
         // 2 m pixel p of tile (0, 0) has its centre at 2p + 1 − 16 m; the sketch starts at
         // 2032 − 256 = 1776 m, so pixel 896 is the sketch's first sample, 1151 its last.
-        let ramp = |x: f64| (((x - 1776.0) / 2.0 - 0.5) / 255.0 * 400.0) as f32;
+        let ramp = |x: f64| (((x - 1776.0) / 2.0 - 0.5) / 255.0 * 400.0) as f32 + lift;
         for (p, q) in [(896, 896), (1000, 1100), (1151, 1151), (1023, 900)] {
             let x = 2.0 * p as f64 + 1.0 - 16.0;
             assert!((d2[q * side + p] - ramp(x)).abs() < 1e-3, "({p}, {q}): {} vs {}", d2[q * side + p], ramp(x));
         }
-        assert_eq!(d2[896 * side + 896], 0.0, "the sketch's lowest sample");
-        assert!((d2[1000 * side + 1151] - 400.0).abs() < 1e-3, "the sketch's highest sample");
-        // Its foot falls to 0 m by the tile's edge (1,792 m from the sketch's).
+        assert_eq!(d2[896 * side + 896], lift, "the sketch's lowest sample");
+        assert!((d2[1000 * side + 1151] - (400.0 + lift)).abs() < 1e-3, "the sketch's highest sample");
+        // Its foot falls to the base by the tile's edge (1,792 m from the sketch's).
         assert_eq!(s.fade_m(), 1792.0);
-        assert_eq!(d2[1000 * side + side - 1], 0.0);
-        assert!(d2[1000 * side + 1200] > 0.0 && d2[1000 * side + 1200] < 400.0);
+        assert_eq!(d2[1000 * side + side - 1], base);
+        let foot = d2[1000 * side + 1200];
+        assert!(foot > base.min(400.0 + lift) && foot < base.max(400.0 + lift), "{foot} m between {base} and {}", 400.0 + lift);
         // The 32 m tile is the area mean of the 2 m samples.
         let mean: f32 = (0..16 * 16).map(|k| d2[(640 + k / 16) * side + 960 + k % 16]).sum::<f32>() / 256.0;
         assert!((tile.fine[40 * 128 + 60] - mean).abs() < 1e-3, "{} vs {mean}", tile.fine[40 * 128 + 60]);
