@@ -165,16 +165,16 @@ impl SketchPanel {
             if ui.add(egui::Slider::new(&mut relief, RELIEF_M).logarithmic(true).text("relief m")).drag_stopped() || (relief != relief_m && !ui.ctx().egui_is_using_pointer()) {
                 act.relief_m = Some(relief);
             }
-            // Kilometres on the slider, metres in the link; a drag asks for one terrain, at its
-            // end.
-            let mut km = extent_m / 1000.0;
-            let range = (EXTENT_M.start() / 1000.0)..=(EXTENT_M.end() / 1000.0);
+            // Whole metres (512 and 8,192 exactly: a slider that rounds to fewer digits would
+            // move the 8 km sketch to 8,190 m the first frame it is drawn); a drag asks for one
+            // terrain, at its end.
+            let mut extent = extent_m;
             let r = ui
-                .add(egui::Slider::new(&mut km, range).logarithmic(true).max_decimals(2).text("extent km"))
-                .on_hover_text("how wide the sketch is on the ground: 0.5 km (the sketch format's scale, with 2 m detail) to 8 km");
+                .add(egui::Slider::new(&mut extent, EXTENT_M).logarithmic(true).integer().text("extent m"))
+                .on_hover_text("how wide the sketch is on the ground: 512 m (the sketch format's scale, with 2 m detail) to 8,192 m");
             note("extent", &r);
-            if r.drag_stopped() || (km != extent_m / 1000.0 && !ui.ctx().egui_is_using_pointer()) {
-                act.extent_m = Some(km * 1000.0);
+            if extent != extent_m && (r.drag_stopped() || !ui.ctx().egui_is_using_pointer()) {
+                act.extent_m = Some(extent);
             }
             ui.separator();
             ui.horizontal(|ui| {
@@ -310,6 +310,31 @@ mod tests {
 
     fn button(pos: egui::Pos2, pressed: bool) -> egui::Event {
         egui::Event::PointerButton { pos, button: egui::PointerButton::Primary, pressed, modifiers: Default::default() }
+    }
+
+    /// The extent slider asks for nothing until it is moved (8,192 m drawn as it is, not
+    /// rounded to another extent), and a click at its left end asks for 512 m exactly.
+    #[test]
+    fn the_extent_slider_asks_for_nothing_untouched_and_512_m_at_its_left_end() {
+        let ctx = egui::Context::default();
+        let mut panel = SketchPanel::default();
+        let mut canvas = Canvas::new(Sketch::filled(1));
+        let mut t = 0.0;
+        let mut run = |panel: &mut SketchPanel, canvas: &mut Canvas, events: Vec<egui::Event>| {
+            t += 0.1;
+            frame(&ctx, panel, canvas, events, t)
+        };
+        for _ in 0..5 {
+            let act = run(&mut panel, &mut canvas, vec![]);
+            assert_eq!((act.extent_m, act.relief_m), (None, None));
+        }
+        let r = panel.buttons["extent"];
+        let left = egui::pos2(r.left() + 1.0, r.center().y);
+        let mut asked = Vec::new();
+        for events in [vec![egui::Event::PointerMoved(left)], vec![button(left, true)], vec![button(left, false)], vec![]] {
+            asked.extend(run(&mut panel, &mut canvas, events).extent_m);
+        }
+        assert_eq!(asked, vec![512.0]);
     }
 
     /// Before ⇄ the blend slider takes no click; choosing ⇄ beside a variant enables it; a
