@@ -130,13 +130,20 @@ pub struct TerrainApp {
 
 /// A camera pose that shows the whole sketch of `relief_m` and `extent_m` (metres across,
 /// [`crate::world::sketched`]: an 8.2 km square centred on the origin, a smaller one in the
-/// middle of tile (0, 0)) from the south, 35° down, about 0.78 extents from its centre (the
-/// square fills about 70 % of the view's width at 16:10, nearer than the fog): position
-/// (metres), heading and pitch (radians).
-pub fn sketch_overview(relief_m: f64, extent_m: f64) -> ([f64; 3], f32, f32) {
-    let k = extent_m.clamp(*crate::world::sketched::EXTENT_M.start(), *crate::world::sketched::EXTENT_M.end()) / crate::world::sketched::SKETCH_EXTENT_M;
-    let x = crate::world::sketched::centre_m(extent_m) + 0.5 * crate::world::BASE_SPACING_M;
-    ([x, 0.5 * relief_m + 3700.0 * k, x + 5200.0 * k], 0.0, -0.61)
+/// middle of tile (0, 0)) in world `seed` from the south, 35° down, about 0.63 extents from
+/// its centre and 0.45 extents above its middle level (the square fills about 70 % of the
+/// view's width at 16:10, nearer than the fog): position (metres), heading and pitch
+/// (radians). The middle level is half the relief for an 8 km sketch (it stands on 0 m); for
+/// one in a tile, whose outer samples' mean sits at the world's level there
+/// ([`SketchSource::base_m`]), that level plus a quarter of the relief.
+pub fn sketch_overview(relief_m: f64, extent_m: f64, seed: u64) -> ([f64; 3], f32, f32) {
+    use crate::world::sketched::{EXTENT_M, SKETCH_EXTENT_M, centre_m};
+    let extent_m = extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end());
+    let k = extent_m / SKETCH_EXTENT_M;
+    let x = centre_m(extent_m) + 0.5 * crate::world::BASE_SPACING_M;
+    let middle =
+        if extent_m > crate::world::TILE_SIZE_M { 0.5 * relief_m } else { crate::world::learned::macro_height(seed, crate::grid::TileCoord::new(0, 0)) as f64 + 0.25 * relief_m };
+    ([x, middle + 3700.0 * k, x + 5200.0 * k], 0.0, -0.61)
 }
 
 /// Seconds the learned world around a sketch waits after the sketch last changed before its
@@ -402,7 +409,7 @@ impl TerrainApp {
         s.pitch = now.pitch;
         if s.source == SourceKind::Sketch && now.source != SourceKind::Sketch {
             // Entering the sketch world: look at the sketch from the south.
-            (s.position_m, s.yaw, s.pitch) = sketch_overview(s.relief_m, s.extent_m);
+            (s.position_m, s.yaw, s.pitch) = sketch_overview(s.relief_m, s.extent_m, s.seed);
         }
         if s.source != now.source {
             // Weights a link named belong to its world, not to the one chosen now.
@@ -846,7 +853,7 @@ impl TerrainApp {
 
     /// Puts the camera where it shows the whole sketch ([`sketch_overview`]).
     pub fn frame_sketch(&mut self) {
-        let (p, yaw, pitch) = sketch_overview(self.settings.relief_m, self.settings.extent_m);
+        let (p, yaw, pitch) = sketch_overview(self.settings.relief_m, self.settings.extent_m, self.settings.seed);
         (self.camera.position_m, self.camera.yaw, self.camera.pitch) = (DVec3::from_array(p), yaw, pitch);
         if self.controller.mode == crate::render::CameraMode::Orbit {
             self.set_camera_mode(crate::render::CameraMode::Fly);

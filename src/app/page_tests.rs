@@ -410,9 +410,13 @@ fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_de
     assert_eq!((s.extent_m, s.relief_m), (512.0, 375.0));
     let link = s.to_fragment();
     assert!(link.contains("relief=375&extent=512"), "{link}");
+    let c = crate::grid::TileCoord::new(0, 0);
     let eye = core.app.camera.position_m;
     let from_centre = ((eye.x - 2032.0).powi(2) + (eye.z - 2032.0).powi(2)).sqrt();
     assert!((300.0..500.0).contains(&from_centre), "the camera is {from_centre:.0} m from the sketch's centre: {eye:?}");
+    let level = crate::world::learned::macro_height(core.app.settings().seed, c) as f64;
+    // A quarter of the relief above that level, and 0.45 extents more (325 m).
+    assert!((eye.y - level - 325.0).abs() < 1.0, "the camera is at {:.0} m, the sketch's outer samples at {level:.0} m", eye.y);
     settle(&mut core, &mut shell, 512.0);
     let small = core.app.sketch_terrain().unwrap().to_vec();
     // The generator was told 0.5 km: its terrain for that extent (the shipped weights were
@@ -425,7 +429,6 @@ fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_de
     let moved = wide.iter().zip(&small).filter(|(a, b)| (*a - *b).abs() > 1.0).count();
     assert!(!generator.knows_extent() || moved > 1000, "the terrain made for 0.5 km is the 8 km one: {moved} samples differ by over 1 of 255");
     let pins = core.app.worker_pins();
-    let c = crate::grid::TileCoord::new(0, 0);
     assert_eq!(pins.1.coords(), vec![c]);
     let want = SketchSource::with_extent(std::sync::Arc::new(small), 375.0, 512.0, core.app.settings().seed).pins();
     let (got, want) = (pins.1.get(c).unwrap(), want.get(c).unwrap());

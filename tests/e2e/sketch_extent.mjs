@@ -17,7 +17,8 @@ const page = await browser.newPage({ viewport: { width: 1280, height: 720 } });
 const t0 = Date.now();
 await page.goto(`${base}#v=2&seed=1&src=sketch`);
 const stats = () => page.evaluate(() => (window.wasmBindings?.terrain_stats ? JSON.parse(window.wasmBindings.terrain_stats()) : null));
-const centre = (r) => [(r[0] + r[2]) / 2, (r[1] + r[3]) / 2];
+// Rectangles come as [x, y, width, height].
+const centre = (r) => [r[0] + r[2] / 2, r[1] + r[3] / 2];
 // Waits until the learned world around the sketch is made and the learned detail has made no
 // new quad for 10 s, for at most `ms`.
 async function settled(what, pred, ms) {
@@ -44,7 +45,7 @@ s = await settled('8 km framed', () => true, 300_000);
 await page.screenshot({ path: path.join(out, 'sketch_extent_8192m.png') });
 console.log(JSON.stringify({ extent: '8 km', s: (Date.now() - t0) / 1000, link: s.link, eye_m: s.stats.eye_m, quads_made: s.stats.quads_made, max_depth_drawn: s.stats.max_depth_drawn }));
 const slider = s.sketch_buttons.extent;
-await page.mouse.click(slider[0] + 2, (slider[1] + slider[3]) / 2);
+await page.mouse.click(slider[0] + 2, slider[1] + slider[3] / 2);
 const t1 = Date.now();
 s = await settled('0.5 km', (q) => /extent=512&|extent=512$/.test(q.link) && q.stats.sketch_shown > 0, 600_000);
 await page.screenshot({ path: path.join(out, 'sketch_extent_512m.png') });
