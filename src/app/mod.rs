@@ -137,12 +137,10 @@ pub struct TerrainApp {
 /// one in a tile, whose outer samples' mean sits at the world's level there
 /// ([`SketchSource::base_m`]), that level plus a quarter of the relief.
 pub fn sketch_overview(relief_m: f64, extent_m: f64, seed: u64) -> ([f64; 3], f32, f32) {
-    use crate::world::sketched::{EXTENT_M, SKETCH_EXTENT_M, centre_m};
-    let extent_m = extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end());
-    let k = extent_m / SKETCH_EXTENT_M;
+    use crate::world::sketched::{SKETCH_EXTENT_M, base_level_m, centre_m, clamp_extent_m, in_one_tile};
+    let k = clamp_extent_m(extent_m) / SKETCH_EXTENT_M;
     let x = centre_m(extent_m) + 0.5 * crate::world::BASE_SPACING_M;
-    let middle =
-        if extent_m > crate::world::TILE_SIZE_M { 0.5 * relief_m } else { crate::world::learned::macro_height(seed, crate::grid::TileCoord::new(0, 0)) as f64 + 0.25 * relief_m };
+    let middle = base_level_m(extent_m, seed) as f64 + if in_one_tile(extent_m) { 0.25 } else { 0.5 } * relief_m;
     ([x, middle + 3700.0 * k, x + 5200.0 * k], 0.0, -0.61)
 }
 

@@ -96,7 +96,7 @@ impl PageCore {
     /// camera where it shows the whole sketch; returns the settings for the overlay.
     pub fn set_extent(&mut self, extent_m: f64) -> ShareState {
         let now = self.app.share_state();
-        let extent_m = extent_m.clamp(*crate::world::sketched::EXTENT_M.start(), *crate::world::sketched::EXTENT_M.end());
+        let extent_m = crate::world::sketched::clamp_extent_m(extent_m);
         let default_relief = crate::world::sketched::default_relief_m;
         let relief_m = if now.relief_m == default_relief(now.extent_m) { default_relief(extent_m) } else { now.relief_m };
         let s = ShareState { extent_m, relief_m, ..now };

@@ -49,16 +49,34 @@ pub const SKETCH_TILES: [TileCoord; 4] = [TileCoord { i: -1, j: -1 }, TileCoord 
 /// as the square root of the extent, [`DEFAULT_RELIEF_M`] at 8 km and 375 m at 0.5 km (the
 /// North Tyrol DEMs' 500 m windows span 170–480 m), rounded to 5 m.
 pub fn default_relief_m(extent_m: f64) -> f64 {
-    let e = extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end());
-    (DEFAULT_RELIEF_M * (e / SKETCH_EXTENT_M).sqrt() / 5.0).round() * 5.0
+    (DEFAULT_RELIEF_M * (clamp_extent_m(extent_m) / SKETCH_EXTENT_M).sqrt() / 5.0).round() * 5.0
 }
 
-/// World x = z (metres) of the centre of a sketch `extent_m` across (clamped to
-/// [`EXTENT_M`]): the origin's corner of the 2 × 2 tiles around it (−16 m: samples are cell
-/// centres) for one wider than a tile, else the middle of tile (0, 0) (2,032 m).
+/// `extent_m` (metres across) within [`EXTENT_M`]; a number that is not finite is
+/// [`SKETCH_EXTENT_M`].
+pub fn clamp_extent_m(extent_m: f64) -> f64 {
+    if extent_m.is_finite() { extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end()) } else { SKETCH_EXTENT_M }
+}
+
+/// Whether a sketch `extent_m` across ([`clamp_extent_m`]) lies in tile (0, 0) alone (a tile
+/// across or less), else on the 2 × 2 tiles at the origin ([`SKETCH_TILES`]).
+pub fn in_one_tile(extent_m: f64) -> bool {
+    clamp_extent_m(extent_m) <= super::TILE_SIZE_M
+}
+
+/// World x = z (metres) of the centre of a sketch `extent_m` across: the origin's corner of
+/// the 2 × 2 tiles around it (−16 m: samples are cell centres) for one wider than a tile, else
+/// the middle of tile (0, 0) (2,032 m).
 pub fn centre_m(extent_m: f64) -> f64 {
     let half = BASE_SPACING_M / 2.0;
-    if extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end()) > super::TILE_SIZE_M { -half } else { super::TILE_SIZE_M / 2.0 - half }
+    if in_one_tile(extent_m) { super::TILE_SIZE_M / 2.0 - half } else { -half }
+}
+
+/// The level (metres) a sketch `extent_m` across stands at in world `seed`: 0 m for one wider
+/// than a tile; for one in tile (0, 0), the world's macro field there
+/// ([`super::learned::macro_height`], the level the learned world around it grows at).
+pub fn base_level_m(extent_m: f64, seed: u64) -> f32 {
+    if in_one_tile(extent_m) { super::learned::macro_height(seed, TileCoord::new(0, 0)) } else { 0.0 }
 }
 
 /// Tile source of a sketch's terrain.
@@ -91,7 +109,7 @@ impl SketchSource {
     /// in world `seed` (a sketch in one tile stands at its level: [`base_m`](Self::base_m)).
     pub fn with_extent(heights: Arc<Vec<f32>>, relief_m: f64, extent_m: f64, seed: u64) -> Self {
         assert_eq!(heights.len(), SKETCH_PX * SKETCH_PX, "a sketch's terrain is {SKETCH_PX}² samples");
-        let extent_m = if extent_m.is_finite() { extent_m.clamp(*EXTENT_M.start(), *EXTENT_M.end()) } else { SKETCH_EXTENT_M };
+        let extent_m = clamp_extent_m(extent_m);
         let n = SKETCH_PX;
         let mut sums = vec![0f64; (n + 1) * (n + 1)];
         for y in 0..n {
@@ -101,13 +119,13 @@ impl SketchSource {
         }
         let centre = centre_m(extent_m);
         let half = FADE_M * extent_m / SKETCH_EXTENT_M;
-        let one_tile = extent_m <= super::TILE_SIZE_M;
+        let one_tile = in_one_tile(extent_m);
         let fade_m = if one_tile { half.max((super::TILE_SIZE_M - extent_m) / 2.0) } else { half };
         let relief_m = relief_m.clamp(*RELIEF_M.start(), *RELIEF_M.end()) as f32;
         let (base_m, lift_m) = if one_tile {
             let ring: Vec<f32> = (0..n * n).filter(|k| [0, n - 1].contains(&(k % n)) || [0, n - 1].contains(&(k / n))).map(|k| heights[k]).collect();
             let ring_m = ring.iter().map(|&v| v as f64).sum::<f64>() / ring.len() as f64 / 255.0 * relief_m as f64;
-            let base = super::learned::macro_height(seed, TileCoord::new(0, 0));
+            let base = base_level_m(extent_m, seed);
             (base, (base as f64 - ring_m) as f32)
         } else {
             (0.0, 0.0)
@@ -147,7 +165,7 @@ impl SketchSource {
 
     /// The tiles the sketch lies on (they are its pins), row-major.
     pub fn tiles(&self) -> Vec<TileCoord> {
-        if self.extent_m > super::TILE_SIZE_M { SKETCH_TILES.to_vec() } else { vec![TileCoord::new(0, 0)] }
+        if in_one_tile(self.extent_m) { vec![TileCoord::new(0, 0)] } else { SKETCH_TILES.to_vec() }
     }
 
     /// The TEM level (0 = 16 m … 4 = 1 m) whose samples the sketch's tiles keep as their own
