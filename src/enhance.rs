@@ -239,6 +239,53 @@ mod tests {
         assert!(matches!(enhance(&Heightfield::new(2, 2, 32.0, vec![f32::NAN; 4]), 32.0, 16.0, &tem, 4, &mut |_, _, _| ()), Err(EnhanceError::AllNoData)));
     }
 
+    /// The same pinned 8 m tile with a soft edge (a square of 256 × 256 m pixels, 128–383, in
+    /// its middle, fading over 256 m; a small sketch set into the world's own tile): refined to
+    /// 8 m (random TEM weights), the square is the pin's 8 m heights bit for bit, and pixels
+    /// over 512 m from it are what the region makes without the pin, bit for bit; within 200 m
+    /// of it, where the two differ by over 1 m, under 5 % of the pixels are either (a blend).
+    #[test]
+    fn a_soft_edged_pin_holds_its_square_and_gives_way_to_the_tems_refinement_outside_it() {
+        let n = 520;
+        let rough = |x: usize, y: usize| 1200.0 + x as f32 * 0.3 + (x as f32 * 0.9).sin() * 6.0 + (y as f32 * 1.3).cos() * 4.0;
+        let dem = Heightfield::new(n, n, 8.0, (0..n * n).map(|k| rough(k % n, k / n)).collect());
+        let origin = TileCoord::new(5, -3);
+        let mut pins = Pins::new();
+        pins.add(&dem, origin).unwrap();
+        // 8 m pixel p of the origin tile has its centre at 8p + 4 − 16 m from the tile's corner.
+        let world = |p: f64, o: i32| o as f64 * crate::grid::TILE_SIZE_M + 8.0 * p - 16.0;
+        let soft = crate::world::pins::SoftEdge { min_m: [world(128.0, origin.i), world(128.0, origin.j)], max_m: [world(384.0, origin.i), world(384.0, origin.j)], fade_m: 256.0 };
+        let pin = pins.get(origin).unwrap().clone().with_soft_edge(soft);
+        let mut soft_pins = Pins::new();
+        soft_pins.insert_tile(origin, pin.clone()).unwrap();
+        let t = crate::grid::TILE_SAMPLES;
+        let input = Heightfield::new(t, t, 32.0, pin.fine.to_vec());
+        let random = crate::world::refine::tests::scrambled();
+        let (pinned, _) = enhance_pinned(&input, 32.0, 8.0, &random, 4, &soft_pins, origin, &mut |_, _, _| ()).unwrap();
+        let (free, _) = enhance(&input, 32.0, 8.0, &random, 4, &mut |_, _, _| ()).unwrap();
+        let d8 = pin.detail(1).unwrap();
+        let (mut far, mut fade, mut either) = (0, 0, 0);
+        for y in 0..512 {
+            for x in 0..512 {
+                let (p, f, d) = (pinned.data[y * 512 + x], free.data[y * 512 + x], d8[y * 512 + x]);
+                let out = |v: usize| if v < 128 { 128 - v } else { v.saturating_sub(383) };
+                let dist = 8.0 * ((out(x) as f64).powi(2) + (out(y) as f64).powi(2)).sqrt();
+                if dist == 0.0 {
+                    assert_eq!(p.to_bits(), d.to_bits(), "in the square ({x}, {y})");
+                } else if dist > 512.0 {
+                    assert_eq!(p.to_bits(), f.to_bits(), "far from the square ({x}, {y})");
+                    far += 1;
+                } else if dist < 200.0 && (d - f).abs() > 1.0 {
+                    fade += 1;
+                    either += (p == d || p == f) as usize;
+                }
+            }
+        }
+        assert!(far > 10_000 && fade > 1000, "{far} pixels far, {fade} in the fade checked");
+        // Near the square (weight ≈ 1) the blend may round to the pin's height.
+        assert!(either * 20 < fade, "{either} of {fade} pixels in the fade are the pin's or the free TEM's");
+    }
+
     /// A pinned tile of 8 m terrain in a 2 × 1-tile region: refined to 8 m (random TEM
     /// weights, so the TEM's own output is far from it), the pinned tile is the pin's 8 m
     /// heights bit for bit, and the tile beside it from 80 px (640 m) on is what the region

@@ -366,11 +366,13 @@ fn sketch_writes_its_terrain_in_metres_in_the_export_formats() {
 }
 
 /// A sketch 0.5 km across (`--extent-m 512`) lies in the middle of tile (0, 0) with its own
-/// 2 m samples: `terrain export --sketch … --spacing 2` of that tile holds, in the 256² square
-/// at 2 m pixels 896–1151, `terrain sketch --format tif --extent-m 512`'s terrain (256² samples
-/// at 2 m) lifted by one constant (to 1 mm), so that its outer samples' mean is the world's
-/// macro level at tile (0, 0) (to 1 cm); its 32 m tile (`terrain world`) is their area mean;
-/// an extent outside 512–8192 m is refused.
+/// 2 m samples, set into the learned world's own tile: `terrain export --sketch … --spacing 2`
+/// of that tile holds, in the 256² square at 2 m pixels 896–1151, `terrain sketch --format tif
+/// --extent-m 512`'s terrain (256² samples at 2 m) lifted by one constant (to 1 mm), so that
+/// its outer samples' mean is the world's own ground there (its 32 m samples bilinear, to
+/// 1 m); its 32 m tile (`terrain world`) is their area mean, within 1 cm of the world's own
+/// tile over 1 km from the sketch, and the tile beside it is the world's own bit for bit; an
+/// extent outside 512–8192 m is refused.
 #[test]
 fn a_half_km_sketch_exported_at_2_m_is_the_sketchs_own_terrain_bit_for_bit() {
     let input = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/sketch/examples/montblanc.png");
@@ -381,11 +383,23 @@ fn a_half_km_sketch_exported_at_2_m_is_the_sketchs_own_terrain_bit_for_bit() {
     let sketch = ["--seed", "1", "--source", "tcm", "--sketch", input, "--relief", "375", "--extent-m", "512", "--tiles", "0", "0", "1", "1"];
     let o = run(&[&["export"][..], &sketch[..], &["--spacing", "2", "--out", at2.to_str().unwrap()]].concat());
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = run(&[&["world"][..], &sketch[..], &["--out", at32.to_str().unwrap()]].concat());
+    let two = ["--tiles", "0", "0", "2", "1", "--out", at32.to_str().unwrap()];
+    let o = run(&[&["world"][..], &sketch[..10], &two[..]].concat());
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("512 m across) on tile(s) (0, 0)"), "{}", String::from_utf8_lossy(&o.stderr));
-    let (a, e, w) = (read(&own), read(&at2), read(&at32));
-    assert_eq!((a.width, a.spacing_m, e.width, e.spacing_m, w.width), (256, 2.0, 2048, 2.0, 128));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("512 m across) on tile(s) (0, 0), set into the learned world's own tile"), "{}", String::from_utf8_lossy(&o.stderr));
+    let free_path = tmp("sk512_free.tif");
+    let o = run(&["world", "--seed", "1", "--source", "tcm", "--tiles", "0", "0", "2", "1", "--out", free_path.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, e, w2, free) = (read(&own), read(&at2), read(&at32), read(&free_path));
+    assert_eq!((a.width, a.spacing_m, e.width, e.spacing_m, w2.width, free.width), (256, 2.0, 2048, 2.0, 256, 256));
+    let w = w2.window(0, 0, 128, 128);
+    for y in 0..128 {
+        for x in 0..128 {
+            assert_eq!(w2.at(128 + x, y).to_bits(), free.at(128 + x, y).to_bits(), "tile (1, 0) at ({x}, {y})");
+        }
+    }
+    let far = (0..32).flat_map(|y| (0..128).map(move |x| (x, y))).map(|(x, y)| (w.at(x, y) - free.at(x, y)).abs()).fold(0f32, f32::max);
+    assert!(far < 0.01, "over 1 km from the sketch its tile is {far} m from the world's own");
     let lift = e.data[896 * 2048 + 896] - a.data[0];
     let mut ring = Vec::new();
     for y in 0..256 {
@@ -397,9 +411,18 @@ fn a_half_km_sketch_exported_at_2_m_is_the_sketchs_own_terrain_bit_for_bit() {
             }
         }
     }
-    let level = terrain::world::learned::macro_height(1, terrain::grid::TileCoord::new(0, 0)) as f64;
+    // The world's own ground at the ring's 2 m pixels (centres at 2p + 1 − 16 m), bilinear
+    // between its 32 m samples (sample q at 32q m).
+    let ground = |p: usize, q: usize| {
+        let (u, v) = ((2.0 * p as f64 - 15.0) / 32.0, (2.0 * q as f64 - 15.0) / 32.0);
+        let (i, j, tu, tv) = (u.floor() as usize, v.floor() as usize, u - u.floor(), v - v.floor());
+        let at = |x: usize, y: usize| free.at(x, y) as f64;
+        (at(i, j) * (1.0 - tu) + at(i + 1, j) * tu) * (1.0 - tv) + (at(i, j + 1) * (1.0 - tu) + at(i + 1, j + 1) * tu) * tv
+    };
+    let on_ring: Vec<(usize, usize)> = (896..1152).flat_map(|q| (896..1152).map(move |p| (p, q))).filter(|&(p, q)| [896, 1151].contains(&p) || [896, 1151].contains(&q)).collect();
+    let level = on_ring.iter().map(|&(p, q)| ground(p, q)).sum::<f64>() / on_ring.len() as f64;
     let ring = ring.iter().sum::<f64>() / ring.len() as f64;
-    assert!((ring - level).abs() < 0.01, "the sketch's outer samples average {ring} m, the world's level there is {level} m");
+    assert!((ring - level).abs() < 1.0, "the sketch's outer samples average {ring} m, the world's own ground there {level} m");
     let (lo, hi) = a.data.iter().fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
     assert!(lo >= 0.0 && hi <= 375.0 && hi - lo > 180.0, "{lo}..{hi} m");
     // 32 m sample 60 covers 2 m pixels 960–975.

@@ -126,6 +126,9 @@ pub struct TerrainApp {
     /// ([`worker_pins`](Self::worker_pins)): the sketch's tiles in the sketch world, else the
     /// user's.
     worker_pins: Arc<(String, Pins)>,
+    /// The learned world's own tile (0, 0) of a seed, without pins: the ground a sketch in one
+    /// tile is set into ([`SketchSource::with_base`], [`set_sketch_base`](Self::set_sketch_base)).
+    sketch_base: Option<(u64, Arc<Vec<f32>>)>,
 }
 
 /// A camera pose that shows the whole sketch of `relief_m` and `extent_m` (metres across,
@@ -195,6 +198,7 @@ impl TerrainApp {
             sketch_changed_s: f64::NEG_INFINITY,
             user_pins: Pins::new(),
             worker_pins: Arc::new((String::new(), Pins::new())),
+            sketch_base: None,
         };
         app.set_view(&s);
         app
@@ -280,7 +284,13 @@ impl TerrainApp {
         let (last, at) = std::mem::take(&mut self.last_nodes);
         self.stand_in = (!last.is_empty()).then_some((last, at));
         let sketch = self.sketch_terrain.as_ref().filter(|_| self.settings.source == SourceKind::Sketch);
-        let sketch = sketch.map(|(_, h, extent_m)| SketchSource::with_extent(h.clone(), self.settings.relief_m, *extent_m, self.settings.seed));
+        let sketch = sketch.map(|(_, h, extent_m)| {
+            let sketch = SketchSource::with_extent(h.clone(), self.settings.relief_m, *extent_m, self.settings.seed);
+            match self.sketch_base.as_ref().filter(|b| b.0 == self.settings.seed && self.sketch_in_learned()) {
+                Some((_, base)) => sketch.with_base(base.clone()),
+                None => sketch,
+            }
+        });
         let pins = match sketch.as_ref().filter(|_| self.sketch_in_learned()) {
             Some(sketch) => {
                 let pins = sketch.pins();
@@ -322,6 +332,33 @@ impl TerrainApp {
                 || self.time_s - self.sketch_changed_s < SKETCH_SETTLE_S)
     }
 
+    /// The seed whose learned tile (0, 0) without pins the world shown waits for: a sketch in
+    /// one tile pinned into the learned world is set into it ([`SketchSource::with_base`]);
+    /// until it comes ([`set_sketch_base`](Self::set_sketch_base)) the sketch stands on a
+    /// smooth foot.
+    pub fn wants_sketch_base(&self) -> Option<u64> {
+        let seed = self.settings.seed;
+        let (_, h, extent_m) = self.sketch_terrain.as_ref().filter(|_| self.sketch_in_learned())?;
+        let takes = SketchSource::with_extent(h.clone(), self.settings.relief_m, *extent_m, seed).takes_base();
+        (takes && self.sketch_base.as_ref().is_none_or(|b| b.0 != seed)).then_some(seed)
+    }
+
+    /// The learned world's tile (0, 0) of `seed` without pins ([`TILE_SAMPLES`]² metres): a
+    /// sketch in one tile is set into it from now on (the world is made again if it shows
+    /// one). Heights of another size or not finite are refused.
+    pub fn set_sketch_base(&mut self, seed: u64, heights: Vec<f32>) -> Result<(), String> {
+        let n = crate::grid::TILE_SAMPLES;
+        if heights.len() != n * n || heights.iter().any(|v| !v.is_finite()) {
+            return Err(format!("the ground for the sketch is {} heights, not {} finite ones", heights.len(), n * n));
+        }
+        let shown = self.wants_sketch_base() == Some(seed);
+        self.sketch_base = Some((seed, Arc::new(heights)));
+        if shown {
+            self.new_world();
+        }
+        Ok(())
+    }
+
     /// Whether the world shown is the sketch pinned into the learned world (the sketch world
     /// with its terrain here and the learned models ready).
     fn sketch_in_learned(&self) -> bool {
@@ -331,14 +368,17 @@ impl TerrainApp {
     /// The new sketch-in-learned world takes over `old`'s tiles: the sketch's pinned tiles at
     /// once, the old tiles as stand-ins until the worker's arrive, and the fading plain of
     /// `sketch` around the pins where `old` had nothing, so the sketch is drawable at once. An
-    /// old world that was the same learned world with the sketch pinned (same seed and
-    /// weights) is the same beyond the pins' reach: those tiles are kept as they are.
+    /// old world that was the same learned world (same seed and weights) is the same beyond
+    /// the reach of its pins and the sketch's (a sketch set into the world's own tile reaches
+    /// no other tile): those tiles are kept as they are.
     fn take_over_sketch(&mut self, old: WorldStream, sketch: &SketchSource, pins: &Pins) {
         let same = old.seed() == self.world.seed() && old.source_name() == self.world.source_name();
         let tiles = sketch.tiles();
         let fixed = tiles.iter().map(|&c| Tile::new(c, pins.get(c).expect("a sketch pins the tiles it lies on").fine.to_vec())).collect();
-        let beyond = |c: TileCoord| !pins.within(c, PIN_REACH_TILES);
-        let coarse_beyond = |c: TileCoord| !pins.within(c, PIN_ERODED_REACH_TILES);
+        // Beyond the reach of the old world's pins too (an 8 km sketch before a small one).
+        let old_pins = self.worker_pins.1.clone();
+        let beyond = |c: TileCoord| !pins.within(c, PIN_REACH_TILES) && !old_pins.within(c, PIN_REACH_TILES);
+        let coarse_beyond = |c: TileCoord| !pins.within(c, PIN_ERODED_REACH_TILES) && !old_pins.within(c, PIN_ERODED_REACH_TILES);
         self.world.take_over(old, fixed, same.then_some((&beyond as &dyn Fn(TileCoord) -> bool, &coarse_beyond as &dyn Fn(TileCoord) -> bool)));
         for c in tiles.iter().flat_map(|c| c.window3x3()) {
             if !self.world.contains(c) {

@@ -123,6 +123,8 @@ enum For {
     Blend(Job<SketchEdit>),
     /// Pins sent to the worker (their file's name).
     Pin(String),
+    /// The learned world's tile (0, 0) of this seed without pins, for a small sketch's ground.
+    SketchBase(u64),
 }
 
 /// A learned tile (or the far field's eroded 128 m tile) whose network work runs on the GPU:
@@ -303,6 +305,9 @@ pub struct PageCore {
     link: (String, f64),
     /// The hash of the pins the CPU worker's learned world has (`None` before it has one).
     pins_sent: Option<String>,
+    /// The seed whose unpinned tile (0, 0) was last asked of the worker for a sketch's ground
+    /// ([`crate::app::TerrainApp::wants_sketch_base`]).
+    base_asked: Option<u64>,
     /// Where the user wants the learned world's networks (`?world=`).
     world_choice: TemChoice,
     /// Where they run once they have loaded there (the probe may change it).
@@ -379,6 +384,7 @@ impl PageCore {
             edits: JobQueue::new(2),
             link: (String::new(), f64::NEG_INFINITY),
             pins_sent: None,
+            base_asked: None,
             world_choice: start.world,
             world_nets: runtime::choose(start.world, start.gpu.clone(), start.software_adapter),
             world_gpu: None,
@@ -820,6 +826,11 @@ impl PageCore {
             }
             (For::Pin(_), Reply::Loaded { hash }) => self.console.push(format!("pins {hash} in the CPU worker")),
             (For::Pin(name), r) => self.message = Some(format!("{name} could not be pinned ({})", why(&r))),
+            (For::SketchBase(seed), Reply::Heights { heights, ms }) => match self.app.set_sketch_base(seed, heights) {
+                Ok(()) => self.console.push(format!("the learned ground for the sketch in {ms:.0} ms")),
+                Err(e) => self.message = Some(format!("{e}; the sketch stands on a smooth foot")),
+            },
+            (For::SketchBase(_), r) => self.message = Some(format!("the learned ground for the sketch could not be made ({}); it stands on a smooth foot", why(&r))),
             (For::Tile(job, net_ms), Reply::Heights { heights, ms }) => {
                 self.app.tile_done(&job, heights, ms + net_ms);
             }
@@ -1127,6 +1138,11 @@ impl PageCore {
         }
         self.app.set_procedural_elsewhere(true);
         // The worker's learned world gets the pins of the world shown before its tile jobs.
+        // A small sketch is set into the learned world's own tile: asked for once per seed.
+        if let Some(seed) = self.app.wants_sketch_base().filter(|&s| self.base_asked != Some(s)) {
+            self.post(Target::Worker, 0, Request::UnpinnedTile { seed, tile: TileCoord::new(0, 0) }, For::SketchBase(seed));
+            self.base_asked = Some(seed);
+        }
         let pins = self.app.worker_pins();
         if self.pins_sent.as_ref().is_some_and(|sent| *sent != pins.0) {
             let name = match (&self.pinned, self.app.settings().source) {

@@ -384,10 +384,11 @@ fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_fra
 
 /// The sketch panel's extent slider at 0.5 km: the sketch is made again for that extent (the
 /// generator is told it, so the terrain differs from the 8 km one), with the relief that fits
-/// it (375 m, the user had the default), and pinned alone on tile (0, 0) with its own 2 m
-/// detail, the tile drawn being that detail's area mean bit for bit and the tile beside it
-/// the learned world grown around it; the camera frames it from 0.4 km and the link carries
-/// the extent and relief.
+/// it (375 m, the user had the default), and set into the learned world's own tile (0, 0)
+/// (asked of the worker without pins) with its own 2 m detail: the tile drawn is that
+/// detail's area mean bit for bit, within 1 cm of the world's own tile (0, 0) 1 km from the
+/// sketch, and the tile beside it is the world's own bit for bit; the camera frames it from
+/// 0.4 km and the link carries the extent and relief.
 #[test]
 fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_detail() {
     use crate::world::sketched::SketchSource;
@@ -398,7 +399,8 @@ fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_de
         for _ in 0..800 {
             shell.frames(core, 1);
             let s = core.app.stats();
-            if core.app.sketch_terrain_extent_m() == Some(extent_m) && s.sketch_shown == core.app.canvas.revision() + 1 && s.tiles_pending == 0 && s.tiles_stale == 0 {
+            let based = core.app.wants_sketch_base().is_none();
+            if based && core.app.sketch_terrain_extent_m() == Some(extent_m) && s.sketch_shown == core.app.canvas.revision() + 1 && s.tiles_pending == 0 && s.tiles_stale == 0 {
                 return;
             }
         }
@@ -430,15 +432,23 @@ fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_de
     assert!(!generator.knows_extent() || moved > 1000, "the terrain made for 0.5 km is the 8 km one: {moved} samples differ by over 1 of 255");
     let pins = core.app.worker_pins();
     assert_eq!(pins.1.coords(), vec![c]);
-    let want = SketchSource::with_extent(std::sync::Arc::new(small), 375.0, 512.0, core.app.settings().seed).pins();
+    let seed = core.app.settings().seed;
+    let models = std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap());
+    let free = LearnedSource::new(models, 1);
+    let own = free.generate(seed, c, &Neighbourhood::default()).heights;
+    let want = SketchSource::with_extent(std::sync::Arc::new(small), 375.0, 512.0, seed).with_base(std::sync::Arc::new(own.clone())).pins();
     let (got, want) = (pins.1.get(c).unwrap(), want.get(c).unwrap());
     assert_eq!(got.detail.len(), 4, "16, 8, 4 and 2 m");
+    assert!(got.soft.is_some(), "the sketch is set into the world's own tile");
     assert!(got.detail(3).unwrap().iter().zip(want.detail(3).unwrap()).all(|(a, b)| a.to_bits() == b.to_bits()));
-    assert!(core.app.tile_heights(c).unwrap().iter().zip(want.fine.iter()).all(|(a, b)| a.to_bits() == b.to_bits()), "tile (0, 0) is the pin's");
-    let models = std::sync::Arc::new(LearnedModels::load_dir(&weights()).unwrap());
+    let tile = core.app.tile_heights(c).unwrap();
+    assert!(tile.iter().zip(want.fine.iter()).all(|(a, b)| a.to_bits() == b.to_bits()), "tile (0, 0) is the pin's");
+    // 32 m samples 0–31 lie over 1 km from the sketch (1,776–2,288 m).
+    let far = (0..32 * 128).map(|k| (tile[k] - own[k]).abs()).fold(0f32, f32::max);
+    assert!(far < 0.01, "1 km from the sketch tile (0, 0) is {far} m from the world's own");
     let beside = crate::grid::TileCoord::new(1, 0);
-    let grown = LearnedSource::new(models, 1).with_pins(pins.1.clone()).generate(core.app.settings().seed, beside, &Neighbourhood::default()).heights;
-    assert_eq!(core.app.tile_heights(beside).expect("the tile beside the sketch"), &grown[..]);
+    let world = free.generate(seed, beside, &Neighbourhood::default()).heights;
+    assert_eq!(core.app.tile_heights(beside).expect("the tile beside the sketch"), &world[..]);
 }
 
 /// The sketch world with the learned world's models ready is the sketch pinned into the

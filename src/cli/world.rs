@@ -127,19 +127,6 @@ fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::
         return Err("--pin and --sketch grow the learned world around your terrain: add --source tcm".into());
     }
     let mut pins = read_pins(&r.pin)?;
-    if let Some((file, relief_m, extent_m)) = sketch {
-        use terrain::world::sketched::SketchSource;
-        check_relief(relief_m)?;
-        let sk = terrain::sketch::Sketch::read_path(file).map_err(|e| format!("--sketch {}: {e}", file.display()))?;
-        let heights = sketch_generator(weights.clone())?.exact().generate(&sk, extent_m, &mut Default::default(), terrain::models::cpu::default_threads());
-        let sketched = SketchSource::with_extent(std::sync::Arc::new(heights), relief_m, extent_m, r.seed).pins();
-        // With its own detail where it is finer than 32 m (`export --spacing` keeps it).
-        for (c, tile) in sketched.iter() {
-            pins.insert_tile(c, tile.clone())?;
-        }
-        let tiles: Vec<String> = sketched.coords().iter().map(|c| format!("({}, {})", c.i, c.j)).collect();
-        eprintln!("pinned the sketch {} ({relief_m} m relief, {extent_m} m across) on tile(s) {}", file.display(), tiles.join(", "));
-    }
     let runner = terrain::jobs::native::NativeRunner::spawn(terrain::models::cpu::default_threads());
     let ask = |request| -> Result<Reply, String> {
         let answer = runner.call(&Envelope { id: 1, epoch: 0, rest_per_work: 0.0, request }).map_err(|e| e.to_string())?;
@@ -152,9 +139,31 @@ fn region(r: &RegionArgs) -> Result<(terrain::dem::Heightfield, terrain::world::
         Source::Procedural => Some(NoiseParams::default()),
         Source::Tcm => {
             use terrain::world::learned::{GROW_FILE, TCM_FILE};
-            let dir = weights_dir(weights);
+            let dir = weights_dir(weights.clone());
             let read = |f: &str| terrain::models::read_weight_file(&dir.join(f)).map_err(|e| e.to_string());
             ask(Request::LoadWorld { tcm: read(TCM_FILE)?, grow: read(GROW_FILE)? })?;
+            if let Some((file, relief_m, extent_m)) = sketch {
+                use terrain::world::sketched::SketchSource;
+                check_relief(relief_m)?;
+                let sk = terrain::sketch::Sketch::read_path(file).map_err(|e| format!("--sketch {}: {e}", file.display()))?;
+                let heights = sketch_generator(weights.clone())?.exact().generate(&sk, extent_m, &mut Default::default(), terrain::models::cpu::default_threads());
+                let mut source = SketchSource::with_extent(std::sync::Arc::new(heights), relief_m, extent_m, r.seed);
+                if source.takes_base() {
+                    // Set into the learned world's own tile (0, 0), as the page does.
+                    match ask(Request::UnpinnedTile { seed: r.seed, tile: TileCoord::new(0, 0) })? {
+                        Reply::Heights { heights, .. } => source = source.with_base(std::sync::Arc::new(heights)),
+                        other => return Err(format!("the ground for the sketch: unexpected reply {other:?}")),
+                    }
+                }
+                let sketched = source.pins();
+                // With its own detail where it is finer than 32 m (`export --spacing` keeps it).
+                for (c, tile) in sketched.iter() {
+                    pins.insert_tile(c, tile.clone())?;
+                }
+                let tiles: Vec<String> = sketched.coords().iter().map(|c| format!("({}, {})", c.i, c.j)).collect();
+                let set = if source.soft_edge().is_some() { ", set into the learned world's own tile" } else { "" };
+                eprintln!("pinned the sketch {} ({relief_m} m relief, {extent_m} m across) on tile(s) {}{set}", file.display(), tiles.join(", "));
+            }
             if !pins.is_empty() {
                 ask(Request::pin(&pins))?;
             }

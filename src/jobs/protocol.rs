@@ -85,6 +85,18 @@ pub enum Request {
     Pin {
         /// The pinned tiles and their heights.
         tiles: Vec<(TileCoord, Vec<f32>)>,
+        /// Tiles set in as they are, the world made without them (pins with a soft edge:
+        /// [`crate::world::learned::LearnedSource::with_pins_set_in`]), and their heights.
+        set_in: Vec<(TileCoord, Vec<f32>)>,
+    },
+    /// Tile `tile` of learned world `seed` as it is without any pins
+    /// ([`crate::grid::TILE_SAMPLES`]² heights, metres): the ground a small sketch is set into
+    /// ([`crate::world::sketched::SketchSource::with_base`]).
+    UnpinnedTile {
+        /// The world's seed.
+        seed: u64,
+        /// Which tile.
+        tile: TileCoord,
     },
     /// The next batch of network work that tile `tile` of learned world `seed` needs
     /// ([`crate::world::learned::LearnedSource::network_work`]; with `coarse`, its 128 m tile
@@ -131,7 +143,8 @@ pub enum Request {
 impl Request {
     /// [`Request::Pin`] of `pins`' 32 m tiles (none: the pins cleared).
     pub fn pin(pins: &crate::world::pins::Pins) -> Self {
-        Request::Pin { tiles: pins.iter().map(|(c, t)| (c, t.fine.to_vec())).collect() }
+        let (hard, set_in) = pins.split_soft();
+        Request::Pin { tiles: hard.iter().map(|(c, t)| (c, t.fine.to_vec())).collect(), set_in: set_in.into_iter().map(|(c, t)| (c, t.to_vec())).collect() }
     }
 
     /// Whether the request belongs to a world (a tile, a TEM batch): its epoch is checked, and
@@ -153,6 +166,7 @@ impl Request {
             Request::Blend { .. } => "blend",
             Request::Coarse { .. } => "coarse",
             Request::Pin { .. } => "pin",
+            Request::UnpinnedTile { .. } => "unpinned-tile",
             Request::WorldWork { .. } => "world-work",
             Request::RunWork { .. } => "run-work",
             Request::AcceptWork { .. } => "accept-work",

@@ -27,6 +27,8 @@ pub const MAX_VARIANTS: u32 = 16;
 pub struct Runner {
     tem: Option<TemSet>,
     world: Option<LearnedSource>,
+    /// The learned world without pins, once asked for ([`Request::UnpinnedTile`]).
+    unpinned: Option<LearnedSource>,
     sketch: Option<SketchModels>,
     epoch: u64,
     threads: usize,
@@ -60,7 +62,7 @@ pub enum Accepted {
 impl Runner {
     /// A runner with no models loaded, whose kernels use `threads` threads.
     pub fn new(threads: usize) -> Self {
-        Self { tem: None, world: None, sketch: None, epoch: 0, threads: threads.max(1) }
+        Self { tem: None, world: None, unpinned: None, sketch: None, epoch: 0, threads: threads.max(1) }
     }
 
     /// Reads a request from its bytes and takes it; malformed bytes are answered with
@@ -191,6 +193,7 @@ impl Runner {
                 let models = LearnedModels::from_bytes(&tcm, &grow).map_err(|e| e.to_string())?;
                 let hash = models.hash.clone();
                 self.world = Some(LearnedSource::new(Arc::new(models), self.threads));
+                self.unpinned = None;
                 Ok(Reply::Loaded { hash })
             }
             Request::LoadSketch { generator, vae } => {
@@ -202,15 +205,26 @@ impl Runner {
             Request::Tile { seed, tile, noise: Some(noise) } => {
                 Ok(Reply::Heights { heights: ProceduralSource::new(noise).generate(seed, tile, &Neighbourhood::default()).heights, ms: 0.0 })
             }
-            Request::Pin { tiles } => {
+            Request::Pin { tiles, set_in } => {
                 let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
                 let mut pins = crate::world::pins::Pins::new();
                 for (c, heights) in tiles {
                     pins.insert(c, heights).map_err(|e| format!("tile {}, {}: {e}", c.i, c.j))?;
                 }
+                let mut set = Vec::new();
+                for (c, heights) in set_in {
+                    // Checked as a pin's heights are.
+                    let tile = crate::world::pins::PinnedTile::new(heights).map_err(|e| format!("tile {}, {}: {e}", c.i, c.j))?;
+                    set.push((c, tile.fine));
+                }
                 let hash = pins.hash();
-                self.world = Some(world.with_pins(pins));
+                self.world = Some(world.with_pins_set_in(pins, set));
                 Ok(Reply::Loaded { hash })
+            }
+            Request::UnpinnedTile { seed, tile } => {
+                let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
+                let free = self.unpinned.get_or_insert_with(|| world.with_pins(crate::world::pins::Pins::new()));
+                Ok(Reply::Heights { heights: free.generate(seed, tile, &Neighbourhood::default()).heights, ms: 0.0 })
             }
             Request::Coarse { seed, tile } => {
                 let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
@@ -379,9 +393,9 @@ mod tests {
 
     /// Every request kind, as bytes through the native runner thread, gives bit-identical
     /// results to calling the models directly: TEM, a learned coarse stand-in (the 128 m
-    /// network tile), learned and procedural tiles, a sketch's
-    /// terrain, 2 variants (2 sketches, 2·256² heights) and a blend; the loads answer the
-    /// weights' hashes.
+    /// network tile), learned and procedural tiles (pinned, set in, and the world's own tile
+    /// without the pins), a sketch's terrain, 2 variants (2 sketches, 2·256² heights) and a
+    /// blend; the loads answer the weights' hashes.
     #[test]
     fn every_request_kind_through_the_runner_thread_matches_the_models_called_directly() {
         let r = NativeRunner::spawn(1);
@@ -425,15 +439,25 @@ mod tests {
         let pin: Vec<f32> = (0..crate::grid::TILE_SAMPLES.pow(2)).map(|p| 700.0 + (p % 97) as f32).collect();
         let mut pins = crate::world::pins::Pins::new();
         pins.insert(c, pin.clone()).unwrap();
-        match r.call(&env(17, 0, Request::Pin { tiles: vec![(c, pin.clone())] })).unwrap().reply {
+        match r.call(&env(17, 0, Request::Pin { tiles: vec![(c, pin.clone())], set_in: vec![] })).unwrap().reply {
             Reply::Loaded { hash } => assert_eq!(hash, pins.hash()),
             other => panic!("pin: {other:?}"),
         }
         assert_eq!(heights(r.call(&env(18, 0, Request::Tile { seed: 42, tile: c, noise: None })).unwrap()), pin);
         let beside = learned.with_pins(pins).generate(42, c.offset(1, 0), &Neighbourhood::default()).heights;
         assert_eq!(heights(r.call(&env(19, 0, Request::Tile { seed: 42, tile: c.offset(1, 0), noise: None })).unwrap()), beside);
+        // With pins, the world's own tile without them.
+        assert_eq!(heights(r.call(&env(22, 0, Request::UnpinnedTile { seed: 42, tile: c })).unwrap()), free_tile);
+        // A tile set in: it comes back as it is, and the tile beside it is the world's own.
+        match r.call(&env(23, 0, Request::Pin { tiles: vec![], set_in: vec![(c, pin.clone())] })).unwrap().reply {
+            Reply::Loaded { hash } => assert_eq!(hash, ""),
+            other => panic!("set in: {other:?}"),
+        }
+        assert_eq!(heights(r.call(&env(24, 0, Request::Tile { seed: 42, tile: c, noise: None })).unwrap()), pin);
+        let own = learned.generate(42, c.offset(1, 0), &Neighbourhood::default()).heights;
+        assert_eq!(heights(r.call(&env(25, 0, Request::Tile { seed: 42, tile: c.offset(1, 0), noise: None })).unwrap()), own);
         // No pins: the world without them again.
-        match r.call(&env(20, 0, Request::Pin { tiles: vec![] })).unwrap().reply {
+        match r.call(&env(20, 0, Request::Pin { tiles: vec![], set_in: vec![] })).unwrap().reply {
             Reply::Loaded { hash } => assert_eq!(hash, ""),
             other => panic!("pins cleared: {other:?}"),
         }

@@ -542,6 +542,9 @@ pub struct LearnedSource {
     scratch: Mutex<(TcmScratch, GrowScratch)>,
     threads: usize,
     pins: Pins,
+    /// Tiles set in as they are ([`with_pins`](Self::with_pins): pinned tiles with a soft
+    /// edge): the world is made without them and these tiles replace its own.
+    set_in: std::collections::BTreeMap<TileCoord, Arc<Vec<f32>>>,
     spent: Mutex<TimeSpent>,
 }
 
@@ -601,6 +604,7 @@ impl LearnedSource {
             scratch: Mutex::default(),
             threads: threads.max(1),
             pins: Pins::new(),
+            set_in: Default::default(),
             spent: Mutex::default(),
         }
     }
@@ -617,8 +621,20 @@ impl LearnedSource {
     /// The same networks with `pins` in the world (see [`super::pins`]) and empty caches: the
     /// pinned tiles are theirs exactly, the world grows around them, and tiles beyond the
     /// reach of their schedule dependencies and drainage blocks are as without pins.
+    ///
+    /// A pinned tile with a soft edge ([`super::pins::SoftEdge`]: a small sketch set into the
+    /// world's own tile, its edges the world's) is set in instead: the world is made as
+    /// without it, and it replaces that tile alone ([`with_pins_set_in`](Self::with_pins_set_in)).
     pub fn with_pins(&self, pins: Pins) -> Self {
-        Self { pins, ..Self::new(self.models.clone(), self.threads) }
+        let (hard, set_in) = pins.split_soft();
+        self.with_pins_set_in(hard, set_in)
+    }
+
+    /// The same networks with `pins` in the world ([`with_pins`](Self::with_pins)) and the
+    /// tiles `set_in` (32 m heights, [`TILE_SAMPLES`]² each) replacing the world's own, which
+    /// is made as without them.
+    pub fn with_pins_set_in(&self, pins: Pins, set_in: Vec<super::pins::SetIn>) -> Self {
+        Self { pins, set_in: set_in.into_iter().collect(), ..Self::new(self.models.clone(), self.threads) }
     }
 
     /// The same source keeping at most `blocks` filled blocks per stage (tests of eviction).
@@ -740,6 +756,9 @@ impl LearnedSource {
     /// take a second. A caller that rests between pieces (the page's CPU worker beside a
     /// software rasteriser) spreads a tile's work out; the tile is the same.
     pub fn prepare(&self, seed: u64, coord: TileCoord) -> bool {
+        if self.set_in.contains_key(&coord) {
+            return false;
+        }
         let second = second_block_corner(coord);
         if self.drained.lock().unwrap_or_else(|p| p.into_inner()).get(&(seed, second)).is_some() {
             return false;
@@ -803,6 +822,9 @@ impl LearnedSource {
     /// when only CPU work is left ([`TileSource::generate`]). A tile needs at most one batch per
     /// phase of the schedule, and one of ×4 windows.
     pub fn network_work(&self, seed: u64, coord: TileCoord) -> NetworkWork {
+        if self.set_in.contains_key(&coord) {
+            return NetworkWork::None;
+        }
         let raw = self.missing_raw(seed, coord);
         if raw.is_empty() {
             return NetworkWork::None;
@@ -934,6 +956,9 @@ impl TileSource for LearnedSource {
     }
 
     fn generate(&self, seed: u64, coord: TileCoord, _: &Neighbourhood<'_>) -> Tile {
+        if let Some(t) = self.set_in.get(&coord) {
+            return Tile::new(coord, t.to_vec());
+        }
         let corner = second_block_corner(coord);
         let block = self.drained_block(seed, corner);
         Tile::new(coord, quadrant(&block, coord, corner, TILE_SAMPLES, FILL_BLOCK_TILES))

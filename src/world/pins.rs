@@ -34,6 +34,9 @@ pub const fn detail_side(level: usize) -> usize {
     TILE_SAMPLES << (level + 1)
 }
 
+/// A tile set into the world as it is, and its 32 m heights ([`Pins::split_soft`]).
+pub type SetIn = (TileCoord, Arc<Vec<f32>>);
+
 /// One pinned tile.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PinnedTile {
@@ -45,6 +48,44 @@ pub struct PinnedTile {
     /// row-major, the tile's north-west corner first) as far as the terrain is that fine; empty
     /// for terrain coarser than 16 m.
     pub detail: Vec<Arc<Vec<f32>>>,
+    /// Where its detail blends into the TEM's refinement of its 32 m heights instead of
+    /// replacing it ([`SoftEdge`]); `None`: the detail replaces it everywhere.
+    pub soft: Option<SoftEdge>,
+}
+
+/// A rectangle of a pinned tile where its own detail holds, fading out around it: a small
+/// sketch set into the learned world's own tile keeps its samples inside the rectangle, and
+/// the TEM's detail of that tile comes back over [`fade_m`](Self::fade_m) around it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SoftEdge {
+    /// World x and z (metres) of the rectangle's west and north edges.
+    pub min_m: [f64; 2],
+    /// World x and z (metres) of its east and south edges.
+    pub max_m: [f64; 2],
+    /// Distance (metres) outside it over which the weight falls from 1 to 0 (> 0).
+    pub fade_m: f64,
+}
+
+impl SoftEdge {
+    /// The weight (0–1) of the pinned detail at world point (`x`, `z`) metres: 1 in the
+    /// rectangle, a smoothstep of the distance to it down to 0 at [`fade_m`](Self::fade_m).
+    pub fn weight(&self, x: f64, z: f64) -> f32 {
+        let dx = (self.min_m[0] - x).max(x - self.max_m[0]).max(0.0);
+        let dz = (self.min_m[1] - z).max(z - self.max_m[1]).max(0.0);
+        let t = (1.0 - libm::hypot(dx, dz) / self.fade_m).clamp(0.0, 1.0);
+        (t * t * (3.0 - 2.0 * t)) as f32
+    }
+
+    /// `a` where the weight `w` is 1, `b` where it is 0, between them linearly.
+    pub fn mix(w: f32, a: f32, b: f32) -> f32 {
+        if w >= 1.0 {
+            a
+        } else if w <= 0.0 {
+            b
+        } else {
+            b + w * (a - b)
+        }
+    }
 }
 
 impl PinnedTile {
@@ -61,7 +102,7 @@ impl PinnedTile {
         let tile = Heightfield::new(n, n, BASE_SPACING_M, fine);
         let coarse = tile.downsample2().downsample2();
         assert_eq!(coarse.width, TILE_PX, "a 32 m tile is {TILE_PX} samples at 128 m");
-        Ok(Self { fine: Arc::new(tile.data), coarse: Arc::new(coarse.data), detail: Vec::new() })
+        Ok(Self { fine: Arc::new(tile.data), coarse: Arc::new(coarse.data), detail: Vec::new(), soft: None })
     }
 
     /// A pinned tile from its heights at TEM level `finest` ([`detail_side`]`(finest)`²,
@@ -86,6 +127,12 @@ impl PinnedTile {
         let mut tile = Self::new(top.data)?;
         tile.detail = levels.into_iter().rev().map(|l| Arc::new(l.data)).collect();
         Ok(tile)
+    }
+
+    /// The tile with its detail blending into the TEM's around `soft` ([`SoftEdge`]).
+    pub fn with_soft_edge(mut self, soft: SoftEdge) -> Self {
+        self.soft = Some(soft);
+        self
     }
 
     /// Its heights at TEM level `level` ([`detail_side`]² metres), where it keeps them.
@@ -233,14 +280,24 @@ impl Pins {
         self.tiles.is_empty()
     }
 
-    /// Whether tile `c` lies within `reach` tiles (Chebyshev distance) of a pinned tile.
+    /// Whether tile `c` lies within `reach` tiles (Chebyshev distance) of a pinned tile, or
+    /// is a tile set in with a soft edge (which changes no other tile:
+    /// [`crate::world::learned::LearnedSource::with_pins`]).
     pub fn within(&self, c: TileCoord, reach: i32) -> bool {
-        self.tiles.keys().any(|p| (p.i - c.i).abs().max((p.j - c.j).abs()) <= reach)
+        self.tiles.iter().any(|(p, t)| (p.i - c.i).abs().max((p.j - c.j).abs()) <= if t.soft.is_some() { 0 } else { reach })
     }
 
     /// The pinned tiles' coordinates, in tile order.
     pub fn coords(&self) -> Vec<TileCoord> {
         self.tiles.keys().copied().collect()
+    }
+
+    /// The pins without a soft edge, and the 32 m heights of those with one
+    /// ([`PinnedTile::soft`]: tiles set into the world as they are).
+    pub fn split_soft(&self) -> (Pins, Vec<SetIn>) {
+        let hard = Pins { tiles: self.tiles.iter().filter(|(_, t)| t.soft.is_none()).map(|(c, t)| (*c, t.clone())).collect() };
+        let soft = self.tiles.iter().filter(|(_, t)| t.soft.is_some()).map(|(c, t)| (*c, t.fine.clone())).collect();
+        (hard, soft)
     }
 
     /// The pinned tiles in tile order, with their 32 m heights.

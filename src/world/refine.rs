@@ -18,9 +18,9 @@
 use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 
-use super::pins::{Pins, detail_side};
+use super::pins::{Pins, SoftEdge, detail_side};
 use super::stream::WorldStream;
-use crate::grid::coord::TileCoord;
+use crate::grid::coord::{BASE_SPACING_M, TILE_SIZE_M, TileCoord};
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, QUAD, RECEPTIVE_OUT_PX};
 use crate::queue::{Job, JobQueue, Outcome};
 
@@ -181,13 +181,27 @@ impl PatchStore {
         let (x1, y1) = (x0 + STORED_SIDE as i64, y0 + STORED_SIDE as i64);
         for tj in y0.div_euclid(per)..=(y1 - 1).div_euclid(per) {
             for ti in x0.div_euclid(per)..=(x1 - 1).div_euclid(per) {
-                let Some(d) = pins.get(origin.offset(ti as i32, tj as i32)).and_then(|t| t.detail(level)) else { continue };
+                let Some(tile) = pins.get(origin.offset(ti as i32, tj as i32)) else { continue };
+                let Some(d) = tile.detail(level) else { continue };
                 let (ax, bx) = (x0.max(ti * per), x1.min((ti + 1) * per));
                 for y in y0.max(tj * per)..y1.min((tj + 1) * per) {
                     let src = ((y - tj * per) * per + ax - ti * per) as usize;
                     let dst = ((y - y0) * STORED_SIDE as i64 + ax - x0) as usize;
                     let len = (bx - ax) as usize;
-                    out[dst..dst + len].copy_from_slice(&d[src..src + len]);
+                    match &tile.soft {
+                        None => out[dst..dst + len].copy_from_slice(&d[src..src + len]),
+                        Some(soft) => {
+                            // Pixel p of this level (counted from the origin tile's north-west
+                            // corner) has its centre at s·(p + ½) − 16 m from the origin's.
+                            let s = LEVEL_SPACING_M[level];
+                            let world = |p: i64, o: i32| o as f64 * TILE_SIZE_M + s * (p as f64 + 0.5) - BASE_SPACING_M / 2.0;
+                            let z = world(y, origin.j);
+                            for k in 0..len {
+                                let w = soft.weight(world(ax + k as i64, origin.i), z);
+                                out[dst + k] = SoftEdge::mix(w, d[src + k], out[dst + k]);
+                            }
+                        }
+                    }
                 }
             }
         }

@@ -16,11 +16,15 @@
 //!
 //! Where the learned world's models are at hand the sketch's tiles are pinned into it instead
 //! ([`SketchSource::pins`]) and the learned world grows around them; this fading plain is the
-//! world while they load, and the fallback when they fail.
+//! world while they load, and the fallback when they fail. A sketch under 4 km across is set
+//! into the learned world's own tile (0, 0) instead once that tile is at hand
+//! ([`SketchSource::with_base`]): the tile is the world's own but for the sketch's square and
+//! a fade around it, whose detail gives way to the TEM's ([`super::pins::SoftEdge`]), and it
+//! changes no other tile of the world.
 
 use std::sync::Arc;
 
-use super::pins::{PinnedTile, Pins, detail_side};
+use super::pins::{PinnedTile, Pins, SoftEdge, detail_side};
 use super::{BASE_SPACING_M, Neighbourhood, TILE_SAMPLES, Tile, TileCoord, TileSource};
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS};
 use crate::sketch::SKETCH_PX;
@@ -95,6 +99,9 @@ pub struct SketchSource {
     lift_m: f32,
     /// Summed-area table of the heights ((SKETCH_PX + 1)², row-major): box means in O(1).
     sums: Vec<f64>,
+    /// The learned world's own tile (0, 0) the sketch is set into ([`with_base`](Self::with_base)),
+    /// and where its samples hold.
+    base: Option<(Arc<Vec<f32>>, SoftEdge)>,
 }
 
 impl SketchSource {
@@ -130,7 +137,49 @@ impl SketchSource {
         } else {
             (0.0, 0.0)
         };
-        Self { heights, relief_m, extent_m, corner_m: centre - extent_m / 2.0, fade_m, base_m, lift_m, sums }
+        Self { heights, relief_m, extent_m, corner_m: centre - extent_m / 2.0, fade_m, base_m, lift_m, sums, base: None }
+    }
+
+    /// Whether the sketch is set into the learned world's own tile when it has one
+    /// ([`with_base`](Self::with_base)): a sketch in tile (0, 0) with room around it (under
+    /// 4 km across).
+    pub fn takes_base(&self) -> bool {
+        in_one_tile(self.extent_m) && self.extent_m < super::TILE_SIZE_M
+    }
+
+    /// The sketch set into `base`, the learned world's tile (0, 0) as it is without the
+    /// sketch ([`TILE_SAMPLES`]² metres), instead of on a smooth foot: its samples hold
+    /// inside its square, and around it the ground goes over to `base` within half its
+    /// extent (less where the tile's edge is nearer: [`SoftEdge`]), where the pinned tile's
+    /// detail gives way to the TEM's. The sketch stands at `base`'s mean level around it
+    /// (its outer samples' mean is lifted to that of `base` there). A sketch that does not
+    /// [`take a base`](Self::takes_base), or a `base` of another size, changes nothing.
+    pub fn with_base(mut self, base: Arc<Vec<f32>>) -> Self {
+        if !self.takes_base() || base.len() != TILE_SAMPLES * TILE_SAMPLES || base.iter().any(|v| !v.is_finite()) {
+            return self;
+        }
+        let base = Arc::new(unblurred(&base));
+        let n = SKETCH_PX;
+        let spacing = self.extent_m / n as f64;
+        let at = |k: usize| self.corner_m + spacing * (k as f64 + 0.5);
+        let ring: Vec<usize> = (0..n * n).filter(|k| [0, n - 1].contains(&(k % n)) || [0, n - 1].contains(&(k / n))).collect();
+        let sketch_ring = ring.iter().map(|&k| self.heights[k] as f64).sum::<f64>() / ring.len() as f64 / 255.0 * self.relief_m as f64;
+        let base_ring = ring.iter().map(|&k| bilinear_tile(&base, at(k % n), at(k / n)) as f64).sum::<f64>() / ring.len() as f64;
+        self.base_m = base_ring as f32;
+        self.lift_m = (base_ring - sketch_ring) as f32;
+        let edge = (self.corner_m, self.corner_m + self.extent_m);
+        // The tile's cells reach from −16 m to 4,080 m.
+        let (west, east) = (-BASE_SPACING_M / 2.0, super::TILE_SIZE_M - BASE_SPACING_M / 2.0);
+        let room = (edge.0 - west).min(east - edge.1);
+        let soft = SoftEdge { min_m: [edge.0; 2], max_m: [edge.1; 2], fade_m: (self.extent_m / 2.0).min(room).max(BASE_SPACING_M) };
+        self.base = Some((base, soft));
+        self
+    }
+
+    /// Where the sketch's samples hold in its pinned tile, when it is set into a base
+    /// ([`with_base`](Self::with_base)).
+    pub fn soft_edge(&self) -> Option<SoftEdge> {
+        self.base.as_ref().map(|b| b.1)
     }
 
     /// Metres across.
@@ -208,7 +257,11 @@ impl SketchSource {
                 let (p0, q0) = (c.i as i64 * side as i64, c.j as i64 * side as i64);
                 let centre = |p: i64| s * (p as f64 + 0.5) - BASE_SPACING_M / 2.0;
                 let heights = (0..side * side).map(|k| self.height_m(centre(p0 + (k % side) as i64), centre(q0 + (k / side) as i64))).collect();
-                PinnedTile::with_detail(level, heights).expect("a sketch's terrain is finite")
+                let tile = PinnedTile::with_detail(level, heights).expect("a sketch's terrain is finite");
+                match self.soft_edge() {
+                    Some(soft) => tile.with_soft_edge(soft),
+                    None => tile,
+                }
             }
             None => PinnedTile::new(self.point_tile(c)).expect("a sketch's terrain is finite"),
         }
@@ -255,13 +308,70 @@ impl SketchSource {
         // The first sample out holds the edge sample's height (r = 0); farther out, the box
         // widens with the distance.
         let (du, dv) = (fu - cu, fv - cv);
-        let r = (du.abs().max(dv.abs()).round() as i64 - 1).max(0);
+        let r = (libm::hypot(du, dv).round() as i64 - 1).max(0);
         let h = self.box_mean(cu.round() as i64, cv.round() as i64, r) / 255.0 * self.relief_m as f64 + self.lift_m as f64;
+        if let Some((base, soft)) = &self.base {
+            // The base's own ground, raised or lowered by what the sketch's edge stands above
+            // it, that difference fading out: the base keeps its valleys and ridges all
+            // round, and the sketch's edge runs out into them.
+            let edge = |c: f64| self.corner_m + spacing * (c + 0.5);
+            let above = h as f32 - bilinear_tile(base, edge(cu), edge(cv));
+            return bilinear_tile(base, x, z) + soft.weight(x, z) * above;
+        }
         let d = libm::hypot(du, dv) * spacing;
         let t = (1.0 - d / self.fade_m()).max(0.0);
         let base = self.base_m as f64;
         (base + (h - base) * t * t) as f32
     }
+}
+
+/// Samples (a [`TILE_SAMPLES`]² tile) whose [`bilinear_tile`] heights at any finer TEM level,
+/// area-averaged back to 32 m, are `tile` again (to float rounding): bilinear samples
+/// averaged over a 32 m cell weigh the cell by ¾ and its neighbours along an axis by ⅛ each
+/// (the cell itself by ⅞ at the tile's edge, where they are clamped), per axis, which blurs a
+/// rugged tile by metres. That blur is undone exactly, a tridiagonal solve per row, then per
+/// column.
+fn unblurred(tile: &[f32]) -> Vec<f32> {
+    let n = TILE_SAMPLES;
+    // Solves the blur along one line of `n` values (Thomas algorithm; diagonally dominant).
+    let solve = |rhs: &mut [f64]| {
+        let diag = |i: usize| if i == 0 || i == n - 1 { 0.875 } else { 0.75 };
+        let (off, mut c) = (0.125, vec![0f64; n]);
+        c[0] = off / diag(0);
+        rhs[0] /= diag(0);
+        for i in 1..n {
+            let m = diag(i) - off * c[i - 1];
+            c[i] = off / m;
+            rhs[i] = (rhs[i] - off * rhs[i - 1]) / m;
+        }
+        for i in (0..n - 1).rev() {
+            rhs[i] -= c[i] * rhs[i + 1];
+        }
+    };
+    let mut u: Vec<f64> = tile.iter().map(|&v| v as f64).collect();
+    for row in u.chunks_mut(n) {
+        solve(row);
+    }
+    let mut column = vec![0f64; n];
+    for x in 0..n {
+        (0..n).for_each(|y| column[y] = u[y * n + x]);
+        solve(&mut column);
+        (0..n).for_each(|y| u[y * n + x] = column[y]);
+    }
+    u.into_iter().map(|v| v as f32).collect()
+}
+
+/// Tile (0, 0)'s 32 m samples `tile` ([`TILE_SAMPLES`]², sample (p, q) at world (32p, 32q)
+/// metres) bilinear at world point (`x`, `z`), clamped to the tile's outer samples.
+fn bilinear_tile(tile: &[f32], x: f64, z: f64) -> f32 {
+    let last = (TILE_SAMPLES - 1) as f64;
+    let (u, v) = ((x / BASE_SPACING_M).clamp(0.0, last), (z / BASE_SPACING_M).clamp(0.0, last));
+    let (u0, v0) = ((u.floor() as usize).min(TILE_SAMPLES - 2), (v.floor() as usize).min(TILE_SAMPLES - 2));
+    let (tu, tv) = ((u - u0 as f64) as f32, (v - v0 as f64) as f32);
+    let at = |p: usize, q: usize| tile[q * TILE_SAMPLES + p];
+    let top = at(u0, v0) * (1.0 - tu) + at(u0 + 1, v0) * tu;
+    let bottom = at(u0, v0 + 1) * (1.0 - tu) + at(u0 + 1, v0 + 1) * tu;
+    top * (1.0 - tv) + bottom * tv
 }
 
 impl TileSource for SketchSource {
@@ -326,6 +436,61 @@ mod tests {
         assert_eq!(default_relief_m(512.0), 375.0);
         assert_eq!(default_relief_m(2048.0), 750.0);
         assert_eq!(default_relief_m(100.0), 375.0);
+    }
+
+    /// A half-km sketch set into the learned world's own tile (here a tilted, rippled base):
+    /// its 2 m detail in its square is the ramp lifted by one constant (to 1 mm), so that its
+    /// outer samples' mean is the base's level there (within 1 m of the base's 32 m samples
+    /// around the square); the pinned 32 m tile is the base (to 1 cm) over 256 m from the
+    /// square (the fade: half its extent), and the tile's detail gives way to the TEM's around
+    /// the square; sketches 4 km across or wider take no base.
+    #[test]
+    fn a_half_km_sketch_set_into_a_base_keeps_its_square_and_is_the_base_beyond_its_fade() {
+        let h: Vec<f32> = (0..SKETCH_PX * SKETCH_PX).map(|p| (p % SKETCH_PX) as f32 / (SKETCH_PX - 1) as f32 * 255.0).collect();
+        let n = TILE_SAMPLES;
+        let base: Vec<f32> = (0..n * n).map(|k| 600.0 + 3.2 * (k % n) as f32 + 30.0 * ((k % n) as f32 * 0.7).sin() * ((k / n) as f32 * 0.4).cos()).collect();
+        for e in [4096.0, 8192.0] {
+            let s = SketchSource::with_extent(Arc::new(h.clone()), 400.0, e, 7);
+            assert!(!s.takes_base() && s.with_base(Arc::new(base.clone())).soft_edge().is_none(), "{e} m");
+        }
+        let s = SketchSource::with_extent(Arc::new(h), 400.0, 512.0, 7).with_base(Arc::new(base.clone()));
+        let soft = s.soft_edge().expect("a half-km sketch is set into its base");
+        assert_eq!((soft.min_m, soft.max_m, soft.fade_m), ([1776.0; 2], [2288.0; 2], 256.0));
+        let pins = s.pins();
+        let tile = pins.get(TileCoord::new(0, 0)).unwrap();
+        assert_eq!(tile.soft, Some(soft));
+        let (d2, side) = (tile.detail(3).unwrap(), detail_side(3));
+        let lift = s.lift_m();
+        let ramp = |p: usize| ((p as f64 - 896.0) / 255.0 * 400.0) as f32 + lift;
+        let mut ring = Vec::new();
+        for q in 896..1152 {
+            for p in 896..1152 {
+                assert!((d2[q * side + p] - ramp(p)).abs() < 1e-3, "({p}, {q})");
+                if [896, 1151].contains(&p) || [896, 1151].contains(&q) {
+                    ring.push(d2[q * side + p] as f64);
+                }
+            }
+        }
+        let ring = ring.iter().sum::<f64>() / ring.len() as f64;
+        assert!((ring - s.base_m() as f64).abs() < 1e-3, "outer samples {ring} m, base level {} m", s.base_m());
+        // 32 m samples 55–71 hold the square's edges (1,776 and 2,288 m lie in 56 and 72).
+        let around: Vec<f64> = (55..=72)
+            .flat_map(|q| (55..=72).map(move |p| (p, q)))
+            .filter(|&(p, q)| [55, 56, 71, 72].contains(&p) || [55, 56, 71, 72].contains(&q))
+            .map(|(p, q)| base[q * n + p] as f64)
+            .collect();
+        let around = around.iter().sum::<f64>() / around.len() as f64;
+        assert!((s.base_m() as f64 - around).abs() < 1.0, "base level {} m, the base around the square {around} m", s.base_m());
+        // Over 256 m from the square: 32 m samples below 47 or above 80.
+        let mut far = 0f32;
+        for q in 0..n {
+            for p in 0..n {
+                if !(47..=80).contains(&p) || !(47..=80).contains(&q) {
+                    far = far.max((tile.fine[q * n + p] - base[q * n + p]).abs());
+                }
+            }
+        }
+        assert!(far < 0.01, "beyond the fade the tile is {far} m from its base");
     }
 
     /// Where a sketch lies and what it pins, by extent: 8 km on the four tiles at the origin
