@@ -140,10 +140,17 @@ pub struct TerrainApp {
 /// one in a tile, whose outer samples' mean sits at the world's level there
 /// ([`SketchSource::base_m`]), that level plus a quarter of the relief.
 pub fn sketch_overview(relief_m: f64, extent_m: f64, seed: u64) -> ([f64; 3], f32, f32) {
-    use crate::world::sketched::{SKETCH_EXTENT_M, base_level_m, centre_m, clamp_extent_m, in_one_tile};
+    sketch_overview_over(relief_m, extent_m, crate::world::sketched::base_level_m(extent_m, seed) as f64)
+}
+
+/// [`sketch_overview`] of a sketch whose outer samples' mean stands at `level_m` metres (for
+/// one set into the learned world's own tile, the ground's level around it:
+/// [`SketchSource::with_base`]).
+pub fn sketch_overview_over(relief_m: f64, extent_m: f64, level_m: f64) -> ([f64; 3], f32, f32) {
+    use crate::world::sketched::{SKETCH_EXTENT_M, centre_m, clamp_extent_m, in_one_tile};
     let k = clamp_extent_m(extent_m) / SKETCH_EXTENT_M;
     let x = centre_m(extent_m) + 0.5 * crate::world::BASE_SPACING_M;
-    let middle = base_level_m(extent_m, seed) as f64 + if in_one_tile(extent_m) { 0.25 } else { 0.5 } * relief_m;
+    let middle = level_m + if in_one_tile(extent_m) { 0.25 } else { 0.5 } * relief_m;
     ([x, middle + 3700.0 * k, x + 5200.0 * k], 0.0, -0.61)
 }
 
@@ -889,9 +896,16 @@ impl TerrainApp {
             .ok_or_else(|| format!("Nothing is refined to {s} m yet: fly lower over rough ground until the view shows that detail, then export."))
     }
 
-    /// Puts the camera where it shows the whole sketch ([`sketch_overview`]).
+    /// Puts the camera where it shows the whole sketch ([`sketch_overview`]), above the
+    /// ground's level around it where it is set into the learned world's own tile.
     pub fn frame_sketch(&mut self) {
-        let (p, yaw, pitch) = sketch_overview(self.settings.relief_m, self.settings.extent_m, self.settings.seed);
+        let s = &self.settings;
+        let set_in = self.sketch_terrain.as_ref().filter(|t| t.2 == s.extent_m).zip(self.sketch_base.as_ref().filter(|b| b.0 == s.seed));
+        let level = match set_in {
+            Some((t, b)) => SketchSource::with_extent(t.1.clone(), s.relief_m, t.2, s.seed).with_base(b.1.clone()).base_m(),
+            None => crate::world::sketched::base_level_m(s.extent_m, s.seed),
+        };
+        let (p, yaw, pitch) = sketch_overview_over(s.relief_m, s.extent_m, level as f64);
         (self.camera.position_m, self.camera.yaw, self.camera.pitch) = (DVec3::from_array(p), yaw, pitch);
         if self.controller.mode == crate::render::CameraMode::Orbit {
             self.set_camera_mode(crate::render::CameraMode::Fly);

@@ -195,7 +195,8 @@ impl SketchSource {
     }
 
     /// The level (metres) the ground around the sketch falls to: 0 m for a sketch wider than a
-    /// tile; for one in tile (0, 0), the world's macro field there.
+    /// tile; for one in tile (0, 0), the world's macro field there, or, set into the world's
+    /// own tile ([`with_base`](Self::with_base)), that tile's mean height around the sketch.
     pub fn base_m(&self) -> f32 {
         self.base_m
     }
