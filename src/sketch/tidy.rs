@@ -98,50 +98,68 @@ fn round_changes(out: &mut Sketch, sources: &[&Sketch]) {
 }
 
 /// Width of the strip of the band between that [`widen_jumps`] puts where two bands that are
-/// not next to each other meet (pixels): the canvas's default brush.
+/// not next to each other meet or come closer than it (pixels): the canvas's default brush.
 pub const JUMP_STRIP_PX: usize = 12;
 
-/// Where band ≤ k meets band ≥ k + 2 (k = 0, then 1) and no source has the same two bands on
-/// both sides of that border, every pixel of band k or ≥ k + 2 less than half of
-/// [`JUMP_STRIP_PX`] from the border becomes band k + 1. Rounds until no such border is left
-/// (bounded).
+/// Where band ≤ k and band ≥ k + 2 (k = 0, then 1) meet, or come closer than
+/// [`JUMP_STRIP_PX`] across a narrower strip of band k + 1, the strip is widened to
+/// [`JUMP_STRIP_PX`], half on each side: a pixel of either becomes band k + 1 when its steps
+/// (4-connected) to the nearest pixel of another band and to the nearest of the far band add
+/// up to at most [`JUMP_STRIP_PX`] + 1 (a pixel on a border two bands apart: 1 + 1; the 6th
+/// pixel from it: 6 + 6). A pixel the sources have there stays as it is where the far band's
+/// pixels near it are the sources' too. Rounds until nothing changes (bounded).
 fn widen_jumps(out: &mut Sketch, sources: &[&Sketch]) {
     let n = SKETCH_PX * SKETCH_PX;
-    let half = JUMP_STRIP_PX / 2;
+    let reach = JUMP_STRIP_PX + 1;
+    // Steps (4-connected, up to `reach`; beyond it usize::MAX) from the nearest pixel for which
+    // `from` holds.
+    let distance = |from: &dyn Fn(usize) -> bool| {
+        let mut dist = vec![usize::MAX; n];
+        let mut queue = std::collections::VecDeque::new();
+        for p in (0..n).filter(|&p| from(p)) {
+            dist[p] = 0;
+            queue.push_back(p);
+        }
+        while let Some(p) = queue.pop_front() {
+            if dist[p] >= reach {
+                continue;
+            }
+            for q in neighbours(p, false) {
+                if dist[q] == usize::MAX {
+                    dist[q] = dist[p] + 1;
+                    queue.push_back(q);
+                }
+            }
+        }
+        dist
+    };
     for _ in 0..4 {
         let mut any = false;
         for k in 0..super::BANDS as u8 - 2 {
             let (low, high) = (|b: u8| b <= k, |b: u8| b >= k + 2);
-            let in_source = |p: usize, q: usize| sources.iter().any(|s| s.band[p] == out.band[p] && s.band[q] == out.band[q]);
-            let mut dist = vec![usize::MAX; n];
-            let mut queue = std::collections::VecDeque::new();
-            for p in 0..n {
-                let b = out.band[p];
-                if (low(b) || high(b)) && neighbours(p, false).any(|q| ((low(b) && high(out.band[q])) || (high(b) && low(out.band[q]))) && !in_source(p, q)) {
-                    dist[p] = 0;
-                    queue.push_back(p);
-                }
-            }
-            if queue.is_empty() {
+            let kept: Vec<bool> = (0..n).map(|p| sources.iter().any(|s| s.band[p] == out.band[p])).collect();
+            let band = &out.band;
+            let (to_high, to_low) = (distance(&|p| high(band[p])), distance(&|p| low(band[p])));
+            let (to_new_high, to_new_low) = (distance(&|p| high(band[p]) && !kept[p]), distance(&|p| low(band[p]) && !kept[p]));
+            let (off_low, off_high) = (distance(&|p| !low(band[p])), distance(&|p| !high(band[p])));
+            let within = |a: usize, d: usize| a != usize::MAX && d != usize::MAX && a + d <= reach;
+            let widen: Vec<usize> = (0..n)
+                .filter(|&p| {
+                    let (own, far, far_new) = if low(band[p]) {
+                        (off_low[p], to_high[p], to_new_high[p])
+                    } else if high(band[p]) {
+                        (off_high[p], to_low[p], to_new_low[p])
+                    } else {
+                        return false;
+                    };
+                    within(own, far_new) || (!kept[p] && within(own, far))
+                })
+                .collect();
+            if widen.is_empty() {
                 continue;
             }
             any = true;
-            while let Some(p) = queue.pop_front() {
-                if dist[p] + 1 >= half {
-                    continue;
-                }
-                for q in neighbours(p, false) {
-                    if dist[q] == usize::MAX {
-                        dist[q] = dist[p] + 1;
-                        queue.push_back(q);
-                    }
-                }
-            }
-            for p in 0..n {
-                if dist[p] < half && (out.band[p] == k || high(out.band[p])) {
-                    out.band[p] = k + 1;
-                }
-            }
+            widen.into_iter().for_each(|p| out.band[p] = k + 1);
         }
         if !any {
             return;
@@ -279,7 +297,7 @@ mod tests {
     }
 
     #[test]
-    fn where_band_0_meets_band_2_a_12_px_strip_of_band_1_is_put_half_on_each_side_unless_the_source_has_that_border_and_0_against_3_gets_1_and_2() {
+    fn where_band_0_meets_band_2_a_12_px_strip_of_band_1_is_put_half_on_each_side_unless_the_source_has_that_border_and_0_against_3_gets_12_px_of_1_and_of_2() {
         let s = halves(0, 2);
         assert_eq!(jumps(&s), 2 * SKETCH_PX);
         let t = tidy(&s, &[&Sketch::filled(0)]);
@@ -289,11 +307,36 @@ mod tests {
             assert_eq!(row, [vec![0u8; 4], vec![1; 12], vec![2; 4]].concat(), "row {y}");
         }
         assert_eq!(differ(&tidy(&s, &[&s]), &s), 0, "the source's own border");
-        // Band 0 against band 3: the strip of 1 first, then one of 2 where 1 meets 3.
+        // Band 0 against band 3: a strip of 1 and one of 2, each 12 px wide.
         let t = tidy(&halves(0, 3), &[&Sketch::filled(0)]);
         assert_eq!(jumps(&t), 0);
-        let row: Vec<u8> = (118..144).map(|x| t.band[50 * SKETCH_PX + x]).collect();
-        assert_eq!(row, [vec![0u8; 4], vec![1; 6], vec![2; 12], vec![3; 4]].concat());
+        let row: Vec<u8> = (100..160).map(|x| t.band[50 * SKETCH_PX + x]).collect();
+        let count = |b: u8| row.iter().filter(|&&v| v == b).count();
+        assert_eq!((count(1), count(2)), (12, 12), "{row:?}");
+        assert!(row.windows(2).all(|w| w[0] <= w[1]), "{row:?}");
+    }
+
+    /// Band 1 and band 3 with a strip of band 2 only 2 px wide between them, where the source
+    /// has a 16 px strip of band 2 (a variant's edit narrowed the band between to a cliff):
+    /// the strip becomes 12 px wide, 5 px taken from each side; where the source has the
+    /// narrow strip too it stays 2 px.
+    #[test]
+    fn a_strip_of_the_band_between_2_px_wide_is_widened_to_12_px_unless_the_source_has_it() {
+        let strip = |x0: usize, x1: usize| {
+            let mut s = halves(1, 3);
+            for y in 0..SKETCH_PX {
+                (x0..x1).for_each(|x| s.band[y * SKETCH_PX + x] = 2);
+            }
+            s
+        };
+        let (s, source) = (strip(127, 129), strip(120, 136));
+        assert_eq!(jumps(&s), 0, "no two bands apart touch");
+        let t = tidy(&s, &[&source]);
+        for y in [0, 100, 255] {
+            let row: Vec<u8> = (118..138).map(|x| t.band[y * SKETCH_PX + x]).collect();
+            assert_eq!(row, [vec![1u8; 4], vec![2; 12], vec![3; 4]].concat(), "row {y}");
+        }
+        assert_eq!(differ(&tidy(&s, &[&s]), &s), 0, "the source's own strip");
     }
 
     #[test]
