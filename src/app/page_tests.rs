@@ -342,6 +342,45 @@ fn the_sketch_generators_probe_sends_strokes_to_the_faster_backend() {
 /// A generator that answers NaN heights: the page says so in its message, and the same
 /// sketch is not asked for again frame after frame (one request over ten frames); the next
 /// stroke is.
+/// A half-km sketch whose ground (the learned world's own tile (0, 0)) the worker cannot make:
+/// the page says so, asks once (not every frame), and the sketch stays pinned on its smooth
+/// foot (no soft edge).
+#[test]
+fn a_small_sketchs_ground_that_fails_is_said_asked_for_once_and_the_sketch_stands_on_its_foot() {
+    let share = ShareState { source: SourceKind::Sketch, extent_m: 512.0, relief_m: 375.0, ..ShareState::default() };
+    let mut core = PageCore::new(share, start(Ok(())));
+    let mut shell = Shell::new(&no_swap);
+    let mut asked = 0;
+    for f in 0..400 {
+        core.app.frame(&ControlInput::default(), 0.016, [640, 400]);
+        core.start_work(f as f64 * 16.0);
+        loop {
+            let effects = core.take_effects();
+            if effects.is_empty() {
+                break;
+            }
+            for e in effects {
+                match e {
+                    Effect::Post { envelope, .. } if envelope.request.kind() == "unpinned-tile" => {
+                        asked += 1;
+                        core.deliver(Delivery::Answer(Answer { id: envelope.id, reply: Reply::Failed("out of memory".into()) }));
+                    }
+                    e => shell.carry_out_once(&mut core, vec![e]),
+                }
+            }
+        }
+        if asked > 0 && core.app.stats().tiles_pending == 0 && f > 100 {
+            break;
+        }
+    }
+    assert_eq!(asked, 1, "asked once");
+    let m = core.message.clone().unwrap_or_default();
+    assert!(m.contains("could not be made (out of memory); it stands on a smooth foot"), "{m}");
+    let pins = core.app.worker_pins();
+    let tile = pins.1.get(crate::grid::TileCoord::new(0, 0)).expect("the sketch is pinned");
+    assert!(tile.soft.is_none() && tile.detail.len() == 4, "on its foot, with its 2 m detail");
+}
+
 #[test]
 fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_frame() {
     let mut core = PageCore::new(ShareState { source: SourceKind::Sketch, ..ShareState::default() }, start(Ok(())));
