@@ -239,6 +239,18 @@ mod tests {
         assert!(matches!(enhance(&Heightfield::new(2, 2, 32.0, vec![f32::NAN; 4]), 32.0, 16.0, &tem, 4, &mut |_, _, _| ()), Err(EnhanceError::AllNoData)));
     }
 
+    /// A rough 8 m DEM (520² samples) pinned on tile (5, −3), keeping its 8 m detail: the
+    /// tile and the pins.
+    fn rough_8m_pin() -> (TileCoord, Pins) {
+        let n = 520;
+        let rough = |x: usize, y: usize| 1200.0 + x as f32 * 0.3 + (x as f32 * 0.9).sin() * 6.0 + (y as f32 * 1.3).cos() * 4.0;
+        let dem = Heightfield::new(n, n, 8.0, (0..n * n).map(|k| rough(k % n, k / n)).collect());
+        let origin = TileCoord::new(5, -3);
+        let mut pins = Pins::new();
+        assert_eq!(pins.add(&dem, origin).unwrap().detail_m, Some(8.0));
+        (origin, pins)
+    }
+
     /// The same pinned 8 m tile with a soft edge (a square of 256 × 256 m pixels, 128–383, in
     /// its middle, fading over 256 m; a small sketch set into the world's own tile): refined to
     /// 8 m (random TEM weights), the square is the pin's 8 m heights bit for bit, and pixels
@@ -246,12 +258,7 @@ mod tests {
     /// of it, where the two differ by over 1 m, under 5 % of the pixels are either (a blend).
     #[test]
     fn a_soft_edged_pin_holds_its_square_and_gives_way_to_the_tems_refinement_outside_it() {
-        let n = 520;
-        let rough = |x: usize, y: usize| 1200.0 + x as f32 * 0.3 + (x as f32 * 0.9).sin() * 6.0 + (y as f32 * 1.3).cos() * 4.0;
-        let dem = Heightfield::new(n, n, 8.0, (0..n * n).map(|k| rough(k % n, k / n)).collect());
-        let origin = TileCoord::new(5, -3);
-        let mut pins = Pins::new();
-        pins.add(&dem, origin).unwrap();
+        let (origin, pins) = rough_8m_pin();
         // 8 m pixel p of the origin tile has its centre at 8p + 4 − 16 m from the tile's corner.
         let world = |p: f64, o: i32| o as f64 * crate::grid::TILE_SIZE_M + 8.0 * p - 16.0;
         let soft = crate::world::pins::SoftEdge { min_m: [world(128.0, origin.i), world(128.0, origin.j)], max_m: [world(384.0, origin.i), world(384.0, origin.j)], fade_m: 256.0 };
@@ -295,12 +302,7 @@ mod tests {
     /// 32 m without the pin (25.3 m).
     #[test]
     fn a_pins_own_detail_is_the_refined_terrain_at_its_levels_and_the_level_below_refines_it() {
-        let n = 520;
-        let rough = |x: usize, y: usize| 1200.0 + x as f32 * 0.3 + (x as f32 * 0.9).sin() * 6.0 + (y as f32 * 1.3).cos() * 4.0;
-        let dem = Heightfield::new(n, n, 8.0, (0..n * n).map(|k| rough(k % n, k / n)).collect());
-        let origin = TileCoord::new(5, -3);
-        let mut pins = Pins::new();
-        assert_eq!(pins.add(&dem, origin).unwrap().detail_m, Some(8.0));
+        let (origin, pins) = rough_8m_pin();
         let pin = pins.get(origin).unwrap().clone();
         let t = crate::grid::TILE_SAMPLES;
         let input = Heightfield::new(

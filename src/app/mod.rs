@@ -345,23 +345,30 @@ impl TerrainApp {
     /// smooth foot.
     pub fn wants_sketch_base(&self) -> Option<u64> {
         let seed = self.settings.seed;
-        let (_, h, extent_m) = self.sketch_terrain.as_ref().filter(|_| self.sketch_in_learned())?;
-        let takes = SketchSource::with_extent(h.clone(), self.settings.relief_m, *extent_m, seed).takes_base();
+        let (_, _, extent_m) = self.sketch_terrain.as_ref().filter(|_| self.sketch_in_learned())?;
+        let takes = crate::world::sketched::sets_into_tile(*extent_m);
         (takes && self.sketch_base.as_ref().is_none_or(|b| b.0 != seed)).then_some(seed)
     }
 
     /// The learned world's tile (0, 0) of `seed` without pins ([`TILE_SAMPLES`]² metres): a
     /// sketch in one tile is set into it from now on (the world is made again if it shows
-    /// one). Heights of another size or not finite are refused.
+    /// one, and a camera still where "Frame the sketch" put it, above the macro level, frames
+    /// it again above the ground's own level). Heights of another size or not finite are
+    /// refused.
     pub fn set_sketch_base(&mut self, seed: u64, heights: Vec<f32>) -> Result<(), String> {
         let n = crate::grid::TILE_SAMPLES;
         if heights.len() != n * n || heights.iter().any(|v| !v.is_finite()) {
             return Err(format!("the ground for the sketch is {} heights, not {} finite ones", heights.len(), n * n));
         }
         let shown = self.wants_sketch_base() == Some(seed);
+        let framed = sketch_overview(self.settings.relief_m, self.settings.extent_m, seed).0;
+        let still = self.camera.position_m == DVec3::from_array(framed);
         self.sketch_base = Some((seed, Arc::new(heights)));
         if shown {
             self.new_world();
+            if still {
+                self.frame_sketch();
+            }
         }
         Ok(())
     }

@@ -427,8 +427,8 @@ fn a_sketch_terrain_that_is_not_finite_is_said_and_not_asked_for_again_every_fra
 /// (asked of the worker without pins) with its own 2 m detail: the tile drawn is that
 /// detail's area mean bit for bit, within 1 cm of the world's own tile (0, 0) 1 km from the
 /// sketch, and the tile beside it is the world's own bit for bit; the camera frames it from
-/// 0.4 km (325 m above the macro level, then, framed again, above the ground's level around
-/// it) and the link carries the extent and relief.
+/// 0.4 km (325 m above the macro level, then, once the ground comes, above the ground's
+/// level around it, as "Frame the sketch" does) and the link carries the extent and relief.
 #[test]
 fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_detail() {
     use crate::world::sketched::SketchSource;
@@ -489,11 +489,14 @@ fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_de
     let beside = crate::grid::TileCoord::new(1, 0);
     let world = free.generate(seed, beside, &Neighbourhood::default()).heights;
     assert_eq!(core.app.tile_heights(beside).expect("the tile beside the sketch"), &world[..]);
-    // "Frame the sketch" now looks from above the ground's own level around it.
-    core.app.frame_sketch();
+    // The camera, left where the slider framed it, was framed again from above the ground's
+    // own level around the sketch when that ground came; "Frame the sketch" does the same.
     let level = SketchSource::with_extent(std::sync::Arc::new(core.app.sketch_terrain().unwrap().to_vec()), 375.0, 512.0, seed).with_base(std::sync::Arc::new(own)).base_m() as f64;
     let eye = core.app.camera.position_m;
     assert!((eye.y - level - 325.0).abs() < 1.0, "framed at {:.0} m, the ground around the sketch at {level:.0} m", eye.y);
+    core.app.camera.position_m.y += 100.0;
+    core.app.frame_sketch();
+    assert_eq!(core.app.camera.position_m, eye);
 }
 
 /// The sketch world with the learned world's models ready is the sketch pinned into the

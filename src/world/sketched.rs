@@ -68,6 +68,13 @@ pub fn in_one_tile(extent_m: f64) -> bool {
     clamp_extent_m(extent_m) <= super::TILE_SIZE_M
 }
 
+/// Whether a sketch `extent_m` across ([`clamp_extent_m`]) is set into the learned world's own
+/// tile (0, 0) when that tile is at hand ([`SketchSource::with_base`]): one in that tile with
+/// room around it (under 4 km across).
+pub fn sets_into_tile(extent_m: f64) -> bool {
+    in_one_tile(extent_m) && clamp_extent_m(extent_m) < super::TILE_SIZE_M
+}
+
 /// World x = z (metres) of the centre of a sketch `extent_m` across: the origin's corner of
 /// the 2 × 2 tiles around it (−16 m: samples are cell centres) for one wider than a tile, else
 /// the middle of tile (0, 0) (2,032 m).
@@ -144,7 +151,7 @@ impl SketchSource {
     /// ([`with_base`](Self::with_base)): a sketch in tile (0, 0) with room around it (under
     /// 4 km across).
     pub fn takes_base(&self) -> bool {
-        in_one_tile(self.extent_m) && self.extent_m < super::TILE_SIZE_M
+        sets_into_tile(self.extent_m)
     }
 
     /// The sketch set into `base`, the learned world's tile (0, 0) as it is without the
