@@ -34,6 +34,13 @@ pub const fn detail_side(level: usize) -> usize {
     TILE_SAMPLES << (level + 1)
 }
 
+/// World x (or z) in metres of the centre of pixel `p` of TEM level `level`, pixels counted
+/// from tile (0, 0)'s north-west corner ([`crate::world::refine`]'s geometry: the first 32 m
+/// sample's centre is at 0 m, its cell's corner at −16 m).
+pub fn detail_centre_m(level: usize, p: i64) -> f64 {
+    LEVEL_SPACING_M[level] * (p as f64 + 0.5) - BASE_SPACING_M / 2.0
+}
+
 /// A tile set into the world as it is, and its 32 m heights ([`Pins::split_soft`]).
 pub type SetIn = (TileCoord, Arc<Vec<f32>>);
 

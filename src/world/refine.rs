@@ -18,9 +18,9 @@
 use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 
-use super::pins::{Pins, SoftEdge, detail_side};
+use super::pins::{Pins, SoftEdge, detail_centre_m, detail_side};
 use super::stream::WorldStream;
-use crate::grid::coord::{BASE_SPACING_M, TILE_SIZE_M, TileCoord};
+use crate::grid::coord::TileCoord;
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS, PATCH, QUAD, RECEPTIVE_OUT_PX};
 use crate::queue::{Job, JobQueue, Outcome};
 
@@ -191,10 +191,8 @@ impl PatchStore {
                     match &tile.soft {
                         None => out[dst..dst + len].copy_from_slice(&d[src..src + len]),
                         Some(soft) => {
-                            // Pixel p of this level (counted from the origin tile's north-west
-                            // corner) has its centre at s·(p + ½) − 16 m from the origin's.
-                            let s = LEVEL_SPACING_M[level];
-                            let world = |p: i64, o: i32| o as f64 * TILE_SIZE_M + s * (p as f64 + 0.5) - BASE_SPACING_M / 2.0;
+                            // Pixels here are counted from the origin tile's north-west corner.
+                            let world = |p: i64, o: i32| detail_centre_m(level, o as i64 * per + p);
                             let z = world(y, origin.j);
                             for k in 0..len {
                                 let w = soft.weight(world(ax + k as i64, origin.i), z);

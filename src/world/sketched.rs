@@ -24,7 +24,7 @@
 
 use std::sync::Arc;
 
-use super::pins::{PinnedTile, Pins, SoftEdge, detail_side};
+use super::pins::{PinnedTile, Pins, SoftEdge, detail_centre_m, detail_side};
 use super::{BASE_SPACING_M, Neighbourhood, TILE_SAMPLES, Tile, TileCoord, TileSource};
 use crate::models::tem::{LEVEL_SPACING_M, LEVELS};
 use crate::sketch::SKETCH_PX;
@@ -72,7 +72,7 @@ pub fn in_one_tile(extent_m: f64) -> bool {
 /// tile (0, 0) when that tile is at hand ([`SketchSource::with_base`]): one in that tile with
 /// room around it (under 4 km across).
 pub fn sets_into_tile(extent_m: f64) -> bool {
-    in_one_tile(extent_m) && clamp_extent_m(extent_m) < super::TILE_SIZE_M
+    clamp_extent_m(extent_m) < super::TILE_SIZE_M
 }
 
 /// World x = z (metres) of the centre of a sketch `extent_m` across: the origin's corner of
@@ -137,8 +137,7 @@ impl SketchSource {
         let fade_m = if one_tile { half.max((super::TILE_SIZE_M - extent_m) / 2.0) } else { half };
         let relief_m = relief_m.clamp(*RELIEF_M.start(), *RELIEF_M.end()) as f32;
         let (base_m, lift_m) = if one_tile {
-            let ring: Vec<f32> = (0..n * n).filter(|k| [0, n - 1].contains(&(k % n)) || [0, n - 1].contains(&(k / n))).map(|k| heights[k]).collect();
-            let ring_m = ring.iter().map(|&v| v as f64).sum::<f64>() / ring.len() as f64 / 255.0 * relief_m as f64;
+            let ring_m = outer_mean(|k| heights[k] as f64) / 255.0 * relief_m as f64;
             let base = base_level_m(extent_m, seed);
             (base, (base as f64 - ring_m) as f32)
         } else {
@@ -169,9 +168,8 @@ impl SketchSource {
         let n = SKETCH_PX;
         let spacing = self.extent_m / n as f64;
         let at = |k: usize| self.corner_m + spacing * (k as f64 + 0.5);
-        let ring: Vec<usize> = (0..n * n).filter(|k| [0, n - 1].contains(&(k % n)) || [0, n - 1].contains(&(k / n))).collect();
-        let sketch_ring = ring.iter().map(|&k| self.heights[k] as f64).sum::<f64>() / ring.len() as f64 / 255.0 * self.relief_m as f64;
-        let base_ring = ring.iter().map(|&k| bilinear_tile(&base, at(k % n), at(k / n)) as f64).sum::<f64>() / ring.len() as f64;
+        let sketch_ring = outer_mean(|k| self.heights[k] as f64) / 255.0 * self.relief_m as f64;
+        let base_ring = outer_mean(|k| bilinear_tile(&base, at(k % n), at(k / n)) as f64);
         self.base_m = base_ring as f32;
         self.lift_m = (base_ring - sketch_ring) as f32;
         let edge = (self.corner_m, self.corner_m + self.extent_m);
@@ -261,9 +259,9 @@ impl SketchSource {
     fn pinned_tile(&self, c: TileCoord) -> PinnedTile {
         match self.detail_level() {
             Some(level) => {
-                let (side, s) = (detail_side(level), LEVEL_SPACING_M[level]);
+                let side = detail_side(level);
                 let (p0, q0) = (c.i as i64 * side as i64, c.j as i64 * side as i64);
-                let centre = |p: i64| s * (p as f64 + 0.5) - BASE_SPACING_M / 2.0;
+                let centre = |p: i64| detail_centre_m(level, p);
                 let heights = (0..side * side).map(|k| self.height_m(centre(p0 + (k % side) as i64), centre(q0 + (k / side) as i64))).collect();
                 let tile = PinnedTile::with_detail(level, heights).expect("a sketch's terrain is finite");
                 match self.soft_edge() {
@@ -331,6 +329,14 @@ impl SketchSource {
         let base = self.base_m as f64;
         (base + (h - base) * t * t) as f32
     }
+}
+
+/// The mean of `value` over the sketch's outer samples (by index into its [`SKETCH_PX`]²
+/// samples, row-major).
+fn outer_mean(value: impl Fn(usize) -> f64) -> f64 {
+    let n = SKETCH_PX;
+    let ring: Vec<usize> = (0..n * n).filter(|k| [0, n - 1].contains(&(k % n)) || [0, n - 1].contains(&(k / n))).collect();
+    ring.iter().map(|&k| value(k)).sum::<f64>() / ring.len() as f64
 }
 
 /// Samples (a [`TILE_SAMPLES`]² tile) whose [`bilinear_tile`] heights at any finer TEM level,
