@@ -1245,7 +1245,18 @@ impl PageCore {
     /// Posts the next call of `batch` to the GPU: its next [`PageCore::gpu_call_items`] items.
     fn post_gpu_call(&mut self, ch: Chain, mut batch: GpuBatch) {
         let work = batch.rest.split_front(self.gpu_call_items());
-        self.post(Target::Gpu, ch.job.epoch, Request::RunWork { work }, For::RunWork(ch, batch));
+        let halves = self.gpu_call_halves();
+        self.post(Target::Gpu, ch.job.epoch, Request::RunWork { work, halves }, For::RunWork(ch, batch));
+    }
+
+    /// Whether the GPU runs a ×4 step's batch in two halves with a frame between them
+    /// ([`crate::world::learned::NetworksOn::run`]): where one item takes longer than a call may
+    /// ([`GPU_CALL_FRAMES`] median frames). On SwiftShader one item is a call, and the ×4
+    /// step's window (1.6 times a TCM tile's work) was what the longest frames waited behind.
+    pub fn gpu_call_halves(&self) -> bool {
+        let frame_ms = self.app.stats().frame_ms_median;
+        let frame_ms = if frame_ms > 0.0 { frame_ms } else { 1000.0 / 60.0 };
+        self.world_gpu_item_ms.is_some_and(|ms| ms > GPU_CALL_FRAMES * frame_ms)
     }
 
     /// Items of the world's network work in the GPU's next call: as many as take about
@@ -1299,7 +1310,7 @@ impl PageCore {
     /// Posts the world probe's next batch, or, once every run is in, takes the faster backend.
     fn world_probe_next(&mut self) {
         if let Some(target) = self.world_probe.next() {
-            let request = Request::RunWork { work: NetworkWork::probe(WORLD_PROBE_TILES) };
+            let request = Request::RunWork { work: NetworkWork::probe(WORLD_PROBE_TILES), halves: false };
             return self.post(target, self.app.epoch(), request, For::WorldProbeRun(target));
         }
         let Probe::Done(timings) = self.world_probe else { return };

@@ -66,7 +66,7 @@ impl<'a> Shell<'a> {
                     self.posted.push((target, envelope.request.kind()));
                     let answer = match (target, &mut self.gpu) {
                         (Target::Gpu, Some((gpu, gpu_ms))) => {
-                            if let Request::RunWork { work } = &envelope.request {
+                            if let Request::RunWork { work, .. } = &envelope.request {
                                 self.gpu_items.push(work.len());
                             }
                             let mut answer = gpu.handle(envelope);
@@ -958,6 +958,20 @@ fn with_the_world_on_the_gpu_tiles_come_from_its_batches_bit_for_bit_in_calls_of
     let c = core.app.drawable_tiles().into_iter().find(|c| !tiles.contains(c)).expect("a tile made after the GPU failed");
     assert!(core.app.tile_heights(c).unwrap() == &cpu.generate(seed, c, &Neighbourhood::default()).heights[..]);
     assert_eq!(core.message, None);
+}
+
+/// The size of the GPU's calls of world network work: none timed yet, one item, whole; at
+/// 2 ms an item and 60 frames a second (no frame measured yet), 4 items (half a frame:
+/// 8.3 ms), whole; at 1,000 ms an item (about SwiftShader's ×4 window), one item, a ×4 step's
+/// in two halves with a frame between them.
+#[test]
+fn gpu_calls_hold_half_a_median_frame_of_work_and_a_x4_window_goes_in_halves_where_one_item_takes_longer() {
+    let mut core = PageCore::new(ShareState::default(), PageStart { gpu: Ok(()), world: TemChoice::Gpu, tem: TemChoice::Cpu, ..start(Ok(())) });
+    assert_eq!((core.gpu_call_items(), core.gpu_call_halves()), (1, false));
+    core.world_gpu_item_ms = Some(2.0);
+    assert_eq!((core.gpu_call_items(), core.gpu_call_halves()), (4, false));
+    core.world_gpu_item_ms = Some(1000.0);
+    assert_eq!((core.gpu_call_items(), core.gpu_call_halves()), (1, true));
 }
 
 /// On a hardware adapter whose GPU passed its self-check (`?world=` not given), the learned

@@ -132,8 +132,9 @@ mod tests {
 
     /// A learned world's tile made by the CPU worker (a thread here) with its network work run
     /// by the GPU runner (burn on wgpu: lavapipe here), message by message as the page passes
-    /// them (world-work, run-work, accept-work until none is left, then the tile), is the tile
-    /// the CPU makes alone, bit for bit, after at most 5 batches; a batch of the wrong size is
+    /// them (world-work, run-work, accept-work until none is left, then the tile; the ×4
+    /// step's batches run in halves with a wait for the device between them), is the tile the
+    /// CPU makes alone, bit for bit, after at most 5 batches; a batch of the wrong size is
     /// refused by the GPU and by the worker, and outputs that do not fit their batch by the
     /// worker, saying so.
     #[test]
@@ -161,7 +162,8 @@ mod tests {
             if work == NetworkWork::None {
                 break;
             }
-            let (outputs, ms) = match call(Target::Gpu, Request::RunWork { work: work.clone() }) {
+            let halves = matches!(work, NetworkWork::Grow(_));
+            let (outputs, ms) = match call(Target::Gpu, Request::RunWork { work: work.clone(), halves }) {
                 Reply::Outputs { outputs, ms } => (outputs, ms),
                 other => panic!("{other:?}"),
             };
@@ -178,7 +180,7 @@ mod tests {
         assert!(batches.len() >= 2 && differ == 0, "{differ} of {} samples differ; batches {batches:?}", made.len());
         let broken = NetworkWork::Tcm(vec![(tile, vec![0.0; 10])]);
         for target in [Target::Gpu, Target::Worker] {
-            let r = call(target, Request::RunWork { work: broken.clone() });
+            let r = call(target, Request::RunWork { work: broken.clone(), halves: false });
             assert!(matches!(&r, Reply::Failed(w) if w.contains("not the networks' sizes")), "{target:?}: {r:?}");
         }
         let r = call(Target::Worker, Request::AcceptWork { seed, keys: broken.keys(), outputs: Vec::new(), ms: 1.0 });

@@ -59,10 +59,10 @@ impl GpuRunner {
                     Err(e) => Reply::Failed(e),
                 }
             }
-            Request::RunWork { work } => {
+            Request::RunWork { work, halves } => {
                 let world = self.world.borrow().clone();
                 match (world, work.check()) {
-                    (Some(networks), Ok(())) => match networks.run(&work).await {
+                    (Some(networks), Ok(())) => match networks.run(&work, halves).await {
                         Ok(outputs) => Reply::Outputs { outputs, ms: ms() },
                         Err(e) => Reply::Failed(e),
                     },

@@ -116,6 +116,10 @@ pub enum Request {
     RunWork {
         /// The batch.
         work: NetworkWork,
+        /// On the GPU, run a ×4 step's batch in two halves with a wait for the device between
+        /// them ([`crate::world::learned::NetworksOn::run`]: a page draws a frame between the
+        /// halves); the same outputs either way. The CPU kernels ignore it.
+        halves: bool,
     },
     /// Keep the outputs of a batch run elsewhere in the learned world of `seed`
     /// ([`crate::world::learned::LearnedSource::accept`]): [`Reply::Accepted`].

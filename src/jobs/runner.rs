@@ -257,7 +257,7 @@ impl Runner {
                 let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
                 Ok(Reply::Work(if coarse { world.coarse_work(seed, tile) } else { world.network_work(seed, tile) }))
             }
-            Request::RunWork { work } => {
+            Request::RunWork { work, .. } => {
                 let world = self.world.as_ref().ok_or(NO_WORLD.to_string())?;
                 work.check()?;
                 let t0 = web_time::Instant::now();
@@ -549,7 +549,7 @@ mod tests {
             (Request::Tile { seed: 1, tile: TileCoord::new(0, 0), noise: None }, "no learned world loaded"),
             (Request::Enhance { level: 0, n: 1, side: 4, input: vec![0.0; 16] }, "no TEM loaded"),
             (Request::WorldWork { seed: 1, tile: TileCoord::new(0, 0), coarse: false }, "no learned world loaded"),
-            (Request::RunWork { work: crate::world::learned::NetworkWork::None }, "no learned world loaded"),
+            (Request::RunWork { work: crate::world::learned::NetworkWork::None, halves: false }, "no learned world loaded"),
             (Request::AcceptWork { seed: 1, keys: crate::world::learned::NetworkWork::None.keys(), outputs: Vec::new(), ms: 0.0 }, "no learned world loaded"),
         ];
         for (k, (req, says)) in cases.into_iter().enumerate() {

@@ -413,10 +413,16 @@ impl GrowExact {
     /// [`Grow::forward`]'s; returns the residual [B, 1, 4S, 4S], the same bits as the CPU
     /// kernels.
     pub fn forward_burn(&self, m: &Grow, x: Tensor<4>, n64: Tensor<4>, n32: Tensor<4>) -> Tensor<4> {
+        self.forward_burn_rest(m, self.forward_burn_128m(m, x), n64, n32)
+    }
+
+    /// The first part of [`GrowExact::forward_burn`], its 128 m stage (head, body, merge):
+    /// [B, [`WIDTH`], S, S] features for [`GrowExact::forward_burn_rest`]. A caller may wait
+    /// for the device between the two (a page then draws a frame between them).
+    pub fn forward_burn_128m(&self, m: &Grow, x: Tensor<4>) -> Tensor<4> {
         use crate::models::exact::{ACT_LEVELS, pow2};
         let (l, e) = (&self.layers, &self.exps);
         let grid = crate::models::exact::grid_burn;
-        let noise = [pow2(-EXACT_NOISE_EXP)];
         let x = grid(x, &self.input_scales(), EXACT_INPUT_LEVELS);
         let head = grid(m.head.forward(x), &l[0].to_grid(e[P_HEAD]), ACT_LEVELS);
         let mut b = head.clone();
@@ -424,7 +430,16 @@ impl GrowExact {
             b = grid(relu(c.forward(b)), &l[1 + k].to_grid(e[P_BODY + k]), ACT_LEVELS);
         }
         let b = grid(m.merge.forward(b), &l[4].to_grid(e[P_HEAD]), MERGE_LEVELS) + head;
-        let b = grid(b, &[pow2(e[P_HEAD] - e[P_SUM]); WIDTH], ACT_LEVELS);
+        grid(b, &[pow2(e[P_HEAD] - e[P_SUM]); WIDTH], ACT_LEVELS)
+    }
+
+    /// The rest of [`GrowExact::forward_burn`] from its 128 m stage's features `b`
+    /// ([`GrowExact::forward_burn_128m`]): the 64 m and 32 m stages and the tail.
+    pub fn forward_burn_rest(&self, m: &Grow, b: Tensor<4>, n64: Tensor<4>, n32: Tensor<4>) -> Tensor<4> {
+        use crate::models::exact::{ACT_LEVELS, pow2};
+        let (l, e) = (&self.layers, &self.exps);
+        let grid = crate::models::exact::grid_burn;
+        let noise = [pow2(-EXACT_NOISE_EXP)];
         let mid = Tensor::cat(vec![m.shuffle.forward(b), grid(n64, &noise, EXACT_INPUT_LEVELS)], 1);
         let mid = grid(relu(m.mid[0].forward(mid)), &l[5].to_grid(e[P_MID]), ACT_LEVELS);
         let mid = grid(relu(m.mid[1].forward(mid)), &l[6].to_grid(e[P_MID + 1]), ACT_LEVELS);

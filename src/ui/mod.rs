@@ -55,6 +55,8 @@ pub struct Environment {
     pub world_gpu_ms_per_tile: Option<f64>,
     /// Items of the world's network work in each of the GPU's calls now, where they run there.
     pub world_gpu_call_items: Option<usize>,
+    /// Whether those calls wait for the device after each stage of the networks.
+    pub world_gpu_call_halves: bool,
     /// Your terrain pinned into the learned world: its file's name and tiles.
     pub pinned: Option<(String, usize)>,
 }
@@ -80,6 +82,7 @@ impl Environment {
         self.world_probe = core.world_probe().label("world networks", &crate::app::page::world_probe_unit());
         self.world_gpu_ms_per_tile = core.world_gpu_ms_per_tile();
         self.world_gpu_call_items = core.world_on_gpu().then(|| core.gpu_call_items());
+        self.world_gpu_call_halves = core.world_on_gpu() && core.gpu_call_halves();
         self.worker_rest_per_work = core.rest_per_work();
         self.source = core.app.source_name();
         self.pinned = core.pinned.clone();
@@ -157,7 +160,7 @@ pub fn stats_json(
         "mode": format!("{:?}", app.controller.mode), "sketch_canvas": panel.canvas_rect.filter(|_| sketch).map(rect),
         "sketch_models": format!("{:?}", app.sketch_models()), "sketch_backend": env.sketch_backend,
         "world_backend": env.world_backend, "world_probe": env.world_probe, "world_gpu_ms_per_tile": env.world_gpu_ms_per_tile,
-        "world_gpu_call_items": env.world_gpu_call_items,
+        "world_gpu_call_items": env.world_gpu_call_items, "world_gpu_call_halves": env.world_gpu_call_halves,
         "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "link_too_long": link_too_long,
         "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter,
         "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
@@ -432,7 +435,8 @@ impl Overlay {
                 stats.ms_per_tile
             ));
             let gpu_ms = env.world_gpu_ms_per_tile.map(|ms| format!(", {ms:.0} ms/tile there")).unwrap_or_default();
-            let items = env.world_gpu_call_items.map(|k| format!(", {k} a call")).unwrap_or_default();
+            let halves = if env.world_gpu_call_halves { " in halves" } else { "" };
+            let items = env.world_gpu_call_items.map(|k| format!(", {k} a call{halves}")).unwrap_or_default();
             ui.monospace(format!("world networks on {}{gpu_ms}{items}", env.world_backend));
         }
         if env.tem_ready {
