@@ -426,7 +426,9 @@ impl NetworksOn {
                 );
                 let b = self.grow_exact.forward_burn_128m(&self.grow, x);
                 if halves {
-                    // One value of the first half's output read back: the device has done it.
+                    // One value of the first half's output read back: in a browser the read
+                    // resolves once the device has done that half (native drivers may answer
+                    // sooner; the halves then run as one call, with the same outputs).
                     b.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data_async().await.map_err(|e| failed(&e))?;
                 }
                 (self.grow_exact.forward_burn_rest(&self.grow, b, n64, n32), (w * grow::FACTOR).pow(2))
