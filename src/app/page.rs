@@ -1254,19 +1254,22 @@ impl PageCore {
     /// ([`GPU_CALL_FRAMES`] median frames). On SwiftShader one item is a call, and the ×4
     /// step's window (1.6 times a TCM tile's work) was what the longest frames waited behind.
     pub fn gpu_call_halves(&self) -> bool {
+        self.world_gpu_item_ms.is_some_and(|ms| ms > self.gpu_call_ms())
+    }
+
+    /// Milliseconds of work a GPU call may hold: [`GPU_CALL_FRAMES`] median frames (of 60 a
+    /// second until a frame is measured).
+    fn gpu_call_ms(&self) -> f64 {
         let frame_ms = self.app.stats().frame_ms_median;
-        let frame_ms = if frame_ms > 0.0 { frame_ms } else { 1000.0 / 60.0 };
-        self.world_gpu_item_ms.is_some_and(|ms| ms > GPU_CALL_FRAMES * frame_ms)
+        GPU_CALL_FRAMES * if frame_ms > 0.0 { frame_ms } else { 1000.0 / 60.0 }
     }
 
     /// Items of the world's network work in the GPU's next call: as many as take about
     /// [`GPU_CALL_FRAMES`] median frames at the milliseconds an item took in the last call, at
     /// least one; one until a call has been timed.
     pub fn gpu_call_items(&self) -> usize {
-        let frame_ms = self.app.stats().frame_ms_median;
-        let frame_ms = if frame_ms > 0.0 { frame_ms } else { 1000.0 / 60.0 };
         // An item timed at 0 ms gives no bound but the clamp's.
-        self.world_gpu_item_ms.map_or(1, |ms| (GPU_CALL_FRAMES * frame_ms / ms).clamp(1.0, 1e6) as usize)
+        self.world_gpu_item_ms.map_or(1, |ms| (self.gpu_call_ms() / ms).clamp(1.0, 1e6) as usize)
     }
 
     fn post_world_work(&mut self, ch: Chain) {

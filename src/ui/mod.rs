@@ -55,7 +55,7 @@ pub struct Environment {
     pub world_gpu_ms_per_tile: Option<f64>,
     /// Items of the world's network work in each of the GPU's calls now, where they run there.
     pub world_gpu_call_items: Option<usize>,
-    /// Whether those calls wait for the device after each stage of the networks.
+    /// Whether those calls run a ×4 window in two halves, a frame between them.
     pub world_gpu_call_halves: bool,
     /// Your terrain pinned into the learned world: its file's name and tiles.
     pub pinned: Option<(String, usize)>,
