@@ -324,9 +324,9 @@ enum Command {
     /// neighbours) and its ×4 step to 32 m, one step of each in turn (feature `train`).
     #[cfg(feature = "train")]
     TrainTcm {
-        /// Folder of DEMs (float32 TIFF) with manifest.json.
-        #[arg(long)]
-        dem_dir: PathBuf,
+        /// Folder of DEMs (float32 TIFF) with manifest.json (not needed with --mercator-dir).
+        #[arg(long, required_unless_present = "mercator_dir")]
+        dem_dir: Option<PathBuf>,
         /// Optimiser steps to run now (a resumed run adds them to the steps it had; at most
         /// 10⁹).
         #[arg(long, default_value_t = 2000, value_parser = step_count)]
@@ -386,6 +386,20 @@ enum Command {
         /// position inside the tile (0: none; with --resume it replaces the saved weight).
         #[arg(long)]
         position: Option<f32>,
+        /// Cells a side of the 3×3-tile window's macro field the TCM is given in training,
+        /// each the jittered mean of its cell (a new run only): 3, one per 4096 m tile as the
+        /// world's field; 6, cells of 2048 m (for a finer coarse level).
+        #[arg(long, default_value_t = 3)]
+        macro_cells: usize,
+        /// Train the TCM on the Web Mercator grids of this folder instead (the layout of
+        /// ../shared/dem_coarse: land only, 3×3 median-filtered, in latitude bands), area-averaged
+        /// to --spacing-m: a coarse level's generator (needs --tcm-only).
+        #[arg(long, requires = "tcm_only")]
+        mercator_dir: Option<PathBuf>,
+        /// Spacing (metres) the --mercator-dir grids are area-averaged to (grids coarser than it
+        /// are left out).
+        #[arg(long, default_value_t = 2048.0, requires = "mercator_dir")]
+        spacing_m: f64,
         /// Train only the TCM; the ×4 step's checkpoint stays as it is.
         #[arg(long, conflicts_with = "grow_only")]
         tcm_only: bool,
@@ -807,18 +821,25 @@ fn main() -> ExitCode {
             dome,
             disc_slopes,
             position,
+            macro_cells,
+            mercator_dir,
+            spacing_m,
             tcm_only,
             grow_only,
             grow_position,
             snapshots,
             run,
         } => train_tcm(
-            &dem_dir,
+            match (&mercator_dir, &dem_dir) {
+                (Some(d), _) => TcmData::Mercator(d, spacing_m),
+                (None, Some(d)) => TcmData::Dems(d),
+                (None, None) => unreachable!("clap requires --dem-dir without --mercator-dir"),
+            },
             steps,
             resume,
             &checkpoint,
             checkpoint_every as usize,
-            batch as usize,
+            [batch as usize, macro_cells],
             [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome],
             [joined, disc_slopes],
             [position, grow_position],

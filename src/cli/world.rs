@@ -204,15 +204,24 @@ pub(crate) fn save_error(out: &std::path::Path, e: terrain::dem::DemError) -> St
     }
 }
 
+/// What `train-tcm` trains the TCM on.
+#[cfg(feature = "train")]
+pub(crate) enum TcmData<'a> {
+    /// The DEMs of a folder with its manifest, area-averaged to 128 m (and 32 m for the ×4 step).
+    Dems(&'a std::path::Path),
+    /// The Web Mercator grids of a folder ([`mercator_data`]) at a spacing (metres).
+    Mercator(&'a std::path::Path, f64),
+}
+
 #[cfg(feature = "train")]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn train_tcm(
-    dem_dir: &std::path::Path,
+    data: TcmData,
     steps: usize,
     resume: bool,
     checkpoint: &std::path::Path,
     every: usize,
-    batch: usize,
+    [batch, macro_cells]: [usize; 2],
     [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7],
     [joined, disc_slopes]: [bool; 2],
     [position, grow_position]: [Option<f32>; 2],
@@ -236,10 +245,17 @@ pub(crate) fn train_tcm(
             return Err(format!("{flag} must be a finite number ≥ 0, not {w}"));
         }
     }
-    let (grids, fine) = tcm_data(dem_dir)?;
+    if !tcm::valid_macro_cells(macro_cells) {
+        return Err(format!("--macro-cells must be a multiple of 3 that divides {}, not {macro_cells}", terrain::models::tcm::CONTEXT_PX));
+    }
+    let (grids, fine) = match data {
+        TcmData::Mercator(dir, spacing) => (mercator_data(dir, spacing)?, Vec::new()),
+        TcmData::Dems(dir) => tcm_data(dir)?,
+    };
     let (device, mut budget) = run_args.start()?;
     let cfg = tcm::TcmConfig {
         batch,
+        macro_cells,
         adversarial,
         ruggedness,
         drainage,
@@ -342,6 +358,32 @@ fn tcm_data(dem_dir: &std::path::Path) -> Result<(Vec<terrain::train::pairs::Gri
         }
     }
     Ok((grids, fine))
+}
+
+/// The TCM's data for a coarse level: the Web Mercator grids of `dir` in bands of 256 rows
+/// ([`terrain::train::pairs::load_mercator_bands`]) area-averaged to `spacing_m`, those with
+/// room for a 3×3-tile window in both splits.
+#[cfg(feature = "train")]
+fn mercator_data(dir: &std::path::Path, spacing_m: f64) -> Result<Vec<terrain::train::pairs::Grid>, String> {
+    use terrain::models::tcm::CONTEXT_PX;
+    use terrain::train::{pairs, tcm};
+    if !(spacing_m.is_finite() && spacing_m > 0.0) {
+        return Err(format!("--spacing-m must be a positive number of metres, not {spacing_m}"));
+    }
+    let bands = pairs::load_mercator_bands(dir, 256)?;
+    let grids = pairs::grids_at(&bands, spacing_m, CONTEXT_PX);
+    if grids.is_empty() {
+        return Err(format!("{} has no band at {spacing_m} m or finer with room for a {CONTEXT_PX}² window in both splits", dir.display()));
+    }
+    let land: usize = grids.iter().map(|g| g.hf.data.iter().filter(|v| v.is_finite()).count()).sum();
+    eprintln!("TCM data, {} of {} bands at {spacing_m} m ({land} land samples): {}", grids.len(), bands.len(), grids.iter().map(|g| g.id.as_str()).collect::<Vec<_>>().join(", "));
+    let all: Vec<&pairs::Grid> = grids.iter().collect();
+    for split in [pairs::Split::Train, pairs::Split::Validation] {
+        if let Some((m, sd, p95)) = tcm::ruggedness_stats(&all, split) {
+            eprintln!("ruggedness ({split:?}): {m:.2} ± {sd:.2}, 95th percentile {p95:.2}");
+        }
+    }
+    Ok(grids)
 }
 
 /// The TCM run and the ×4 step's run: from the checkpoint in `from` (each part that is

@@ -80,27 +80,47 @@ pub fn gauss(bits: u64) -> f32 {
 
 /// A field over the context window ([`CONTEXT_PX`]²) bilinear between the nine tile-centre
 /// values `centres` (row-major like [`phase_mask`]), constant beyond the outer centres: the
-/// macro field (metres) and the ruggedness field.
+/// macro field (metres) and the ruggedness field. [`macro_field_cells`] with 3 cells a side.
 pub fn macro_field(centres: &[f32; 9]) -> Vec<f32> {
-    let half = TILE_PX as f32 / 2.0;
+    macro_field_cells(centres, 3)
+}
+
+/// A field over the context window ([`CONTEXT_PX`]², row-major) bilinear between the centres
+/// of `k`×`k` square cells of side [`CONTEXT_PX`]` / k` samples whose values are `cells`
+/// (row-major), constant beyond the outer centres. `k` = 3: one cell per tile (4096 m); 6:
+/// cells of 2048 m. Panics unless `k` is at least 2 and divides [`CONTEXT_PX`] and `cells`
+/// holds `k`² values.
+pub fn macro_field_cells(cells: &[f32], k: usize) -> Vec<f32> {
+    assert!(k >= 2 && CONTEXT_PX.is_multiple_of(k), "{k} cells a side do not divide the {CONTEXT_PX}-sample window");
+    assert_eq!(cells.len(), k * k, "{k}×{k} cells need {} values, not {}", k * k, cells.len());
+    let side = (CONTEXT_PX / k) as f32;
     let axis = |p: usize| -> (usize, f32) {
-        // Position in units of tiles from the first centre, clamped to [0, 2].
-        let t = ((p as f32 + 0.5 - half) / TILE_PX as f32).clamp(0.0, 2.0);
-        let k = (t as usize).min(1);
-        (k, t - k as f32)
+        // Position in units of cells from the first centre, clamped to [0, k − 1].
+        let t = ((p as f32 + 0.5 - side / 2.0) / side).clamp(0.0, (k - 1) as f32);
+        let i = (t as usize).min(k - 2);
+        (i, t - i as f32)
     };
     let mut out = vec![0f32; CONTEXT_PX * CONTEXT_PX];
     for y in 0..CONTEXT_PX {
         let (ky, fy) = axis(y);
         for x in 0..CONTEXT_PX {
             let (kx, fx) = axis(x);
-            let c = |j: usize, i: usize| centres[j * 3 + i];
+            let c = |j: usize, i: usize| cells[j * k + i];
             let top = c(ky, kx) * (1.0 - fx) + c(ky, kx + 1) * fx;
             let bottom = c(ky + 1, kx) * (1.0 - fx) + c(ky + 1, kx + 1) * fx;
             out[y * CONTEXT_PX + x] = top * (1.0 - fy) + bottom * fy;
         }
     }
     out
+}
+
+/// The level of the centre tile given `k`×`k` macro cells (metres, row-major, `k` a multiple
+/// of 3): the mean of the cells that cover the centre tile (the centre cell itself for 3).
+pub fn centre_level(cells: &[f32], k: usize) -> f32 {
+    assert!(k.is_multiple_of(3) && cells.len() == k * k, "{k}×{k} cells do not cover the 3×3 tiles");
+    let inner = k / 3..2 * k / 3;
+    let sum: f32 = inner.clone().flat_map(|j| inner.clone().map(move |i| cells[j * k + i])).sum();
+    sum / (k / 3 * (k / 3)) as f32
 }
 
 /// The ruggedness of each of the nine tiles of a context window `h` ([`CONTEXT_PX`]² heights,
@@ -136,8 +156,15 @@ pub fn tile_ruggedness(h: &[f32]) -> [f32; 9] {
 /// the nine tiles' ruggedness ([`tile_ruggedness`]) and `noise_seed` the centre tile's seed.
 /// Heights are taken relative to `macro_centres[4]`.
 pub fn assemble_input(tiles: &[Option<&[f32]>; 9], macro_centres: &[f32; 9], rugged_centres: &[f32; 9], noise_seed: u64) -> Vec<f32> {
+    assemble_input_field(tiles, &macro_field(macro_centres), macro_centres[4], rugged_centres, noise_seed)
+}
+
+/// [`assemble_input`] with the macro field given whole: `field` ([`CONTEXT_PX`]², metres,
+/// row-major, e.g. [`macro_field_cells`]) and the centre tile's macro level `level` (metres)
+/// that every height is taken relative to.
+pub fn assemble_input_field(tiles: &[Option<&[f32]>; 9], field: &[f32], level: f32, rugged_centres: &[f32; 9], noise_seed: u64) -> Vec<f32> {
+    assert_eq!(field.len(), CONTEXT_PX * CONTEXT_PX, "the macro field covers the {CONTEXT_PX}² window");
     let n = CONTEXT_PX * CONTEXT_PX;
-    let level = macro_centres[4];
     let mut x = vec![0f32; IN_CHANNELS * n];
     for (t, tile) in tiles.iter().enumerate() {
         let (ti, tj) = (t % 3, t / 3);
@@ -155,7 +182,7 @@ pub fn assemble_input(tiles: &[Option<&[f32]>; 9], macro_centres: &[f32; 9], rug
             }
         }
     }
-    for (p, m) in macro_field(macro_centres).into_iter().enumerate() {
+    for (p, &m) in field.iter().enumerate() {
         x[4 * n + p] = (m - level) / HEIGHT_SCALE_M;
     }
     x[7 * n..].copy_from_slice(&macro_field(rugged_centres));
@@ -620,6 +647,27 @@ mod tests {
         assert!((at(95, 95) - 80.0).abs() < 1e-4);
         let step = at(40, 48) - at(39, 48);
         assert!((step - 10.0 / 32.0).abs() < 1e-4, "linear in x: {step}");
+    }
+
+    /// With 6 cells a side (2048 m), the field is the plane through the cell values where they
+    /// lie on one (10 m per cell in x, 100 m in y) to within 1e-3 m between the outer cell
+    /// centres (pixels 8 to 88) and the outer value beyond them; the centre level is the
+    /// mean of the four cells over the centre tile, and with 3 cells the centre cell.
+    #[test]
+    fn six_cell_field_is_the_plane_through_the_cells_and_the_level_their_centre_mean() {
+        let k = 6;
+        let cells: Vec<f32> = (0..k * k).map(|q| 10.0 * (q % k) as f32 + 100.0 * (q / k) as f32).collect();
+        let m = macro_field_cells(&cells, k);
+        let plane = |p: usize| ((p as f32 + 0.5 - 8.0) / 16.0).clamp(0.0, 5.0);
+        for y in 0..CONTEXT_PX {
+            for x in 0..CONTEXT_PX {
+                let want = 10.0 * plane(x) + 100.0 * plane(y);
+                assert!((m[y * CONTEXT_PX + x] - want).abs() < 1e-3, "({x}, {y}): {} against {want}", m[y * CONTEXT_PX + x]);
+            }
+        }
+        assert_eq!(m[0], cells[0], "flat beyond the first cell's centre");
+        assert_eq!(centre_level(&cells, 6), (cells[14] + cells[15] + cells[20] + cells[21]) / 4.0);
+        assert_eq!(centre_level(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0], 3), 5.0);
     }
 
     /// The input marks exactly the given neighbours as available, the centre as predicted and

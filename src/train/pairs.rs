@@ -38,6 +38,68 @@ pub fn load_dems(dir: &Path) -> Result<Vec<Dem>, String> {
     Ok(out)
 }
 
+/// Earth radius of the spherical Web Mercator projection (metres).
+const MERCATOR_RADIUS_M: f64 = 6_378_137.0;
+
+/// Reads every Web Mercator grid listed in `dir/manifest.json`'s `files` (the layout of
+/// `dem_coarse`: `file`, `mercator_metres_per_sample`, `mercator_bounds_xmin_ymin_xmax_ymax`)
+/// as bands of `band_rows` rows (the last one shorter), each a [`Dem`] whose spacing is the
+/// ground spacing at the band's middle row (the Mercator spacing × cos latitude: within 4 % over
+/// 256 rows at 60°). Each grid is first 3×3-median-filtered (its packing puts heights near a
+/// multiple of 256 m off by up to ±128 m); then the sea (below 0 m) and no-data become NaN,
+/// so windows hold land only. Bands without a land sample are left out.
+pub fn load_mercator_bands(dir: &Path, band_rows: usize) -> Result<Vec<Dem>, String> {
+    assert!(band_rows > 0, "bands need rows");
+    let text = std::fs::read_to_string(dir.join("manifest.json")).map_err(|e| format!("{}: {e}", dir.join("manifest.json").display()))?;
+    let manifest: serde_json::Value = serde_json::from_str(&text).map_err(|e| format!("manifest.json: {e}"))?;
+    let list = manifest["files"].as_array().ok_or("manifest.json has no 'files' list")?;
+    let mut out = Vec::new();
+    for d in list {
+        let bounds = d["mercator_bounds_xmin_ymin_xmax_ymax"].as_array().and_then(|b| b.get(3)).and_then(|v| v.as_f64());
+        let (Some(id), Some(file), Some(step), Some(y_max)) = (d["id"].as_str(), d["file"].as_str(), d["mercator_metres_per_sample"].as_f64(), bounds) else {
+            return Err(format!("manifest entry without id/file/mercator_metres_per_sample/mercator_bounds_xmin_ymin_xmax_ymax: {}", d["id"]));
+        };
+        let raw = Heightfield::read_path(&dir.join(file), Some(step), PngScale::default()).map_err(|e| format!("{file}: {e}"))?;
+        let filtered = median3(&raw.data, raw.width, raw.height);
+        for (b, y0) in (0..raw.height).step_by(band_rows).enumerate() {
+            let rows = band_rows.min(raw.height - y0);
+            let middle = y_max - (y0 as f64 + rows as f64 / 2.0) * step;
+            let latitude = (middle / MERCATOR_RADIUS_M).sinh().atan();
+            let data: Vec<f32> = filtered[y0 * raw.width..(y0 + rows) * raw.width].iter().map(|&v| if v >= 0.0 { v } else { f32::NAN }).collect();
+            if data.iter().any(|v| v.is_finite()) {
+                out.push(Dem { id: format!("{id}#{b}"), hf: Heightfield::new(raw.width, rows, step * latitude.cos(), data) });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The 3×3 median of each finite sample of a `w`×`h` grid over its finite neighbours
+/// (clamped at the edges); NaN stays NaN.
+fn median3(data: &[f32], w: usize, h: usize) -> Vec<f32> {
+    let mut out = data.to_vec();
+    let mut near = Vec::with_capacity(9);
+    for y in 0..h {
+        for x in 0..w {
+            if !data[y * w + x].is_finite() {
+                continue;
+            }
+            near.clear();
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    let v = data[yy * w + xx];
+                    if v.is_finite() {
+                        near.push(v);
+                    }
+                }
+            }
+            near.sort_by(f32::total_cmp);
+            out[y * w + x] = near[near.len() / 2];
+        }
+    }
+    out
+}
+
 /// Which part of a DEM a sample comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Split {
@@ -205,6 +267,39 @@ pub fn finest_spacing(first: usize, levels: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 20×300 Mercator grid at 2446 m a sample whose top row lies at 60° N, read as bands of
+    /// 128 rows: three bands (128, 128, 44 rows); each band's spacing is 2446 m × cos of its
+    /// middle row's latitude (about 1,249 m at 59.3° to 1,339 m at 56.8°); a +128 m spike on a
+    /// plain is gone after the median; the sea (−50 m) is NaN and the coast's land kept (the
+    /// median of its rows).
+    #[test]
+    fn mercator_bands_have_their_latitudes_spacing_and_lose_spikes_and_sea() {
+        let (w, h, step) = (20usize, 300usize, 2446.0f64);
+        let mut data: Vec<f32> = (0..w * h).map(|k| 700.0 + (k / w) as f32).collect();
+        data[50 * w + 10] += 128.0;
+        for v in data.iter_mut().skip(290 * w) {
+            *v = -50.0;
+        }
+        let dir = std::env::temp_dir().join(format!("terrain-mercator-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        Heightfield::new(w, h, step, data).write_tiff(std::fs::File::create(dir.join("g.tif")).unwrap()).unwrap();
+        let top = 60f64.to_radians().tan().asinh() * MERCATOR_RADIUS_M;
+        let manifest = serde_json::json!({ "files": [{ "id": "g", "file": "g.tif", "mercator_metres_per_sample": step, "mercator_bounds_xmin_ymin_xmax_ymax": [0.0, top - h as f64 * step, w as f64 * step, top] }] });
+        std::fs::write(dir.join("manifest.json"), manifest.to_string()).unwrap();
+        let bands = load_mercator_bands(&dir, 128).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(bands.iter().map(|b| (b.id.as_str(), b.hf.height)).collect::<Vec<_>>(), [("g#0", 128), ("g#1", 128), ("g#2", 44)]);
+        for (b, mid_row) in bands.iter().zip([64.0, 192.0, 278.0]) {
+            let lat = ((top - mid_row * step) / MERCATOR_RADIUS_M).sinh().atan();
+            assert!((b.hf.spacing_m - step * lat.cos()).abs() < 1e-6, "{}: {} m", b.id, b.hf.spacing_m);
+        }
+        assert!((bands[0].hf.spacing_m - 1249.0).abs() < 2.0 && (bands[2].hf.spacing_m - 1339.0).abs() < 2.0, "{} m, {} m", bands[0].hf.spacing_m, bands[2].hf.spacing_m);
+        assert_eq!(bands[0].hf.data[50 * w + 10], 750.0, "the spike is gone");
+        let last = &bands[2].hf;
+        assert!(last.data[(290 - 256) * w..].iter().all(|v| v.is_nan()), "the sea is no-data");
+        assert_eq!(last.data[(289 - 256) * w + 5], 988.0, "the coast's land is kept");
+    }
 
     #[test]
     fn chains_nest_their_regions() {

@@ -12,7 +12,10 @@ use burn::tensor::{Device, Tensor, TensorData};
 use super::gan::{self, Disc};
 use super::pairs::{Dem, Grid, Rng, Split, grids_at, random_window};
 use crate::dem::Heightfield;
-use crate::models::tcm::{COARSE_SPACING_M, CONTEXT_PX, HEIGHT_SCALE_M, IN_CHANNELS, RUGGEDNESS_BOX_PX, TILE_PX, Tcm, TcmCpu, assemble_input, centre, phase_mask, tile_ruggedness};
+use crate::models::tcm::{
+    COARSE_SPACING_M, CONTEXT_PX, HEIGHT_SCALE_M, IN_CHANNELS, RUGGEDNESS_BOX_PX, TILE_PX, Tcm, TcmCpu, assemble_input, assemble_input_field, centre, centre_level,
+    macro_field_cells, phase_mask, tile_ruggedness,
+};
 use crate::world::seam;
 use burn::tensor::module::avg_pool2d;
 use burn::tensor::ops::AvgPoolOptions;
@@ -112,9 +115,10 @@ pub struct Sample {
 }
 
 /// Cuts a sample for phase `phase` from a random window of `hf` in `split`
-/// ([`random_window`]): the macro field from the jittered tile means, the ruggedness field
-/// from the jittered measured ruggedness, noise from `rng`.
-pub fn sample(hf: &Heightfield, split: Split, phase: usize, rng: &mut Rng) -> Option<Sample> {
+/// ([`random_window`]): the macro field from the jittered means of `macro_cells`² cells
+/// ([`macro_field_cells`]; 3: the tile means, the world's field; 6: 2048 m cells), the
+/// ruggedness field from the jittered measured ruggedness, noise from `rng`.
+pub fn sample(hf: &Heightfield, split: Split, phase: usize, macro_cells: usize, rng: &mut Rng) -> Option<Sample> {
     let h = random_window(hf, split, CONTEXT_PX, rng)?;
     let tiles: Vec<Vec<f32>> = (0..9).map(|t| tile_of(&h, t)).collect();
     let means: Vec<f32> = tiles.iter().map(|t| t.iter().sum::<f32>() / t.len() as f32).collect();
@@ -125,9 +129,34 @@ pub fn sample(hf: &Heightfield, split: Split, phase: usize, rng: &mut Rng) -> Op
     let rugged = tile_ruggedness(&h).map(|r| r + RUGGEDNESS_JITTER * crate::models::tcm::gauss(rng.next_u64()));
     let mask = phase_mask(phase);
     let given: [Option<&[f32]>; 9] = std::array::from_fn(|t| mask[t].then_some(tiles[t].as_slice()));
-    let input = assemble_input(&given, &centres, &rugged, rng.next_u64());
-    let real = h.iter().map(|v| (v - centres[4]) / HEIGHT_SCALE_M).collect();
+    if macro_cells == 3 {
+        let input = assemble_input(&given, &centres, &rugged, rng.next_u64());
+        let real = h.iter().map(|v| (v - centres[4]) / HEIGHT_SCALE_M).collect();
+        return Some(Sample { input, real, phase });
+    }
+    let k = macro_cells;
+    let cells: Vec<f32> = cell_means(&h, k).into_iter().map(|m| m + jitter * crate::models::tcm::gauss(rng.next_u64())).collect();
+    let level = centre_level(&cells, k);
+    let input = assemble_input_field(&given, &macro_field_cells(&cells, k), level, &rugged, rng.next_u64());
+    let real = h.iter().map(|v| (v - level) / HEIGHT_SCALE_M).collect();
     Some(Sample { input, real, phase })
+}
+
+/// The means (metres) of the `k`×`k` square cells of a context window `h` ([`CONTEXT_PX`]²,
+/// row-major), row-major.
+fn cell_means(h: &[f32], k: usize) -> Vec<f32> {
+    let side = CONTEXT_PX / k;
+    let mut sums = vec![0f32; k * k];
+    for (p, &v) in h.iter().enumerate() {
+        sums[(p / CONTEXT_PX / side) * k + p % CONTEXT_PX / side] += v;
+    }
+    sums.into_iter().map(|s| s / (side * side) as f32).collect()
+}
+
+/// Whether `k` cells a side can carry the macro field of a TCM training run: a multiple of 3
+/// (whole cells per tile) that divides [`CONTEXT_PX`].
+pub fn valid_macro_cells(k: usize) -> bool {
+    k >= 3 && k.is_multiple_of(3) && CONTEXT_PX.is_multiple_of(k)
 }
 
 /// Settings of a TCM training run.
@@ -180,6 +209,14 @@ pub struct TcmConfig {
     /// resumed run may change it. Runs saved before it existed read 0.
     #[serde(default)]
     pub position: f32,
+    /// Cells a side of the macro field the generator is given ([`sample`]; 3: one per tile,
+    /// as the world's; 6: 2048 m). Runs saved before it existed read 3.
+    #[serde(default = "three")]
+    pub macro_cells: usize,
+}
+
+fn three() -> usize {
+    3
 }
 
 fn one() -> f32 {
@@ -202,6 +239,7 @@ impl Default for TcmConfig {
             dome: 0.0,
             disc_slopes: false,
             position: 0.0,
+            macro_cells: 3,
         }
     }
 }
@@ -358,8 +396,8 @@ pub fn dome_height(t: &[f32]) -> f64 {
 
 /// Per phase, over `windows` windows of the validation split of `grids`: the mean
 /// [`dome_height`] (metres) of the tiles `g` makes minus that of the real centre tiles of the
-/// same windows, and its standard error. A generator that continues its neighbours without
-/// bias scores 0 within the error.
+/// same windows, and its standard error, with the world's macro field (one cell per tile). A
+/// generator that continues its neighbours without bias scores 0 within the error.
 pub fn phase_dome_bias(g: &TcmCpu, grids: &[Grid], windows: usize, threads: usize) -> [(f64, f64); 4] {
     let mut rng = Rng(0x444F_4D45);
     let mut s = crate::models::tcm::TcmScratch::default();
@@ -369,7 +407,7 @@ pub fn phase_dome_bias(g: &TcmCpu, grids: &[Grid], windows: usize, threads: usiz
             if gaps.len() == windows || grids.is_empty() {
                 break;
             }
-            let Some(smp) = sample(&grids[t % grids.len()].hf, Split::Validation, phase, &mut rng) else { continue };
+            let Some(smp) = sample(&grids[t % grids.len()].hf, Split::Validation, phase, 3, &mut rng) else { continue };
             let made = dome_height(&g.forward(&smp.input, &mut s, threads));
             gaps.push((made - dome_height(&tile_of(&smp.real, 4))) * HEIGHT_SCALE_M as f64);
         }
@@ -595,7 +633,7 @@ impl TcmRun {
             tries += 1;
             let g = &grids[rng.below(grids.len())];
             let phase = rng.below(4);
-            if let Some(s) = sample(&g.hf, Split::Train, phase, &mut rng) {
+            if let Some(s) = sample(&g.hf, Split::Train, phase, self.cfg.macro_cells, &mut rng) {
                 inputs.extend(s.input);
                 reals.extend(s.real);
                 l1_weights.extend(l1_weight_map(&phase_mask(s.phase), self.cfg.free_l1, self.cfg.l1_reach_px));

@@ -341,3 +341,47 @@ fn drainage_term_is_the_mean_depth_of_the_centre_tiles_pits() {
         assert_eq!(g[p], if lifted { -1.0 / (TILE_PX * TILE_PX) as f32 } else { 0.0 }, "sample {p}");
     }
 }
+
+/// On terrain whose 4096 m tile means are all alike but whose 2048 m cells are not (a ripple
+/// of one tile's period, ±300 m): in a sample with 6 macro cells a side, the macro channel
+/// around each cell's centre is the field of the window's true cell means to within 3.5
+/// jitter deviations (the jitter's bound), and with 3 cells it misses that field somewhere by
+/// more than its own bound.
+#[test]
+fn six_cell_samples_carry_each_2048_m_cell_mean_where_three_cells_do_not() {
+    let (w, h) = (400, 200);
+    let ripple = |x: usize, y: usize| 1000.0 + 300.0 * (x as f32 * std::f32::consts::TAU / 32.0).sin() + 200.0 * (y as f32 * std::f32::consts::TAU / 32.0).cos();
+    let dem = Dem { id: "ripple_128m".into(), hf: Heightfield::new(w, h, 128.0, (0..w * h).map(|k| ripple(k % w, k / w)).collect()) };
+    let g = &grids(&[dem])[0];
+    let n = CONTEXT_PX * CONTEXT_PX;
+    // A field's mean over the four pixels around the centre of 2048 m cell `q`.
+    let at_cell = |m: &[f32], q: usize| {
+        let p = ((q / 6) * 16 + 8) * CONTEXT_PX + (q % 6) * 16 + 8;
+        (m[p] + m[p - 1] + m[p - CONTEXT_PX] + m[p - CONTEXT_PX - 1]) / 4.0
+    };
+    let jitter_of = |heights: &[f32]| {
+        let t = cell_means(heights, 3);
+        let avg = t.iter().sum::<f32>() / 9.0;
+        MACRO_JITTER_M + MACRO_JITTER_FRACTION * (t.iter().map(|m| (m - avg).powi(2)).sum::<f32>() / 9.0).sqrt()
+    };
+    let mut worst_three = 0f32;
+    for seed in 0..8u64 {
+        for (k, mut rng) in [(6, Rng(seed)), (3, Rng(seed))] {
+            let s = sample(&g.hf, Split::Train, 1, k, &mut rng).unwrap();
+            // Metres above the sample's level, like the macro channel.
+            let heights: Vec<f32> = s.real.iter().map(|v| v * HEIGHT_SCALE_M).collect();
+            let truth = macro_field_cells(&cell_means(&heights, 6), 6);
+            let made: Vec<f32> = s.input[4 * n..5 * n].iter().map(|v| v * HEIGHT_SCALE_M).collect();
+            let bound = 3.5 * jitter_of(&heights) + 0.5;
+            for q in 0..36 {
+                let miss = (at_cell(&made, q) - at_cell(&truth, q)).abs();
+                if k == 6 {
+                    assert!(miss < bound, "seed {seed}, cell {q}: the macro field misses the cell means' field by {miss} m (bound {bound} m)");
+                } else {
+                    worst_three = worst_three.max(miss - bound);
+                }
+            }
+        }
+    }
+    assert!(worst_three > 0.0, "3 cells a side held the 2048 m cell means' field as closely");
+}
