@@ -382,6 +382,10 @@ enum Command {
         /// The discriminator also sees the window's slopes (a new run only).
         #[arg(long)]
         disc_slopes: bool,
+        /// Weight of the coherence term: |orientation coherence around the made tile − around
+        /// the real one|, ridges and valleys against round bumps (a new run only; 0: none).
+        #[arg(long, default_value_t = 0.0)]
+        coherence: f32,
         /// Weight of the position term: how much the made tiles' roughness depends on the
         /// position inside the tile (0: none; with --resume it replaces the saved weight).
         #[arg(long)]
@@ -820,6 +824,7 @@ fn main() -> ExitCode {
             joined,
             dome,
             disc_slopes,
+            coherence,
             position,
             macro_cells,
             mercator_dir,
@@ -840,7 +845,7 @@ fn main() -> ExitCode {
             &checkpoint,
             checkpoint_every as usize,
             [batch as usize, macro_cells],
-            [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome],
+            [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome, coherence],
             [joined, disc_slopes],
             [position, grow_position],
             init.as_deref(),

@@ -222,7 +222,7 @@ pub(crate) fn train_tcm(
     checkpoint: &std::path::Path,
     every: usize,
     [batch, macro_cells]: [usize; 2],
-    [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome]: [f32; 7],
+    [adversarial, ruggedness, drainage, coarse, free_l1, l1_reach, dome, coherence]: [f32; 8],
     [joined, disc_slopes]: [bool; 2],
     [position, grow_position]: [Option<f32>; 2],
     init: Option<&std::path::Path>,
@@ -238,6 +238,7 @@ pub(crate) fn train_tcm(
         ("--free-l1", free_l1),
         ("--l1-reach", l1_reach),
         ("--dome", dome),
+        ("--coherence", coherence),
         ("--position", position.unwrap_or(0.0)),
         ("--grow-position", grow_position.unwrap_or(0.0)),
     ] {
@@ -266,6 +267,7 @@ pub(crate) fn train_tcm(
         dome,
         disc_slopes,
         position: position.unwrap_or(0.0),
+        coherence,
         ..Default::default()
     };
     let (run, mut up) = start_tcm_runs(cfg, position, &device, resume.then_some(checkpoint), init, [tcm_only, grow_only])?;
@@ -526,6 +528,7 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
             f["edge_strip"] = serde_json::json!(strip.iter().sum::<f64>() / strip.len() as f64);
             let windows: Vec<Vec<f32>> = rs.iter().flat_map(|r| world_eval::windows_of(r, world_eval::WINDOW_SIDES[1])).collect();
             f["grid_alignment"] = serde_json::json!(grid_alignment_mean(windows.iter().map(Vec::as_slice)));
+            f["orientation_coherence"] = serde_json::json!(coherence_mean(windows.iter().map(Vec::as_slice)));
             f["ms_per_tile"] = serde_json::json!(ms);
             (name.to_string(), f)
         })
@@ -535,6 +538,7 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
         world_eval::real_windows(&dems, side).into_iter().map(|w| terrain::dem::Heightfield::new(side, side, terrain::grid::BASE_SPACING_M, w)).collect();
     let mut real_figures = seam_figures(&real);
     real_figures["grid_alignment"] = serde_json::json!(grid_alignment_mean(real.iter().map(|r| r.data.as_slice())));
+    real_figures["orientation_coherence"] = serde_json::json!(coherence_mean(real.iter().map(|r| r.data.as_slice())));
     seams.insert("real_validation_cut_into_tiles".into(), real_figures);
     // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.
     let mean_sd = |v: &[f64]| {
@@ -563,6 +567,14 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
 fn grid_alignment_mean<'a>(windows: impl Iterator<Item = &'a [f32]>) -> f64 {
     let side = terrain::train::world_eval::WINDOW_SIDES[1];
     let (sum, count) = windows.fold((0.0, 0usize), |(s, k), w| (s + terrain::train::world_eval::grid_alignment(w, side), k + 1));
+    sum / count.max(1) as f64
+}
+
+/// The mean [`terrain::train::world_eval::orientation_coherence`] of 32 m windows of side
+/// [`terrain::train::world_eval::WINDOW_SIDES`]`[1]`.
+fn coherence_mean<'a>(windows: impl Iterator<Item = &'a [f32]>) -> f64 {
+    let side = terrain::train::world_eval::WINDOW_SIDES[1];
+    let (sum, count) = windows.fold((0.0, 0usize), |(s, k), w| (s + terrain::train::world_eval::orientation_coherence(w, side), k + 1));
     sum / count.max(1) as f64
 }
 

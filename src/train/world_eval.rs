@@ -99,6 +99,61 @@ pub fn grid_alignment(window: &[f32], side: usize) -> f64 {
     if sum > 0.0 { re.hypot(im) / sum } else { 0.0 }
 }
 
+/// Factor by which [`orientation_coherence`] area-averages a window at 32 m: to 128 m, the
+/// TCM's spacing.
+pub const COHERENCE_AVERAGE: usize = 4;
+
+/// Side (samples at 128 m) of the boxes [`orientation_coherence`] averages the structure
+/// tensor over: 1152 m.
+pub const COHERENCE_BOX_PX: usize = 9;
+
+/// How elongated the forms of a `side`² window at 32 m (metres, row-major) are: the window
+/// area-averaged to 128 m ([`COHERENCE_AVERAGE`]), its gradients (forward differences) and
+/// their structure tensor `J` averaged over every [`COHERENCE_BOX_PX`]² box; per box the
+/// coherence `√((Jxx − Jyy)² + 4·Jxy²) / (Jxx + Jyy)` (0: gradients every way, round bumps;
+/// 1: all parallel, the sides of one ridge or valley); the mean over the boxes. Parallel
+/// ridges score 1.0 and an egg-crate of 2 km bumps 0.12 (tests); seed 42's learned world
+/// ~0.35 and the real Mont Blanc massif ~0.53. The same measure as the TCM trainer's
+/// coherence term ([`crate::train::tcm::coherence_gap`]).
+pub fn orientation_coherence(window: &[f32], side: usize) -> f64 {
+    let f = COHERENCE_AVERAGE;
+    let n = side / f;
+    let mut a = vec![0f64; n * n];
+    for y in 0..n * f {
+        for x in 0..n * f {
+            a[(y / f) * n + x / f] += window[y * side + x] as f64 / (f * f) as f64;
+        }
+    }
+    let m = n - 1;
+    // The structure tensor's three parts over the (n − 1)² samples with both differences.
+    let mut j = [vec![0f64; m * m], vec![0f64; m * m], vec![0f64; m * m]];
+    for y in 0..m {
+        for x in 0..m {
+            let (dx, dy) = (a[y * n + x + 1] - a[y * n + x], a[(y + 1) * n + x] - a[y * n + x]);
+            j[0][y * m + x] = dx * dx;
+            j[1][y * m + x] = dy * dy;
+            j[2][y * m + x] = dx * dy;
+        }
+    }
+    let b = COHERENCE_BOX_PX;
+    if m < b {
+        return 0.0;
+    }
+    let box_sum = |v: &[f64], x0: usize, y0: usize| -> f64 { (y0..y0 + b).map(|y| v[y * m + x0..y * m + x0 + b].iter().sum::<f64>()).sum() };
+    let (mut sum, mut count) = (0f64, 0usize);
+    for y0 in 0..=m - b {
+        for x0 in 0..=m - b {
+            let (xx, yy, xy) = (box_sum(&j[0], x0, y0), box_sum(&j[1], x0, y0), box_sum(&j[2], x0, y0));
+            let trace = xx + yy;
+            if trace > 0.0 {
+                sum += ((xx - yy).powi(2) + 4.0 * xy * xy).sqrt() / trace;
+            }
+            count += 1;
+        }
+    }
+    sum / count.max(1) as f64
+}
+
 /// The seam figure of a region made of whole tiles, for each interior tile edge (128 samples
 /// long): the mean |height step| across the edge divided by the mean |step| between the
 /// neighbouring rows (or columns) inside the two tiles (the 4 on either side). Real terrain,
@@ -255,6 +310,24 @@ mod tests {
         let turned = grid_alignment(&field(&|x, y| 2000.0 - 10.0 * (k * x + s * y).abs().max((k * y - s * x).abs())), side);
         assert!(cone < 0.01, "cone {cone}");
         assert!(pyramid > 0.9 && turned > 0.9, "pyramid {pyramid}, turned {turned}");
+    }
+
+    /// Parallel ridges 3 km apart (turned off the grid) have an orientation coherence over
+    /// 0.95, with 50 m of noise on them still over 0.85; an egg-crate of 2 km bumps under 0.2.
+    #[test]
+    fn orientation_coherence_is_high_for_ridges_and_low_for_an_egg_crate() {
+        let side = 256;
+        let field = |f: &dyn Fn(f64, f64) -> f64| -> Vec<f32> { (0..side * side).map(|p| f((p % side) as f64 * 32.0, (p / side) as f64 * 32.0) as f32).collect() };
+        let tau = std::f64::consts::TAU;
+        let ridges = orientation_coherence(&field(&|x, y| 300.0 * (tau * (0.8 * x + 0.6 * y) / 3000.0).sin()), side);
+        let noisy = orientation_coherence(
+            &field(&|x, y| 300.0 * (tau * (0.8 * x + 0.6 * y) / 3000.0).sin() + 50.0 * crate::models::tcm::gauss(crate::grid::mix64((x * 7.0 + y * 1e5) as u64)) as f64),
+            side,
+        );
+        let egg = orientation_coherence(&field(&|x, y| 300.0 * (tau * x / 2000.0).sin() * (tau * y / 2000.0).sin()), side);
+        assert!(ridges > 0.95, "ridges {ridges}");
+        assert!(noisy > 0.85, "noisy ridges {noisy}");
+        assert!(egg < 0.2, "egg-crate {egg}");
     }
 
     /// A region whose tiles are offset by 10 m each has a seam ratio far above 1 along the

@@ -11,6 +11,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 
 use super::gan::{self, Disc};
 use super::pairs::{Dem, Grid, Rng, Split, grids_at, random_window};
+use super::world_eval::COHERENCE_BOX_PX;
 use crate::dem::Heightfield;
 use crate::models::tcm::{
     COARSE_SPACING_M, CONTEXT_PX, HEIGHT_SCALE_M, IN_CHANNELS, RUGGEDNESS_BOX_PX, TILE_PX, Tcm, TcmCpu, assemble_input, assemble_input_field, centre, centre_level,
@@ -213,6 +214,10 @@ pub struct TcmConfig {
     /// as the world's; 6: 2048 m). Runs saved before it existed read 3.
     #[serde(default = "three")]
     pub macro_cells: usize,
+    /// Weight of the coherence term ([`coherence_gap`]; 0: none). A loss weight only, so a
+    /// resumed run may change it. Runs saved before it existed read 0.
+    #[serde(default)]
+    pub coherence: f32,
 }
 
 fn three() -> usize {
@@ -240,6 +245,7 @@ impl Default for TcmConfig {
             disc_slopes: false,
             position: 0.0,
             macro_cells: 3,
+            coherence: 0.0,
         }
     }
 }
@@ -338,6 +344,35 @@ pub fn dome_gap(made: Tensor<4>, real: Tensor<4>, phases: &[usize]) -> Tensor<1>
         });
     }
     total.unwrap_or_else(|| Tensor::<1>::zeros([1], &domes.device()))
+}
+
+/// Per window of a batch [B, 1, 96, 96] (heights in units of [`HEIGHT_SCALE_M`]): the mean
+/// orientation coherence around the centre tile — the measure of
+/// [`crate::train::world_eval::orientation_coherence`] at 128 m (forward differences, the
+/// structure tensor averaged over [`COHERENCE_BOX_PX`]² boxes, `√((Jxx − Jyy)² + 4·Jxy²) /
+/// (Jxx + Jyy)`) over the boxes centred within about a sample of the centre tile. [B].
+fn centre_coherence(window: Tensor<4>) -> Tensor<1> {
+    let b = window.dims()[0];
+    let (t, r) = (TILE_PX, COHERENCE_BOX_PX / 2 + 1);
+    let m = t + 2 * r;
+    let region = window.slice([0..b, 0..1, t - r..2 * t + r, t - r..2 * t + r]);
+    let dx = (region.clone().narrow(3, 1, m - 1) - region.clone().narrow(3, 0, m - 1)).narrow(2, 0, m - 1);
+    let dy = (region.clone().narrow(2, 1, m - 1) - region.narrow(2, 0, m - 1)).narrow(3, 0, m - 1);
+    let boxed = |v: Tensor<4>| avg_pool2d(v, AvgPoolOptions::new([COHERENCE_BOX_PX, COHERENCE_BOX_PX]).with_stride([1, 1]));
+    let (xx, yy, xy) = (boxed(dx.clone() * dx.clone()), boxed(dy.clone() * dy.clone()), boxed(dx * dy));
+    let eps = 1e-10;
+    let coherence = (((xx.clone() - yy.clone()).powf_scalar(2.0) + xy.powf_scalar(2.0) * 4.0 + eps).sqrt()) / (xx + yy + eps);
+    coherence.mean_dim(3).mean_dim(2).reshape([b])
+}
+
+/// The coherence term: the mean over the batch of |orientation coherence around the made
+/// centre tile − around the real one| ([`centre_coherence`]; windows [B, 1, 96, 96]). Real
+/// mountains at 128 m are ridges and valleys, their gradients parallel over a kilometre
+/// (`terrain eval-tcm`'s orientation coherence: 0.40–0.62 on real ranges); the generator
+/// made round bumps (0.3), which L1, the ruggedness term and a patch discriminator all let
+/// pass.
+pub fn coherence_gap(made: Tensor<4>, real: Tensor<4>) -> Tensor<1> {
+    (centre_coherence(made) - centre_coherence(real)).abs().mean()
 }
 
 /// How much the made tiles' roughness depends on the position inside the tile, for a batch
@@ -687,6 +722,9 @@ impl TcmRun {
         }
         if self.cfg.coarse > 0.0 {
             loss = loss + coarse_gap(fake.clone(), centre(real.clone(), TILE_PX)) * self.cfg.coarse;
+        }
+        if self.cfg.coherence > 0.0 {
+            loss = loss + coherence_gap(with_centre(real.clone(), fake.clone()), real.clone()) * self.cfg.coherence;
         }
         let depression = depression_depth(with_centre(real.clone(), fake.clone()));
         let depression_v = depression.clone().into_scalar::<f32>() as f64;
