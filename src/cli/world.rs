@@ -353,13 +353,21 @@ fn tcm_data(dem_dir: &std::path::Path) -> Result<(Vec<terrain::train::pairs::Gri
     let all: Vec<&pairs::Grid> = grids.iter().collect();
     let (fine_coarse, rest): (Vec<_>, Vec<_>) = grids.iter().partition(|g| fine_ids.contains(&g.id.as_str()));
     for (what, set) in [("all", &all), ("32 m or finer", &fine_coarse), ("coarser", &rest)] {
-        for split in [pairs::Split::Train, pairs::Split::Validation] {
-            if let Some((m, sd, p95)) = tcm::ruggedness_stats(set, split) {
-                eprintln!("ruggedness of {what} DEMs ({split:?}): {m:.2} ± {sd:.2}, 95th percentile {p95:.2}");
-            }
-        }
+        report_ruggedness(&format!("{what} DEMs"), set);
     }
     Ok((grids, fine))
+}
+
+/// Prints the ruggedness statistics ([`terrain::train::tcm::ruggedness_stats`]) of `set`, named
+/// `what`, in both splits.
+#[cfg(feature = "train")]
+fn report_ruggedness(what: &str, set: &[&terrain::train::pairs::Grid]) {
+    use terrain::train::{pairs, tcm};
+    for split in [pairs::Split::Train, pairs::Split::Validation] {
+        if let Some((m, sd, p95)) = tcm::ruggedness_stats(set, split) {
+            eprintln!("ruggedness of {what} ({split:?}): {m:.2} ± {sd:.2}, 95th percentile {p95:.2}");
+        }
+    }
 }
 
 /// The TCM's data for a coarse level: the Web Mercator grids of `dir` in bands of 256 rows
@@ -368,7 +376,7 @@ fn tcm_data(dem_dir: &std::path::Path) -> Result<(Vec<terrain::train::pairs::Gri
 #[cfg(feature = "train")]
 fn mercator_data(dir: &std::path::Path, spacing_m: f64) -> Result<Vec<terrain::train::pairs::Grid>, String> {
     use terrain::models::tcm::CONTEXT_PX;
-    use terrain::train::{pairs, tcm};
+    use terrain::train::pairs;
     if !(spacing_m.is_finite() && spacing_m > 0.0) {
         return Err(format!("--spacing-m must be a positive number of metres, not {spacing_m}"));
     }
@@ -379,12 +387,7 @@ fn mercator_data(dir: &std::path::Path, spacing_m: f64) -> Result<Vec<terrain::t
     }
     let land: usize = grids.iter().map(|g| g.hf.data.iter().filter(|v| v.is_finite()).count()).sum();
     eprintln!("TCM data, {} of {} bands at {spacing_m} m ({land} land samples): {}", grids.len(), bands.len(), grids.iter().map(|g| g.id.as_str()).collect::<Vec<_>>().join(", "));
-    let all: Vec<&pairs::Grid> = grids.iter().collect();
-    for split in [pairs::Split::Train, pairs::Split::Validation] {
-        if let Some((m, sd, p95)) = tcm::ruggedness_stats(&all, split) {
-            eprintln!("ruggedness ({split:?}): {m:.2} ± {sd:.2}, 95th percentile {p95:.2}");
-        }
-    }
+    report_ruggedness("all bands", &grids.iter().collect::<Vec<_>>());
     Ok(grids)
 }
 
@@ -527,8 +530,8 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
             let strip: Vec<f64> = rs.iter().map(world_eval::edge_strip_ratio).collect();
             f["edge_strip"] = serde_json::json!(strip.iter().sum::<f64>() / strip.len() as f64);
             let windows: Vec<Vec<f32>> = rs.iter().flat_map(|r| world_eval::windows_of(r, world_eval::WINDOW_SIDES[1])).collect();
-            f["grid_alignment"] = serde_json::json!(grid_alignment_mean(windows.iter().map(Vec::as_slice)));
-            f["orientation_coherence"] = serde_json::json!(coherence_mean(windows.iter().map(Vec::as_slice)));
+            f["grid_alignment"] = serde_json::json!(window_mean(windows.iter().map(Vec::as_slice), world_eval::grid_alignment));
+            f["orientation_coherence"] = serde_json::json!(window_mean(windows.iter().map(Vec::as_slice), world_eval::orientation_coherence));
             f["ms_per_tile"] = serde_json::json!(ms);
             (name.to_string(), f)
         })
@@ -537,8 +540,8 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
     let real: Vec<terrain::dem::Heightfield> =
         world_eval::real_windows(&dems, side).into_iter().map(|w| terrain::dem::Heightfield::new(side, side, terrain::grid::BASE_SPACING_M, w)).collect();
     let mut real_figures = seam_figures(&real);
-    real_figures["grid_alignment"] = serde_json::json!(grid_alignment_mean(real.iter().map(|r| r.data.as_slice())));
-    real_figures["orientation_coherence"] = serde_json::json!(coherence_mean(real.iter().map(|r| r.data.as_slice())));
+    real_figures["grid_alignment"] = serde_json::json!(window_mean(real.iter().map(|r| r.data.as_slice()), world_eval::grid_alignment));
+    real_figures["orientation_coherence"] = serde_json::json!(window_mean(real.iter().map(|r| r.data.as_slice()), world_eval::orientation_coherence));
     seams.insert("real_validation_cut_into_tiles".into(), real_figures);
     // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.
     let mean_sd = |v: &[f64]| {
@@ -562,19 +565,11 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
     Ok(())
 }
 
-/// The mean grid alignment ([`terrain::train::world_eval::grid_alignment`]) of 32 m windows
-/// of side [`terrain::train::world_eval::WINDOW_SIDES`]`[1]`.
-fn grid_alignment_mean<'a>(windows: impl Iterator<Item = &'a [f32]>) -> f64 {
+/// The mean of `measure` (e.g. [`terrain::train::world_eval::grid_alignment`]) over 32 m
+/// windows of side [`terrain::train::world_eval::WINDOW_SIDES`]`[1]`.
+fn window_mean<'a>(windows: impl Iterator<Item = &'a [f32]>, measure: fn(&[f32], usize) -> f64) -> f64 {
     let side = terrain::train::world_eval::WINDOW_SIDES[1];
-    let (sum, count) = windows.fold((0.0, 0usize), |(s, k), w| (s + terrain::train::world_eval::grid_alignment(w, side), k + 1));
-    sum / count.max(1) as f64
-}
-
-/// The mean [`terrain::train::world_eval::orientation_coherence`] of 32 m windows of side
-/// [`terrain::train::world_eval::WINDOW_SIDES`]`[1]`.
-fn coherence_mean<'a>(windows: impl Iterator<Item = &'a [f32]>) -> f64 {
-    let side = terrain::train::world_eval::WINDOW_SIDES[1];
-    let (sum, count) = windows.fold((0.0, 0usize), |(s, k), w| (s + terrain::train::world_eval::orientation_coherence(w, side), k + 1));
+    let (sum, count) = windows.fold((0.0, 0usize), |(s, k), w| (s + measure(w, side), k + 1));
     sum / count.max(1) as f64
 }
 

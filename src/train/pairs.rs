@@ -22,10 +22,16 @@ pub struct Dem {
     pub hf: Heightfield,
 }
 
+/// The JSON of `dir/manifest.json`.
+fn read_manifest(dir: &Path) -> Result<serde_json::Value, String> {
+    let path = dir.join("manifest.json");
+    let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    serde_json::from_str(&text).map_err(|e| format!("manifest.json: {e}"))
+}
+
 /// Reads every DEM listed in `dir/manifest.json` (file, metres_per_pixel).
 pub fn load_dems(dir: &Path) -> Result<Vec<Dem>, String> {
-    let text = std::fs::read_to_string(dir.join("manifest.json")).map_err(|e| format!("{}: {e}", dir.join("manifest.json").display()))?;
-    let manifest: serde_json::Value = serde_json::from_str(&text).map_err(|e| format!("manifest.json: {e}"))?;
+    let manifest = read_manifest(dir)?;
     let list = manifest["dems"].as_array().ok_or("manifest.json has no 'dems' list")?;
     let mut out = Vec::new();
     for d in list {
@@ -50,8 +56,7 @@ const MERCATOR_RADIUS_M: f64 = 6_378_137.0;
 /// so windows hold land only. Bands without a land sample are left out.
 pub fn load_mercator_bands(dir: &Path, band_rows: usize) -> Result<Vec<Dem>, String> {
     assert!(band_rows > 0, "bands need rows");
-    let text = std::fs::read_to_string(dir.join("manifest.json")).map_err(|e| format!("{}: {e}", dir.join("manifest.json").display()))?;
-    let manifest: serde_json::Value = serde_json::from_str(&text).map_err(|e| format!("manifest.json: {e}"))?;
+    let manifest = read_manifest(dir)?;
     let list = manifest["files"].as_array().ok_or("manifest.json has no 'files' list")?;
     let mut out = Vec::new();
     for d in list {
