@@ -136,6 +136,19 @@ enum Command {
         #[arg(long, value_enum)]
         format: Option<ExportFormat>,
     },
+    /// Write the learned world's range field (its macro field: ranges and main valleys eroded
+    /// at 512 m, `world::ranges`) over a square around the origin as a float32 GeoTIFF.
+    RangeField {
+        /// World seed.
+        #[arg(long)]
+        seed: u64,
+        /// Side of the square (samples of 512 m), centred on the origin.
+        #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(16..=2048))]
+        side: u32,
+        /// Output file (.tif).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Hillshade DEMs side by side into one grey PNG, each area-averaged to one spacing and
     /// cut to the same square around its centre (e.g. a region of the world beside real ranges).
     Hillshade {
@@ -737,6 +750,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::World { region } => world(&region),
         Command::Export { region, spacing, format } => export(&region, spacing, format),
+        Command::RangeField { seed, side, out } => range_field(seed, side as usize, &out),
         Command::Hillshade { input, spacing_m, side, out } => hillshade(&input, spacing_m, side as usize, &out),
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),

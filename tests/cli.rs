@@ -681,3 +681,26 @@ fn hillshade_puts_the_inputs_side_by_side_at_the_asked_square() {
     let missing = run(&["hillshade", "--input", "/no/such.tif", "--out", out.to_str().unwrap()]);
     assert_eq!(missing.status.code(), Some(1));
 }
+
+/// `terrain range-field` writes the asked square of the range field at 512 m: 64² samples that
+/// span more than 300 m and read back with their spacing; the same seed gives the same bits,
+/// another seed other heights; a side out of range or a file that is not a .tif is refused.
+#[test]
+fn range_field_writes_the_asked_square_and_refuses_bad_options() {
+    let (a, b, c) = (tmp("ranges_a.tif"), tmp("ranges_b.tif"), tmp("ranges_c.tif"));
+    for (seed, path) in [("5", &a), ("5", &b), ("6", &c)] {
+        let o = run(&["range-field", "--seed", seed, "--side", "64", "--out", path.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let (ha, hb, hc) = (read(&a), read(&b), read(&c));
+    assert_eq!((ha.width, ha.height, ha.spacing_m), (64, 64, 512.0));
+    let (lo, hi) = ha.data.iter().fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    assert!(hi - lo > 300.0, "range {lo} .. {hi} m");
+    assert_eq!(ha.data, hb.data, "the same seed, the same field");
+    assert_ne!(ha.data, hc.data, "another seed, another field");
+    let too_big = run(&["range-field", "--seed", "1", "--side", "9000", "--out", a.to_str().unwrap()]);
+    assert_eq!(too_big.status.code(), Some(2), "clap refuses a side out of range");
+    let png = run(&["range-field", "--seed", "1", "--side", "64", "--out", tmp("ranges.png").to_str().unwrap()]);
+    assert_eq!(png.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&png.stderr).contains(".tif"));
+}

@@ -769,11 +769,9 @@ impl TerrainApp {
             // ground); the sea plane goes below it so the two do not fight.
             water_level_m: if self.source() == SourceKind::Sketch { SKETCH_SEA_M } else { 0.0 },
             amplitude_m: match self.source() {
-                SourceKind::Learned => (crate::world::learned::MACRO_BASE_M + crate::world::learned::MACRO_AMPLITUDE_M) as f32,
+                SourceKind::Learned => crate::world::ranges::TOP_M,
                 SourceKind::Procedural => (n.amplitude_m + n.base_m).max(100.0),
-                SourceKind::Sketch if self.sketch_in_learned() => {
-                    (self.settings.relief_m as f32).max((crate::world::learned::MACRO_BASE_M + crate::world::learned::MACRO_AMPLITUDE_M) as f32)
-                }
+                SourceKind::Sketch if self.sketch_in_learned() => (self.settings.relief_m as f32).max(crate::world::ranges::TOP_M),
                 SourceKind::Sketch => self.settings.relief_m as f32,
             },
             show_lod: self.show_lod,

@@ -294,7 +294,7 @@ pub(crate) fn world_bench(tiles: u32, threads: Option<u32>, gpu: bool, weights: 
             "ms_per_world_tile": per(total_ms),
             "networks_ms_per_world_tile": per(network_ms),
             "by_part_ms_per_world_tile": {
-                "tcm": per(spent.tcm.ms), "seams_128m": per(spent.seams_128m.ms), "erosion": per(spent.erosion.ms),
+                "macro_field": per(spent.macro_field.ms), "tcm": per(spent.tcm.ms), "seams_128m": per(spent.seams_128m.ms), "erosion": per(spent.erosion.ms),
                 "grow": per(spent.grow.ms), "carve_32m": per(spent.carve_32m.ms), "breach_32m": per(spent.breach_32m.ms),
             },
             "network_tiles": { "tcm": spent.tcm.runs, "grow": spent.grow.runs },

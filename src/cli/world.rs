@@ -543,6 +543,22 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
     real_figures["grid_alignment"] = serde_json::json!(window_mean(real.iter().map(|r| r.data.as_slice()), world_eval::grid_alignment));
     real_figures["orientation_coherence"] = serde_json::json!(window_mean(real.iter().map(|r| r.data.as_slice()), world_eval::orientation_coherence));
     seams.insert("real_validation_cut_into_tiles".into(), real_figures);
+    // The large scale: does a 24 km square drain through long valleys, do its ranges run side
+    // by side? Each world's regions against every real DEM's 24 km squares.
+    let large = |squares: &[Vec<f32>]| {
+        let n = (world_eval::LARGE_SQUARE_M / world_eval::LARGE_SPACING_M) as usize;
+        let figures: Vec<(f64, f64)> = squares.iter().map(|h| world_eval::large_scale(h, n)).collect();
+        let mean = |k: fn(&(f64, f64)) -> f64| figures.iter().map(k).sum::<f64>() / figures.len().max(1) as f64;
+        serde_json::json!({ "squares": figures.len(), "longest_flow_path_km": mean(|f| f.0), "orientation_coherence_512m": mean(|f| f.1) })
+    };
+    let mut large_scale: serde_json::Map<String, serde_json::Value> = regions
+        .iter()
+        .map(|(name, rs, _)| {
+            let squares: Vec<Vec<f32>> = rs.iter().filter_map(|r| r.resample_area(world_eval::LARGE_SPACING_M).ok()).map(|r| r.data).collect();
+            (name.to_string(), large(&squares))
+        })
+        .collect();
+    large_scale.insert("real_both_splits".into(), large(&world_eval::real_squares(&dems)));
     // Does the TCM make tiles as rugged as the world asks? Mean and deviation over the regions.
     let mean_sd = |v: &[f64]| {
         let m = v.iter().sum::<f64>() / v.len() as f64;
@@ -561,7 +577,7 @@ pub(crate) fn eval_tcm(dem_dir: &std::path::Path, weights: &std::path::Path, see
     let grids = terrain::train::tcm::grids(&dems);
     let domes = terrain::train::tcm::phase_dome_bias(&models.tcm, &grids, 400, terrain::models::cpu::default_threads());
     let domes: Vec<serde_json::Value> = domes.iter().enumerate().map(|(p, (m, e))| serde_json::json!({ "phase": p, "made_minus_real_m": m, "standard_error_m": e })).collect();
-    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "drainage_256_windows": drainage, "seams_and_speed": seams, "tcm_time_by_part": time_by_part, "ruggedness_128m_tiles": ruggedness, "tile_dome_bias_by_phase_128m_validation": domes })).expect("json"));
+    println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "weights": models.hash, "seeds": seeds, "region_tiles": [SIDE_TILES, SIDE_TILES], "realism": sides, "drainage_256_windows": drainage, "seams_and_speed": seams, "large_scale_24km": large_scale, "tcm_time_by_part": time_by_part, "ruggedness_128m_tiles": ruggedness, "tile_dome_bias_by_phase_128m_validation": domes })).expect("json"));
     Ok(())
 }
 
@@ -592,6 +608,22 @@ fn drainage_summary(set: &[terrain::geomorph::drainage::Drainage], distance: Opt
         })
         .collect();
     serde_json::json!({ "windows": set.len(), "statistics": per })
+}
+
+/// `terrain range-field`: the range field of world `seed` over the `side`² samples centred on
+/// the origin, written to `out` as a float32 GeoTIFF at 512 m.
+pub(crate) fn range_field(seed: u64, side: usize, out: &std::path::Path) -> Result<(), String> {
+    use terrain::world::ranges;
+    if out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("tif") {
+        return Err(format!("{}: the range field is written as a .tif", out.display()));
+    }
+    let half = side as i64 / 2;
+    let field = ranges::RangeField::default().samples(seed, -half, -half, side, side);
+    let hf = terrain::dem::Heightfield::new(side, side, ranges::RANGE_SPACING_M, field);
+    let file = std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    hf.write_tiff(file).map_err(|e| format!("{}: {e}", out.display()))?;
+    eprintln!("wrote {}: {side}² samples at {} m", out.display(), ranges::RANGE_SPACING_M);
+    Ok(())
 }
 
 /// `terrain hillshade`: each input area-averaged to `spacing_m`, its centred `side`² square

@@ -116,7 +116,12 @@ pub const COHERENCE_BOX_PX: usize = 9;
 /// ~0.35 and the real Mont Blanc massif ~0.53. The same measure as the TCM trainer's
 /// coherence term ([`crate::train::tcm::coherence_gap`]).
 pub fn orientation_coherence(window: &[f32], side: usize) -> f64 {
-    let f = COHERENCE_AVERAGE;
+    coherence_averaged(window, side, COHERENCE_AVERAGE)
+}
+
+/// [`orientation_coherence`] with the window area-averaged by `f` (e.g. 16: to 512 m, boxes of
+/// 4.6 km: [`large_scale`]).
+pub fn coherence_averaged(window: &[f32], side: usize, f: usize) -> f64 {
     let n = side / f;
     let mut a = vec![0f64; n * n];
     for y in 0..n * f {
@@ -152,6 +157,46 @@ pub fn orientation_coherence(window: &[f32], side: usize) -> f64 {
         }
     }
     sum / count.max(1) as f64
+}
+
+/// Side of the squares [`large_scale`] measures (metres): 24,576 m, a 6×6-tile region.
+pub const LARGE_SQUARE_M: f64 = 6.0 * crate::grid::TILE_SIZE_M;
+
+/// Spacing (metres) [`large_scale`] measures flow paths at: the TCM's.
+pub const LARGE_SPACING_M: f64 = 128.0;
+
+/// The large-scale figures of a square of side [`LARGE_SQUARE_M`] (`h`, row-major, `n`² samples
+/// at [`LARGE_SPACING_M`]): (the longest flow path over the square in km
+/// ([`crate::geomorph::drainage::longest_flow_path_m`]), the orientation coherence of the
+/// square area-averaged to 512 m ([`coherence_averaged`]: how far main ridges and valleys run
+/// side by side rather than every way)).
+pub fn large_scale(h: &[f32], n: usize) -> (f64, f64) {
+    (crate::geomorph::drainage::longest_flow_path_m(h, n, LARGE_SPACING_M) / 1e3, coherence_averaged(h, n, 4))
+}
+
+/// Squares of side [`LARGE_SQUARE_M`] at [`LARGE_SPACING_M`] from every real DEM of spacing
+/// ≤ [`LARGE_SPACING_M`] with room for one, on a grid of stride half a square, all samples
+/// valid. Both splits: too few DEMs have a held-out third 24 km wide (the TCM sees 12 km at a
+/// time, so it cannot have learned a square's layout).
+pub fn real_squares(dems: &[Dem]) -> Vec<Vec<f32>> {
+    let side = (LARGE_SQUARE_M / LARGE_SPACING_M) as usize;
+    let mut out = Vec::new();
+    for d in dems.iter().filter(|d| d.hf.spacing_m <= LARGE_SPACING_M + 1e-9) {
+        let Ok(hf) = d.hf.resample_area(LARGE_SPACING_M) else { continue };
+        let mut y = 0;
+        while y + side <= hf.height {
+            let mut x = 0;
+            while x + side <= hf.width {
+                let w = hf.window(x, y, side, side);
+                if w.data.iter().all(|v| v.is_finite()) {
+                    out.push(w.data);
+                }
+                x += side / 2;
+            }
+            y += side / 2;
+        }
+    }
+    out
 }
 
 /// The seam figure of a region made of whole tiles, for each interior tile edge (128 samples

@@ -44,8 +44,10 @@
 //!   Drained blocks of both stages are kept in bounded caches.
 //!
 //! The macro field — the absolute level and the large-scale relief the TCM is conditioned on —
-//! is seeded Perlin fBm over tile coordinates ([`macro_height`]), and so is the ruggedness
-//! field that tells the TCM how much relief each tile has ([`ruggedness`]).
+//! is the range field ([`super::ranges`]): an uplift field eroded into ranges and branching
+//! main valleys at 512 m, given to the TCM as its means over 2,048 m cells (6×6 over its
+//! window). The ruggedness field that tells the TCM how much relief each tile has is seeded
+//! Perlin noise over tile coordinates ([`ruggedness`]).
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -57,6 +59,7 @@ use super::drainage;
 use super::erosion::{self, Erosion};
 use super::noise::perlin;
 use super::pins::Pins;
+use super::ranges;
 use super::seam;
 use super::tile::{Neighbourhood, Tile, TileSource, cut, paste};
 use crate::grid::coord::{TILE_SAMPLES, TileCoord};
@@ -67,12 +70,6 @@ use crate::models::tcm::{self, HEIGHT_SCALE_M, TILE_PX, TcmCpu, TcmExact, TcmScr
 // The ×4 step makes exactly one world tile from one 128 m tile.
 const _: () = assert!(TILE_PX * grow::FACTOR == TILE_SAMPLES);
 
-/// Mean level of the macro field (metres).
-pub const MACRO_BASE_M: f64 = 1000.0;
-/// Amplitude of the macro field (metres).
-pub const MACRO_AMPLITUDE_M: f64 = 1100.0;
-/// Wavelength of the macro field's first octave (tiles).
-pub const MACRO_WAVELENGTH_TILES: f64 = 4.5;
 /// Mean of the world's ruggedness field: the ruggedness the TCM is asked for
 /// ([`tcm::tile_ruggedness`] units: ln of the relief over 30 m). The training tiles' 95th
 /// percentile (`terrain train-tcm` prints it: 1.27; mean 0.74 ± 0.20 for the 4 DEMs fine
@@ -244,17 +241,10 @@ fn erosion_region_corners(c: TileCoord) -> [TileCoord; 4] {
     std::array::from_fn(|t| first.offset(t as i32 % 2, t as i32 / 2))
 }
 
-/// The macro field at the centre of tile (i, j) of world `seed` (metres): three octaves of
-/// Perlin noise over tile coordinates.
+/// The macro level of tile (i, j) of world `seed` (metres): [`ranges::macro_level`], the
+/// level its 128 m tile's heights are taken relative to and a sketch in tile (0, 0) stands at.
 pub fn macro_height(seed: u64, c: TileCoord) -> f32 {
-    let mut sum = 0.0;
-    let (mut f, mut a) = (1.0 / MACRO_WAVELENGTH_TILES, 1.0);
-    for o in 0..3u64 {
-        sum += a * perlin(seed ^ 0x4D41_4352_4F00 ^ o, (c.i as f64 + 0.5) * f, (c.j as f64 + 0.5) * f);
-        f *= 2.0;
-        a *= 0.5;
-    }
-    (MACRO_BASE_M + MACRO_AMPLITUDE_M * sum) as f32
+    ranges::macro_level(seed, c)
 }
 
 /// The ruggedness field at tile (i, j) of world `seed` ([`tcm::tile_ruggedness`] units): two
@@ -582,6 +572,9 @@ impl PartTime {
 /// networks use [`LearnedSource::new`]'s threads inside that time).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct TimeSpent {
+    /// The macro cells of each network tile's input from the range field ([`ranges`]; the
+    /// regions eroded where they were not cached).
+    pub macro_field: PartTime,
     /// The TCM's 128 m network tiles (the network only).
     pub tcm: PartTime,
     /// Joining each new 128 m tile to its input neighbours (one run per network tile).
@@ -599,7 +592,7 @@ pub struct TimeSpent {
 impl TimeSpent {
     /// The milliseconds of every part, summed.
     pub fn total_ms(&self) -> f64 {
-        [self.tcm, self.seams_128m, self.erosion, self.grow, self.carve_32m, self.breach_32m].iter().map(|p| p.ms).sum()
+        [self.macro_field, self.tcm, self.seams_128m, self.erosion, self.grow, self.carve_32m, self.breach_32m].iter().map(|p| p.ms).sum()
     }
 }
 
@@ -701,9 +694,13 @@ impl LearnedSource {
         let deps = self.input_tiles(seed, c);
         let block = around(c);
         let tiles: [Option<&[f32]>; 9] = block.map(|b| deps.get(&b).map(|v| v.as_slice()));
-        let centres: [f32; 9] = block.map(|b| macro_height(seed, b));
+        let t0 = Instant::now();
+        let cells = ranges::shared().macro_cells(seed, c);
+        self.spent(|t| t.macro_field.add(t0.elapsed()));
+        let level = tcm::centre_level(&cells, ranges::MACRO_CELLS);
         let rugged: [f32; 9] = block.map(|b| ruggedness(seed, b));
-        (tcm::assemble_input(&tiles, &centres, &rugged, tile_seed(seed, c)), deps, centres[4])
+        let field = tcm::macro_field_cells(&cells, ranges::MACRO_CELLS);
+        (tcm::assemble_input_field(&tiles, &field, level, &rugged, tile_seed(seed, c)), deps, level)
     }
 
     /// The 128 m tiles the TCM's input for tile `c` of world `seed` holds: the schedule's
@@ -899,7 +896,7 @@ impl LearnedSource {
                 self.raw.lock().unwrap_or_else(|p| p.into_inner()).insert((seed, c), Arc::new(tile));
             } else {
                 self.spent(|t| t.tcm.add(per_item));
-                self.store_coarse(seed, c, out, &self.input_tiles(seed, c), macro_height(seed, c));
+                self.store_coarse(seed, c, out, &self.input_tiles(seed, c), ranges::macro_level(seed, c));
             }
         }
         Ok(())
@@ -1366,28 +1363,15 @@ mod tests {
         assert_ne!(ruggedness(1, TileCoord::new(3, 4)), ruggedness(2, TileCoord::new(3, 4)));
     }
 
-    /// The macro field varies between neighbouring 4 km tiles about as much as real terrain's
-    /// tile means do (root mean square step 366 m over the 20 DEMs at 128 m; here 250–450 m
-    /// over a 64×64-tile region) and spans more than a kilometre.
+    /// The macro level of a tile is the mean of the 2×2 range-field cells over it, the same
+    /// on every call.
     #[test]
-    fn macro_field_steps_like_real_tile_means() {
-        let (mut sum2, mut n, mut lo, mut hi) = (0f64, 0usize, f32::MAX, f32::MIN);
-        for j in -32..32 {
-            for i in -32..32 {
-                let c = TileCoord::new(i, j);
-                let m = macro_height(3, c);
-                lo = lo.min(m);
-                hi = hi.max(m);
-                for d in [c.offset(1, 0), c.offset(0, 1)] {
-                    sum2 += ((macro_height(3, d) - m) as f64).powi(2);
-                    n += 1;
-                }
-            }
-        }
-        let rms = (sum2 / n as f64).sqrt();
-        println!("macro field: rms step {rms:.0} m, range {lo:.0} .. {hi:.0} m");
-        assert!((250.0..=450.0).contains(&rms), "rms step {rms} m");
-        assert!(hi - lo > 1000.0, "range {lo} .. {hi}");
+    fn macro_height_is_the_mean_of_the_tiles_range_cells() {
+        let c = TileCoord::new(-2, 5);
+        let cells = ranges::shared().macro_cells(4, c);
+        let mean = (cells[14] + cells[15] + cells[20] + cells[21]) / 4.0;
+        assert_eq!(macro_height(4, c), mean);
+        assert_eq!(macro_height(4, c), macro_height(4, c));
     }
 }
 

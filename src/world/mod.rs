@@ -10,6 +10,7 @@ pub mod learned;
 pub mod noise;
 pub mod pins;
 pub mod quadtree;
+pub mod ranges;
 pub mod refine;
 pub mod seam;
 pub mod sketched;
