@@ -1209,9 +1209,9 @@ mod tests {
         assert_eq!(steps, coarse.len() + erosion.len() + 16 + 4 + 1);
         // The time spent counts each piece once, in its part, and the parts add up.
         let t = src.time_spent();
-        let runs = [t.tcm.runs, t.seams_128m.runs, t.erosion.runs, t.grow.runs, t.carve_32m.runs, t.breach_32m.runs];
-        assert_eq!(runs, [coarse.len(), coarse.len(), erosion.len(), 16, 4, 1].map(|n| n as u64));
-        let parts = [t.tcm, t.seams_128m, t.erosion, t.grow, t.carve_32m, t.breach_32m];
+        let runs = [t.macro_field.runs, t.tcm.runs, t.seams_128m.runs, t.erosion.runs, t.grow.runs, t.carve_32m.runs, t.breach_32m.runs];
+        assert_eq!(runs, [coarse.len(), coarse.len(), coarse.len(), erosion.len(), 16, 4, 1].map(|n| n as u64));
+        let parts = [t.macro_field, t.tcm, t.seams_128m, t.erosion, t.grow, t.carve_32m, t.breach_32m];
         assert!(parts.iter().all(|p| p.ms > 0.0), "{t:?}");
         assert!((parts.iter().map(|p| p.ms).sum::<f64>() - t.total_ms()).abs() < 1e-9);
         let made = src.generate(seed, c, &Neighbourhood::default());

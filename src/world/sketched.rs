@@ -552,9 +552,10 @@ mod tests {
         assert_eq!(d2[1000 * side + side - 1], base);
         let foot = d2[1000 * side + 1200];
         assert!(foot > base.min(400.0 + lift) && foot < base.max(400.0 + lift), "{foot} m between {base} and {}", 400.0 + lift);
-        // The 32 m tile is the area mean of the 2 m samples.
+        // The 32 m tile is the area mean of the 2 m samples (to 1 cm: f32 sums of 256 heights
+        // near 1 km, in another order).
         let mean: f32 = (0..16 * 16).map(|k| d2[(640 + k / 16) * side + 960 + k % 16]).sum::<f32>() / 256.0;
-        assert!((tile.fine[40 * 128 + 60] - mean).abs() < 1e-3, "{} vs {mean}", tile.fine[40 * 128 + 60]);
+        assert!((tile.fine[40 * 128 + 60] - mean).abs() < 1e-2, "{} vs {mean}", tile.fine[40 * 128 + 60]);
         assert_eq!(s.tile(TileCoord::new(0, 0)).heights, tile.fine.to_vec());
     }
 }
