@@ -5,7 +5,7 @@
 //! the main ridges and valleys of a 24 km view run. A seeded bilinear field over 4 km tile
 //! centres gave it none (round massifs of one size), while a real range's 2 km means put the
 //! main ridge and valley in place (issue 39's oracle trial). This module makes such a field:
-//! - an uplift field [`uplift`]: seeded Perlin fBm at [`RANGE_SPACING_M`] (512 m), wavelengths
+//! - an uplift field [`uplift`]: seeded Perlin fBm at [`RANGE_SPACING_M`] (1,024 m), wavelengths
 //!   [`UPLIFT_WAVELENGTH_M`] down to 3 km, stretched along the world's strike and bent by a
 //!   warp field, so that ranges run side by side in arcs;
 //! - eroded over square regions of [`REGION_SAMPLES`]² samples (64 km) half a region apart
@@ -28,21 +28,24 @@ use super::erosion::{self, Erosion};
 use super::noise::perlin;
 use crate::grid::coord::TileCoord;
 
-/// Spacing of the range field (metres): 8 samples per 4,096 m tile.
-pub const RANGE_SPACING_M: f64 = 512.0;
+/// Spacing of the range field (metres): 4 samples per 4,096 m tile. At 512 m the field looked
+/// the same at the TCM's 2,048 m cells and its regions cost 4.7 times as much (the page's far
+/// field to 60 km waited ~6 s more for them).
+pub const RANGE_SPACING_M: f64 = 1024.0;
 /// Samples of the range field per tile side.
-pub const SAMPLES_PER_TILE: i64 = 8;
+pub const SAMPLES_PER_TILE: i64 = 4;
 /// Side of an erosion region (samples): 64 km.
-pub const REGION_SAMPLES: usize = 128;
+pub const REGION_SAMPLES: usize = 64;
 /// Side of a macro cell (samples): 2,048 m.
-pub const CELL_SAMPLES: usize = 4;
+pub const CELL_SAMPLES: usize = 2;
 /// Macro cells a side over the TCM's 3×3-tile window ([`crate::models::tcm::macro_field_cells`]).
 pub const MACRO_CELLS: usize = 6;
 /// Mean level of the uplift field (metres).
 pub const UPLIFT_BASE_M: f64 = 1900.0;
 /// Amplitude of the uplift field's first octave (metres): the range field's 2,048 m cells then
-/// step 340 m from one to the next (root mean square), as real alpine terrain's do (273 m in
-/// the Pyrenees, 373 m around Mont Blanc, 521 m in the Annapurna range).
+/// step ~230 m from one to the next (root mean square), between the Colorado Rockies' 191 m
+/// and the Pyrenees' 273 m (373 m around Mont Blanc, 521 m in the Annapurna range); more
+/// amplitude drew parallel gullies down long steep flanks.
 pub const UPLIFT_AMPLITUDE_M: f64 = 2300.0;
 /// Wavelength of the uplift field's first octave across the strike (metres).
 pub const UPLIFT_WAVELENGTH_M: f64 = 48_000.0;
@@ -71,8 +74,8 @@ pub const TOP_M: f32 = (UPLIFT_BASE_M + UPLIFT_AMPLITUDE_M) as f32;
 /// hillslope diffusion than at 128 m, against the straight parallel rills one flow direction
 /// per sample cuts.
 pub const RANGE_EROSION: Erosion = Erosion { iterations: 60, k: 0.03, alpha: 0.01, kappa: 0.05, taper: 8.0, spread_below: 64.0 };
-/// Eroded regions kept (each 64 KiB).
-pub const REGION_CACHE: usize = 64;
+/// Eroded regions kept (each 16 KiB).
+pub const REGION_CACHE: usize = 256;
 
 const _: () = assert!(SAMPLES_PER_TILE as f64 * RANGE_SPACING_M == crate::grid::TILE_SIZE_M);
 const _: () = assert!(3 * SAMPLES_PER_TILE as usize == MACRO_CELLS * CELL_SAMPLES);
@@ -232,18 +235,19 @@ mod tests {
         }
     }
 
-    /// Neighbouring 2,048 m cells of the range field step about as much as real alpine
-    /// terrain's do (root mean square 273–521 m over the Pyrenees, Ötztal, Mont Blanc and
-    /// Annapurna DEMs; here 250–450 m over 128 km squares of two seeds), and each square spans
-    /// more than 1,500 m.
+    /// Neighbouring 2,048 m cells of the range field step about as much as real mountain
+    /// terrain's do (root mean square 191 m in the Colorado Rockies, 273–521 m over the
+    /// Pyrenees, Ötztal, Mont Blanc and Annapurna DEMs; here 200–450 m over 131 km squares of
+    /// two seeds), and each square spans more than 1,500 m.
     #[test]
     fn range_cells_step_like_real_alpine_cells() {
         for seed in [3, 11] {
-            let n = 256;
-            let s = RangeField::default().samples(seed, -128, -128, n, n);
+            let n = 128;
+            let s = RangeField::default().samples(seed, -64, -64, n, n);
             let m = n / CELL_SAMPLES;
             let cell = |i: usize, j: usize| {
-                (0..CELL_SAMPLES * CELL_SAMPLES).map(|q| s[(j * CELL_SAMPLES + q / CELL_SAMPLES) * n + i * CELL_SAMPLES + q % CELL_SAMPLES] as f64).sum::<f64>() / 16.0
+                (0..CELL_SAMPLES * CELL_SAMPLES).map(|q| s[(j * CELL_SAMPLES + q / CELL_SAMPLES) * n + i * CELL_SAMPLES + q % CELL_SAMPLES] as f64).sum::<f64>()
+                    / (CELL_SAMPLES * CELL_SAMPLES) as f64
             };
             let (mut sum2, mut k) = (0.0, 0usize);
             for j in 0..m - 1 {
@@ -255,20 +259,20 @@ mod tests {
             let rms = (sum2 / k as f64).sqrt();
             let (lo, hi) = s.iter().fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
             println!("seed {seed}: rms cell step {rms:.0} m, range {lo:.0} .. {hi:.0} m");
-            assert!((250.0..=450.0).contains(&rms), "seed {seed}: rms step {rms} m");
+            assert!((200.0..=450.0).contains(&rms), "seed {seed}: rms step {rms} m");
             assert!(hi - lo > 1500.0, "seed {seed}: range {lo} .. {hi}");
         }
     }
 
-    /// The macro cells of tile (i, j) are the means of the range field over 4×4-sample cells of
-    /// the 24×24 samples around it, and neighbouring tiles share their overlapping cells.
+    /// The macro cells of tile (i, j) are the means of the range field over 2×2-sample cells of
+    /// the 12×12 samples around it, and neighbouring tiles share their overlapping cells.
     #[test]
     fn macro_cells_are_cell_means_shared_by_neighbours() {
         let f = RangeField::default();
         let c = TileCoord::new(3, -2);
         let cells = f.macro_cells(9, c);
-        let s = f.samples(9, 2 * 8, -3 * 8, 24, 24);
-        let mean: f32 = (0..4).flat_map(|v| (0..4).map(move |u| (v, u))).map(|(v, u)| s[(4 + v) * 24 + 8 + u]).sum::<f32>() / 16.0;
+        let s = f.samples(9, 2 * 4, -3 * 4, 12, 12);
+        let mean: f32 = (0..2).flat_map(|v| (0..2).map(move |u| (v, u))).map(|(v, u)| s[(2 + v) * 12 + 4 + u]).sum::<f32>() / 4.0;
         assert_eq!(cells[6 + 2], mean);
         let right = f.macro_cells(9, c.offset(1, 0));
         for j in 0..MACRO_CELLS {
