@@ -137,12 +137,12 @@ enum Command {
         format: Option<ExportFormat>,
     },
     /// Write the learned world's range field (its macro field: ranges and main valleys eroded
-    /// at 512 m, `world::ranges`) over a square around the origin as a float32 GeoTIFF.
+    /// at 1,024 m, `world::ranges`) over a square around the origin as a float32 GeoTIFF.
     RangeField {
         /// World seed.
         #[arg(long)]
         seed: u64,
-        /// Side of the square (samples of 512 m), centred on the origin.
+        /// Side of the square (samples of 1,024 m), centred on the origin.
         #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(16..=2048))]
         side: u32,
         /// Output file (.tif).

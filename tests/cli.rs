@@ -682,7 +682,7 @@ fn hillshade_puts_the_inputs_side_by_side_at_the_asked_square() {
     assert_eq!(missing.status.code(), Some(1));
 }
 
-/// `terrain range-field` writes the asked square of the range field at 512 m: 64² samples that
+/// `terrain range-field` writes the asked square of the range field at 1,024 m: 64² samples that
 /// span more than 300 m and read back with their spacing; the same seed gives the same bits,
 /// another seed other heights; a side out of range or a file that is not a .tif is refused.
 #[test]
@@ -693,7 +693,7 @@ fn range_field_writes_the_asked_square_and_refuses_bad_options() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
     let (ha, hb, hc) = (read(&a), read(&b), read(&c));
-    assert_eq!((ha.width, ha.height, ha.spacing_m), (64, 64, 512.0));
+    assert_eq!((ha.width, ha.height, ha.spacing_m), (64, 64, 1024.0));
     let (lo, hi) = ha.data.iter().fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
     assert!(hi - lo > 300.0, "range {lo} .. {hi} m");
     assert_eq!(ha.data, hb.data, "the same seed, the same field");

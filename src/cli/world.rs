@@ -611,7 +611,7 @@ fn drainage_summary(set: &[terrain::geomorph::drainage::Drainage], distance: Opt
 }
 
 /// `terrain range-field`: the range field of world `seed` over the `side`² samples centred on
-/// the origin, written to `out` as a float32 GeoTIFF at 512 m.
+/// the origin, written to `out` as a float32 GeoTIFF at 1,024 m.
 pub(crate) fn range_field(seed: u64, side: usize, out: &std::path::Path) -> Result<(), String> {
     use terrain::world::ranges;
     if out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("tif") {

@@ -59,7 +59,7 @@ use super::drainage;
 use super::erosion::{self, Erosion};
 use super::noise::perlin;
 use super::pins::Pins;
-use super::ranges;
+use super::ranges::{self, hat_weight};
 use super::seam;
 use super::tile::{Neighbourhood, Tile, TileSource, cut, paste};
 use crate::grid::coord::{TILE_SAMPLES, TileCoord};
@@ -223,15 +223,6 @@ pub fn fill_block_corner(c: TileCoord) -> TileCoord {
 /// blocks of the first stage offset by one tile.
 pub fn second_block_corner(c: TileCoord) -> TileCoord {
     stage_corner(c, FILL_BLOCK_TILES, 1)
-}
-
-/// The hat weight of sample `u` (along x or y) of a region `side` samples across:
-/// (u + ½) / (side / 2) over the first half, mirrored over the second. With regions half their
-/// side apart, the two that hold a sample along one axis weigh it by w and 1 − w, so the weights
-/// of the four sum to one; each is a multiple of 1 / side, exact in f32.
-fn hat_weight(u: usize, side: usize) -> f32 {
-    let d = 2 * u + 1;
-    d.min(2 * side - d) as f32 / side as f32
 }
 
 /// The corner tiles of the four erosion regions ([`EROSION_BLOCK_TILES`]² tiles, one tile
