@@ -456,7 +456,7 @@ fn the_extent_slider_makes_the_sketch_again_half_a_km_across_with_its_own_2_m_de
     let eye = core.app.camera.position_m;
     let from_centre = ((eye.x - 2032.0).powi(2) + (eye.z - 2032.0).powi(2)).sqrt();
     assert!((300.0..500.0).contains(&from_centre), "the camera is {from_centre:.0} m from the sketch's centre: {eye:?}");
-    let level = crate::world::learned::macro_height(core.app.settings().seed, c) as f64;
+    let level = crate::world::ranges::macro_level(core.app.settings().seed, c) as f64;
     // A quarter of the relief above that level, and 0.45 extents more (325 m).
     assert!((eye.y - level - 325.0).abs() < 1.0, "the camera is at {:.0} m, the sketch's outer samples at {level:.0} m", eye.y);
     settle(&mut core, &mut shell, 512.0);

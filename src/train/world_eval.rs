@@ -18,22 +18,28 @@ pub fn real_windows(dems: &[Dem], side: usize) -> Vec<Vec<f32>> {
     let mut out = Vec::new();
     for d in dems.iter().filter(|d| d.hf.spacing_m <= BASE_SPACING_M + 1e-9) {
         let Ok(hf) = d.hf.resample_area(BASE_SPACING_M) else { continue };
-        let (c0, c1) = split_columns(hf.width, Split::Validation);
-        let stride = side / 2;
-        let mut y = 0;
-        while y + side <= hf.height {
-            let mut x = c0;
-            while x + side <= c1 {
-                let w = hf.window(x, y, side, side);
-                if w.data.iter().all(|v| v.is_finite()) {
-                    out.push(w.data);
-                }
-                x += stride;
-            }
-            y += stride;
-        }
+        let columns = split_columns(hf.width, Split::Validation);
+        push_valid_windows(&hf, columns, side, &mut out);
     }
     out
+}
+
+/// Pushes onto `out` every `side`² window of `hf` with all samples valid, on a grid of stride
+/// `side / 2` over the columns `columns` (first, end) and all rows.
+fn push_valid_windows(hf: &Heightfield, (c0, c1): (usize, usize), side: usize, out: &mut Vec<Vec<f32>>) {
+    let stride = side / 2;
+    let mut y = 0;
+    while y + side <= hf.height {
+        let mut x = c0;
+        while x + side <= c1 {
+            let w = hf.window(x, y, side, side);
+            if w.data.iter().all(|v| v.is_finite()) {
+                out.push(w.data);
+            }
+            x += stride;
+        }
+        y += stride;
+    }
 }
 
 /// A `w`×`h`-tile region of `source`'s world `seed` with top-left tile `origin` (metres,
@@ -183,18 +189,7 @@ pub fn real_squares(dems: &[Dem]) -> Vec<Vec<f32>> {
     let mut out = Vec::new();
     for d in dems.iter().filter(|d| d.hf.spacing_m <= LARGE_SPACING_M + 1e-9) {
         let Ok(hf) = d.hf.resample_area(LARGE_SPACING_M) else { continue };
-        let mut y = 0;
-        while y + side <= hf.height {
-            let mut x = 0;
-            while x + side <= hf.width {
-                let w = hf.window(x, y, side, side);
-                if w.data.iter().all(|v| v.is_finite()) {
-                    out.push(w.data);
-                }
-                x += side / 2;
-            }
-            y += side / 2;
-        }
+        push_valid_windows(&hf, (0, hf.width), side, &mut out);
     }
     out
 }

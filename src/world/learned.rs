@@ -45,8 +45,8 @@
 //!
 //! The macro field — the absolute level and the large-scale relief the TCM is conditioned on —
 //! is the range field ([`super::ranges`]): an uplift field eroded into ranges and branching
-//! main valleys at 512 m, given to the TCM as its means over 2,048 m cells (6×6 over its
-//! window). The ruggedness field that tells the TCM how much relief each tile has is seeded
+//! main valleys at 1,024 m, given to the TCM as its means over 2,048 m cells (6×6 over its
+//! window), each tile's heights taken relative to [`ranges::macro_level`]. The ruggedness field that tells the TCM how much relief each tile has is seeded
 //! Perlin noise over tile coordinates ([`ruggedness`]).
 
 use std::collections::HashMap;
@@ -230,12 +230,6 @@ pub fn second_block_corner(c: TileCoord) -> TileCoord {
 fn erosion_region_corners(c: TileCoord) -> [TileCoord; 4] {
     let first = c.offset(1 - EROSION_BLOCK_TILES, 1 - EROSION_BLOCK_TILES);
     std::array::from_fn(|t| first.offset(t as i32 % 2, t as i32 / 2))
-}
-
-/// The macro level of tile (i, j) of world `seed` (metres): [`ranges::macro_level`], the
-/// level its 128 m tile's heights are taken relative to and a sketch in tile (0, 0) stands at.
-pub fn macro_height(seed: u64, c: TileCoord) -> f32 {
-    ranges::macro_level(seed, c)
 }
 
 /// The ruggedness field at tile (i, j) of world `seed` ([`tcm::tile_ruggedness`] units): two
@@ -1352,17 +1346,6 @@ mod tests {
             assert!((sd / RUGGEDNESS_SD as f64 - 1.0).abs() < 0.1, "seed {seed}: deviation {sd}");
         }
         assert_ne!(ruggedness(1, TileCoord::new(3, 4)), ruggedness(2, TileCoord::new(3, 4)));
-    }
-
-    /// The macro level of a tile is the mean of the 2×2 range-field cells over it, the same
-    /// on every call.
-    #[test]
-    fn macro_height_is_the_mean_of_the_tiles_range_cells() {
-        let c = TileCoord::new(-2, 5);
-        let cells = ranges::shared().macro_cells(4, c);
-        let mean = (cells[14] + cells[15] + cells[20] + cells[21]) / 4.0;
-        assert_eq!(macro_height(4, c), mean);
-        assert_eq!(macro_height(4, c), macro_height(4, c));
     }
 }
 

@@ -281,4 +281,15 @@ mod tests {
             }
         }
     }
+
+    /// The macro level of a tile is the mean of the 2×2 range-field cells over it, the same
+    /// on every call.
+    #[test]
+    fn macro_level_is_the_mean_of_the_tiles_range_cells() {
+        let c = TileCoord::new(-2, 5);
+        let cells = shared().macro_cells(4, c);
+        let mean = (cells[14] + cells[15] + cells[20] + cells[21]) / 4.0;
+        assert_eq!(macro_level(4, c), mean);
+        assert_eq!(macro_level(4, c), macro_level(4, c));
+    }
 }

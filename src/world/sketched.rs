@@ -8,7 +8,7 @@
 //! 2 m at 0.5 km), the 32 m tile being their area mean. Around it the ground falls smoothly
 //! from the sketch's edge to 0 m ([`SketchSource::fade_m`]: [`FADE_M`] at 8 km); beyond that
 //! it is flat. A sketch in one tile stands at the world's own level instead: its outer
-//! samples' mean is lifted to the macro field of tile (0, 0) ([`super::learned::macro_height`],
+//! samples' mean is lifted to the macro field of tile (0, 0) ([`super::ranges::macro_level`],
 //! the level the learned world around it grows at) and its foot falls to that level by the
 //! tile's edge, so the world beside it does not climb out of a pit. The falling ground follows the sketch's edge smoothed more the farther out it is (a
 //! box mean of the sketch around the nearest edge sample, as wide as the distance), so the
@@ -85,9 +85,9 @@ pub fn centre_m(extent_m: f64) -> f64 {
 
 /// The level (metres) a sketch `extent_m` across stands at in world `seed`: 0 m for one wider
 /// than a tile; for one in tile (0, 0), the world's macro field there
-/// ([`super::learned::macro_height`], the level the learned world around it grows at).
+/// ([`super::ranges::macro_level`], the level the learned world around it grows at).
 pub fn base_level_m(extent_m: f64, seed: u64) -> f32 {
-    if in_one_tile(extent_m) { super::learned::macro_height(seed, TileCoord::new(0, 0)) } else { 0.0 }
+    if in_one_tile(extent_m) { super::ranges::macro_level(seed, TileCoord::new(0, 0)) } else { 0.0 }
 }
 
 /// Tile source of a sketch's terrain.
@@ -531,7 +531,7 @@ mod tests {
         assert_eq!(s.centre_m(), 2032.0);
         // The ramp's outer samples average 127.5 of 255: 200 m.
         let (base, lift) = (s.base_m(), s.lift_m());
-        assert_eq!(base, crate::world::learned::macro_height(7, TileCoord::new(0, 0)));
+        assert_eq!(base, crate::world::ranges::macro_level(7, TileCoord::new(0, 0)));
         assert!((lift - (base - 200.0)).abs() < 1e-3, "lift {lift} m, base {base} m");
         let pins = s.pins();
         let tile = pins.get(TileCoord::new(0, 0)).unwrap();
