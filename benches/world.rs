@@ -52,7 +52,7 @@ fn tem(c: &mut Criterion) {
     use terrain::models::cpu::default_threads;
     use terrain::models::tem::{Exec, TemSet};
     use terrain::world::refine::INPUT_SIDE;
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+    let dir = terrain::repo_root().join("weights");
     let input: Vec<f32> = (0..INPUT_SIDE * INPUT_SIDE).map(|k| ((k % INPUT_SIDE) as f32 * 0.2).sin() * 40.0 + (k / INPUT_SIDE) as f32).collect();
     let four: Vec<f32> = (0..4).flat_map(|_| input.clone()).collect();
     let mut g = c.benchmark_group("tem cpu");
@@ -147,7 +147,7 @@ fn sketch(c: &mut Criterion) {
     use terrain::models::cpu::default_threads;
     use terrain::models::sketch::{self as generator, SketchScratch};
     use terrain::models::sketch_vae::{self as vae, SketchModels};
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+    let dir = terrain::repo_root().join("weights");
     let read = |f: &str| std::fs::read(dir.join(f)).expect("weights/");
     let m = SketchModels::from_bytes(&read(generator::WEIGHT_FILE), &read(vae::WEIGHT_FILE)).expect("sketch weights");
     let examples = terrain::sketch::examples::all();

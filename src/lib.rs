@@ -46,3 +46,13 @@ pub(crate) fn block_on<F: Future>(f: F) -> F::Output {
         }
     }
 }
+
+/// The repository's root directory as the tests and benches run: cargo's `CARGO_MANIFEST_DIR`
+/// at run time, so a test binary built in one checkout and run from another (a moved clone
+/// with a shared target directory) reads that checkout's `weights/` and fixtures; the directory
+/// it was built in when run outside cargo.
+#[cfg(not(target_arch = "wasm32"))]
+#[doc(hidden)]
+pub fn repo_root() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")), std::path::PathBuf::from)
+}

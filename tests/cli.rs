@@ -340,7 +340,7 @@ fn export_writes_the_world_at_32_m_and_refined_to_8_m_as_enhance_does() {
 /// and a relief out of range are refused before any work.
 #[test]
 fn sketch_writes_its_terrain_in_metres_in_the_export_formats() {
-    let input = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/sketch/examples/montblanc.png");
+    let input = terrain::repo_root().join("src/sketch/examples/montblanc.png");
     let input = input.to_str().unwrap();
     let (tif, world, png) = (tmp("skf.tif"), tmp("skf_world.tif"), tmp("skf.png"));
     let o = run(&["sketch", "--input", input, "--out", tif.to_str().unwrap(), "--format", "tif", "--relief", "1200", "--views", "1"]);
@@ -375,7 +375,7 @@ fn sketch_writes_its_terrain_in_metres_in_the_export_formats() {
 /// extent outside 512–8192 m is refused.
 #[test]
 fn a_half_km_sketch_exported_at_2_m_is_the_sketchs_own_terrain_bit_for_bit() {
-    let input = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/sketch/examples/montblanc.png");
+    let input = terrain::repo_root().join("src/sketch/examples/montblanc.png");
     let input = input.to_str().unwrap();
     let (own, at2, at32) = (tmp("sk512.tif"), tmp("sk512_export.tif"), tmp("sk512_world.tif"));
     let o = run(&["sketch", "--input", input, "--out", own.to_str().unwrap(), "--format", "tif", "--relief", "375", "--extent-m", "512", "--views", "1"]);
@@ -649,7 +649,8 @@ fn eval_sketch_scores_every_pair_and_its_mean_is_the_mean_of_the_pairs() {
 /// (measured: 7.16 against 8.57), and its mean RMSE stays under 7.5.
 #[test]
 fn the_shipped_sketch_generator_beats_the_band_baseline_on_the_authors_pairs() {
-    let pairs = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/sketch_pairs");
+    let pairs = terrain::repo_root().join("../shared/sketch_pairs");
+    let pairs = pairs.to_str().unwrap();
     let o = run(&["eval-sketch", "--pairs", pairs]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);

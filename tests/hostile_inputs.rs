@@ -233,7 +233,7 @@ proptest! {
         let mut bytes = match which {
             0 => png16(40, 30),
             1 => tiff32(40, 30),
-            _ => std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/fixtures/fuji_terrain_rgb.png")).unwrap(),
+            _ => std::fs::read(terrain::repo_root().join("../shared/fixtures/fuji_terrain_rgb.png")).unwrap(),
         };
         for (i, v) in flips {
             let k = i.index(bytes.len());

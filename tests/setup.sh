@@ -1,14 +1,13 @@
 #!/usr/bin/env bash
 # Installs what the page and the tests need on a fresh Debian machine; quick when all is there.
-#   bash tests/setup.sh serve   # Rust wasm target, wasm-bindgen-cli, trunk
+#   bash tests/setup.sh serve   # Rust wasm target, wasm-bindgen-cli (the page's build, tools/page.sh)
 #   bash tests/setup.sh test    # the above + Chromium, Mesa's Vulkan (lavapipe), npm packages
 #   bash tests/setup.sh system  # only Chromium, Mesa's Vulkan, the npm packages and trimesh (Python)
-#   bash tests/setup.sh tools   # only the wasm target, wasm-bindgen-cli and trunk
+#   bash tests/setup.sh tools   # only the wasm target and wasm-bindgen-cli
 set -euo pipefail
 cd "$(dirname "$0")/.."
 what="${1:-test}"
 WASM_BINDGEN_VERSION=0.2.130   # must equal the wasm-bindgen version pinned in Cargo.toml
-TRUNK_VERSION=0.21.14          # newest trunk that builds with Rust 1.95
 
 export PATH="$HOME/.cargo/bin:$PATH"
 
@@ -16,19 +15,17 @@ tools() {
   # cargo install builds in a temporary directory of its own, not in the tests' target dir
   # (sharing it would make the parallel builds wait for each other's lock).
   unset CARGO_TARGET_DIR
+  # tests/all.sh lints this crate by running clippy as its compiler; not a tool's own code.
+  unset RUSTC_WORKSPACE_WRAPPER CLIPPY_ARGS
   rustup target list --installed | grep -q wasm32-unknown-unknown || rustup target add wasm32-unknown-unknown
-  # Neither tool ships a prebuilt binary through a registry this machine reaches (crates.io
-  # has sources only, npm and PyPI have neither), so they are compiled once, built for
-  # compile speed: trunk only orchestrates (no optimisation needed), wasm-bindgen rewrites a
-  # 30 MB module (lightly optimised). No LTO, no debug info.
+  # wasm-bindgen-cli ships no prebuilt binary through a registry this machine reaches
+  # (crates.io has sources only, npm and PyPI have none), so it is compiled once, for compile
+  # speed: it rewrites a 30 MB module (lightly optimised). No LTO, no debug info. (The page's
+  # own build, tools/page.sh, does what trunk did with it, so no trunk is compiled.)
   export CARGO_PROFILE_RELEASE_LTO=false CARGO_PROFILE_RELEASE_DEBUG=false \
     CARGO_PROFILE_RELEASE_CODEGEN_UNITS=64 CARGO_PROFILE_RELEASE_STRIP=true
   if ! wasm-bindgen --version 2>/dev/null | grep -q "$WASM_BINDGEN_VERSION"; then
     CARGO_PROFILE_RELEASE_OPT_LEVEL=1 cargo install wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION"
-  fi
-  if ! trunk --version 2>/dev/null | grep -q "$TRUNK_VERSION"; then
-    # No update check, no bundled downloads: trunk only runs the tools found on PATH.
-    CARGO_PROFILE_RELEASE_OPT_LEVEL=0 cargo install --locked trunk --version "$TRUNK_VERSION" --no-default-features --features rustls
   fi
 }
 

@@ -9,7 +9,7 @@ use crate::world::learned::{GROW_FILE, LearnedModels, LearnedSource, TCM_FILE};
 use crate::world::{Neighbourhood, TileSource};
 
 fn weights() -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights")
+    crate::repo_root().join("weights")
 }
 
 fn start(worker: Result<(), String>) -> PageStart {

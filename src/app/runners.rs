@@ -112,8 +112,7 @@ mod tests {
     #[test]
     fn requests_go_the_same_way_to_the_worker_thread_and_the_main_thread() {
         let runners = Runners::new(Some(Rc::new(NativeRunner::spawn(1))), None);
-        let files: Vec<Vec<u8>> =
-            (0..LEVELS).map(|k| std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(crate::models::tem::weight_file(k))).unwrap()).collect();
+        let files: Vec<Vec<u8>> = (0..LEVELS).map(|k| std::fs::read(crate::repo_root().join("weights").join(crate::models::tem::weight_file(k))).unwrap()).collect();
         for target in [Target::Worker, Target::MainThread] {
             let d = block_on(runners.call(target, Envelope { id: next_id(), epoch: 0, rest_per_work: 0.0, request: Request::LoadTem { files: files.clone() } }));
             assert!(matches!(d, Delivery::Answer(Answer { reply: Reply::Loaded { .. }, .. })), "{d:?}");
@@ -140,7 +139,7 @@ mod tests {
     #[test]
     fn a_world_tile_with_its_networks_on_the_gpu_runner_is_the_cpu_tile_bit_for_bit() {
         use crate::world::learned::{GROW_FILE, NetworkWork, TCM_FILE};
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let dir = crate::repo_root().join("weights");
         let (tcm, grow) = (std::fs::read(dir.join(TCM_FILE)).unwrap(), std::fs::read(dir.join(GROW_FILE)).unwrap());
         let gpu = GpuRunner::new(crate::models::native_gpu().expect("a Vulkan device (lavapipe)"));
         let runners = Runners::new(Some(Rc::new(NativeRunner::spawn(1))), Some(gpu));

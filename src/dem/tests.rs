@@ -5,7 +5,7 @@ use std::io::Cursor;
 
 /// The shared data folder beside the repository (CI clones the repo with shared/ beside it).
 fn shared(rel: &str) -> std::path::PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("shared").join(rel);
+    let p = crate::repo_root().join("..").join("shared").join(rel);
     assert!(p.exists(), "missing {}: the tests read ../shared", p.display());
     p
 }

@@ -367,7 +367,7 @@ mod tests {
     use crate::world::NoiseParams;
 
     fn weight(name: &str) -> Vec<u8> {
-        std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(name)).unwrap()
+        std::fs::read(crate::repo_root().join("weights").join(name)).unwrap()
     }
 
     fn env(id: u32, epoch: u64, request: Request) -> Envelope {

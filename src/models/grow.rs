@@ -529,7 +529,7 @@ mod tests {
     #[cfg(feature = "train")]
     #[test]
     fn the_integer_exact_grow_gives_the_same_bits_on_every_cpu_kernel_and_on_burn_cpu_and_wgpu() {
-        let bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(crate::world::learned::GROW_FILE)).unwrap();
+        let bytes = std::fs::read(crate::repo_root().join("weights").join(crate::world::learned::GROW_FILE)).unwrap();
         let float = GrowCpu::from_burnpack(&bytes).unwrap();
         let exps = exact_calibration(&crate::models::weights_hash(&[&bytes])).expect("the shipped ×4 step has a calibration");
         let exact = GrowExact::new(&float, exps).unwrap();

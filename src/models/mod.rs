@@ -289,7 +289,7 @@ mod tests {
     #[test]
     fn tem_on_wgpu_matches_the_cpu() {
         use tem::{Exec, LEVELS, PROBE_SIDE, TemSet, probe_input};
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let dir = crate::repo_root().join("weights");
         let (tg, tc) = (TemSet::load_dir(&dir, &Exec::Burn(test_gpu())).unwrap(), TemSet::load_dir(&dir, &Exec::cpu()).unwrap());
         let mut worst = 0f32;
         for k in 0..LEVELS {
@@ -312,7 +312,7 @@ mod tests {
     #[test]
     fn sketch_generator_on_wgpu_matches_the_cpu() {
         use sketch::{SketchGenCpu, SketchGenGpu, WEIGHT_FILE};
-        let bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(WEIGHT_FILE)).unwrap();
+        let bytes = std::fs::read(crate::repo_root().join("weights").join(WEIGHT_FILE)).unwrap();
         let (gpu, cpu) = (SketchGenGpu::from_burnpack(&bytes, &test_gpu()).unwrap(), SketchGenCpu::from_burnpack(&bytes).unwrap());
         for (name, s) in crate::sketch::examples::all() {
             let t = web_time::Instant::now();

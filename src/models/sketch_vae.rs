@@ -363,7 +363,7 @@ mod tests {
     fn a_broken_generator_or_vae_file_is_named() {
         let err = SketchModels::from_bytes(b"not weights", b"not weights").unwrap_err();
         assert!(err.to_string().starts_with(crate::models::sketch::WEIGHT_FILE), "{err}");
-        let generator = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(crate::models::sketch::WEIGHT_FILE)).unwrap();
+        let generator = std::fs::read(crate::repo_root().join("weights").join(crate::models::sketch::WEIGHT_FILE)).unwrap();
         let err = SketchModels::from_bytes(&generator, b"not weights").unwrap_err();
         assert!(err.to_string().starts_with(WEIGHT_FILE) && WEIGHT_FILE != crate::models::sketch::WEIGHT_FILE, "{err}");
     }

@@ -789,7 +789,7 @@ mod tests {
     #[cfg(feature = "train")]
     #[test]
     fn the_integer_exact_tcm_gives_the_same_bits_on_every_cpu_kernel_and_on_burn_cpu_and_wgpu() {
-        let bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(crate::world::learned::TCM_FILE)).unwrap();
+        let bytes = std::fs::read(crate::repo_root().join("weights").join(crate::world::learned::TCM_FILE)).unwrap();
         let float = TcmCpu::from_burnpack(&bytes).unwrap();
         let exps = exact_calibration(&crate::models::weights_hash(&[&bytes])).expect("the shipped TCM has a calibration");
         let exact = TcmExact::new(&float, exps).unwrap();

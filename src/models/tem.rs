@@ -568,7 +568,7 @@ mod tests {
     /// the file, never panics, on the CPU and on burn; the intact set loads on both.
     #[test]
     fn broken_weight_files_are_errors_naming_the_file() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let dir = crate::repo_root().join("weights");
         let good: Vec<Vec<u8>> = (0..LEVELS).map(|k| std::fs::read(dir.join(weight_file(k))).unwrap()).collect();
         for exec in [Exec::Cpu { threads: 1 }, Exec::Burn(Device::flex())] {
             assert!(TemSet::from_bytes(good.clone(), &exec).is_ok());
@@ -603,7 +603,7 @@ mod tests {
         let device = Device::flex();
         let side = 37;
         let data: Vec<f32> = (0..2 * side * side).map(|k| 900.0 + ((k % side) as f32 * 0.31).sin() * 40.0 + ((k / side) as f32 * 0.17).cos() * 25.0).collect();
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let dir = crate::repo_root().join("weights");
         let burn_models = load_models(&dir, &device).unwrap();
         let mut cases: Vec<(&str, Tem, TemCpu)> = Vec::new();
         let r = crate::models::random_weights(Tem::new(&device), &device, 1, 0.05);

@@ -711,7 +711,7 @@ mod tests {
     /// and 8 m (NaN-free windows, through the `enhance` path).
     #[test]
     fn the_shipped_tem_beats_bicubic_on_dems_it_never_saw() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let root = crate::repo_root();
         let tem = crate::models::tem::TemSet::load_dir(&root.join("weights"), &crate::models::tem::Exec::cpu()).unwrap();
         let dem = |id: &str| Heightfield::read_path(&root.join(format!("../shared/dem/{id}.tif")), None, crate::dem::PngScale::default()).unwrap();
         let lidar = dem("avaframe_pfa_1m");

@@ -1212,7 +1212,7 @@ mod tests {
     /// windows, together every 128 m tile and ×4 window the CPU made one by one.
     #[test]
     fn world_tiles_made_in_batches_on_wgpu_are_the_cpu_kernels_tiles_bit_for_bit() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let dir = crate::repo_root().join("weights");
         let cpu = LearnedSource::new(Arc::new(LearnedModels::load_dir(&dir).unwrap()), 1);
         let on_gpu = Arc::new(LearnedModels::load_dir(&dir).unwrap().with_networks_on(&crate::models::native_gpu().expect("a Vulkan device (lavapipe)")).unwrap());
         let gpu = LearnedSource::new(on_gpu.clone(), 1);
@@ -1394,7 +1394,7 @@ mod shipped_tests {
     /// 13–23 %; 14–24 % at either scale before); the median slope is over 15° (today 27–28°).
     #[test]
     fn a_shipped_tcm_region_drains_within_the_stated_bounds() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+        let dir = crate::repo_root().join("weights");
         let src = LearnedSource::new(Arc::new(LearnedModels::load_dir(&dir).expect("the shipped weights")), crate::models::cpu::default_threads());
         for seed in [1u64, 2, 3] {
             let f = region_figures(&src, seed);
@@ -1432,7 +1432,7 @@ mod shipped_tests {
     /// [`PIN_COARSE_REACH_TILES`] for 128 m tiles) are the world's without pins.
     #[test]
     fn pinned_dems_are_kept_exactly_the_world_grows_around_them_without_a_seam_and_is_unchanged_beyond_their_reach() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let root = crate::repo_root();
         let models = Arc::new(LearnedModels::load_dir(&root.join("weights")).expect("the shipped weights"));
         let free = LearnedSource::new(models, crate::models::cpu::default_threads());
         for (id, spacing, x0, y0, side) in
@@ -1492,7 +1492,7 @@ mod shipped_tests {
             return;
         }
         // The pin's own 16 m detail beside the TEM's 16 m refinement of the world around it.
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let root = crate::repo_root();
         let tem = crate::models::tem::TemSet::load_dir(&root.join("weights"), &crate::models::tem::Exec::cpu()).expect("the shipped TEM");
         let region = crate::dem::Heightfield::new(m, m, 32.0, h.clone());
         let (fine, _) = crate::enhance::enhance_pinned(&region, 32.0, 16.0, &tem, 8, pins, TileCoord::new(-2, -2), &mut |_, _, _| ()).unwrap();

@@ -64,7 +64,7 @@ fn twelve_steps_on_one_fixed_batch_lower_the_l1_of_the_tcm_below_60_and_of_the_x
     let dems = vec![synthetic(500, 200, 100.0), synthetic(720, 230, 32.0)];
     let (coarse, fine) = (grids(&dems), grow::grids(&dems));
     let device = Device::flex().autodiff();
-    let shipped = TcmCpu::from_burnpack(&std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("weights").join(crate::world::learned::TCM_FILE)).unwrap()).unwrap();
+    let shipped = TcmCpu::from_burnpack(&std::fs::read(crate::repo_root().join("weights").join(crate::world::learned::TCM_FILE)).unwrap()).unwrap();
     let cfg = TcmConfig { batch: 2, adversarial: 0.0, lr: 1e-4, ..Default::default() };
     let mut run = start_run(cfg, &device, None, Some(&shipped)).unwrap();
     let batch = run.batch(&coarse).unwrap();

@@ -68,7 +68,7 @@ impl Platform for TestPlatform {
     }
 
     fn fetch(&self, url: &str) -> Fetching {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(url);
+        let path = crate::repo_root().join(url);
         let url = url.to_string();
         Box::pin(async move { std::fs::read(path).map_err(|e| format!("{url}: {e}")) })
     }
