@@ -7,7 +7,7 @@
 # machine's speed (speed is `cargo bench`'s and tests/e2e/bench.mjs's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-export PATH="$HOME/.cargo/bin:$PATH"
+export PATH="${CARGO_HOME:-$HOME/.cargo}/bin:$HOME/.cargo/bin:$PATH"
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/terrain-target}"
 # burn's wgpu runtime natively: Vulkan through Mesa's software rasteriser.
 export WGPU_BACKEND="${WGPU_BACKEND:-vulkan}"

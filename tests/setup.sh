@@ -9,7 +9,7 @@ cd "$(dirname "$0")/.."
 what="${1:-test}"
 WASM_BINDGEN_VERSION=0.2.130   # must equal the wasm-bindgen version pinned in Cargo.toml
 
-export PATH="$HOME/.cargo/bin:$PATH"
+export PATH="${CARGO_HOME:-$HOME/.cargo}/bin:$HOME/.cargo/bin:$PATH"
 
 tools() {
   # cargo install builds in a temporary directory of its own, not in the tests' target dir
