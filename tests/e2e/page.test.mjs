@@ -508,13 +508,12 @@ test('a share link reproduces the same view and the same tiles', async () => {
 test('a share link of the learned world reproduces the same view and the same tiles', async () => {
   const still = LEARNED_VIEW.replace('&auto=150', '');
   const a = await open(still);
-  const sa = await waitFor(a.page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 30, 'learned view A to settle', 300_000);
-  const sa2 = sa;
+  const sa2 = await waitFor(a.page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 30, 'learned view A to settle', 300_000);
   await a.page.close();
-  const b = await open(sa.link);
+  const b = await open(sa2.link);
   const sb = await waitFor(b.page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 30, 'learned view B to settle', 300_000);
-  report.share_learned = { link: sa.link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum };
-  assert.match(sa.link, /src=tcm&w=[0-9a-f]{8}&/);
+  report.share_learned = { link: sa2.link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum };
+  assert.match(sa2.link, /src=tcm&w=[0-9a-f]{8}&/);
   assert.ok(sb.stats.eye_m.every((v, i) => Math.abs(v - sa2.stats.eye_m[i]) <= 0.01), `${sb.stats.eye_m} vs ${sa2.stats.eye_m}`);
   assert.equal(sb.stats.view_checksum, sa2.stats.view_checksum, 'different learned tiles for the same link');
   assert.notEqual(sb.stats.view_checksum, '0000000000000000');
