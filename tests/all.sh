@@ -23,6 +23,8 @@ mkdir -p "$CARGO_TARGET_DIR"
 system_log="$CARGO_TARGET_DIR/system-setup.log"
 bash tests/setup.sh system > "$system_log" 2>&1 &
 system_pid=$!
+# A step that fails ends the run: the jobs still running in the background end with it.
+trap 'kill $(jobs -p) 2>/dev/null || true' EXIT
 # rustfmt, clippy and the page's target, before the page job (which would add the target too).
 rustup component list --installed | grep -q '^clippy' || rustup component add clippy rustfmt
 rustup target list --installed | grep -q wasm32-unknown-unknown || rustup target add wasm32-unknown-unknown
@@ -56,13 +58,21 @@ page_pid=$!
 
 cargo test --all-targets --no-run --timings
 step "native build and clippy"
-cargo test --all-targets
-step "native tests"
 
-# Coverage-guided fuzzing (libFuzzer) of the DEM readers, a bounded number of inputs (its own
-# build, without clippy).
-env -u RUSTC_WORKSPACE_WRAPPER -u CLIPPY_ARGS bash fuzz/run.sh 300000
-step "fuzz"
+# The native tests and the fuzzing run beside the e2e: no test asserts speed, so a shared
+# machine only makes each slower, and each alone leaves a core idle for long stretches (the
+# e2e's waits on timers and the browser, the test harness's last long tests).
+native_log="$CARGO_TARGET_DIR/native-tests.log"
+(
+  n0=$(date +%s)
+  cargo test --all-targets
+  n1=$(date +%s)
+  # Coverage-guided fuzzing (libFuzzer) of the DEM readers, a bounded number of inputs (its
+  # own build, without clippy).
+  env -u RUSTC_WORKSPACE_WRAPPER -u CLIPPY_ARGS bash fuzz/run.sh 300000
+  echo "native job: tests $((n1 - n0)) s, fuzz $(( $(date +%s) - n1 )) s"
+) > "$native_log" 2>&1 &
+native_pid=$!
 
 if ! wait "$page_pid"; then cat "$page_log"; echo "building the page failed" >&2; exit 1; fi
 tail -1 "$page_log"
@@ -72,9 +82,17 @@ gz=$(( $(gzip -9 -c "$wasm" | wc -c) + $(gzip -9 -c "$js" | wc -c) ))
 wgz=0; for f in dist/weights/*.bpk; do wgz=$(( wgz + $(gzip -9 -c "$f" | wc -c) )); done
 echo "page size: wasm+js $raw bytes raw, $gz bytes gzip; with all weights $(( gz + wgz )) bytes gzip"
 if ! wait "$system_pid"; then cat "$system_log"; echo "installing the system packages failed" >&2; exit 1; fi
-step "page build (waited for)"
+step "page build and system packages (waited for)"
 
 # The page in Chromium, then the CLI's exports read by the Khronos glTF validator and trimesh.
-(cd tests/e2e && node --test --test-concurrency=1 page.test.mjs export.test.mjs)
-step "e2e"
+e2e_rc=0
+(cd tests/e2e && node --test --test-concurrency=1 page.test.mjs export.test.mjs) || e2e_rc=$?
+step "e2e (beside the native tests)"
+native_rc=0
+wait "$native_pid" || native_rc=$?
+cat "$native_log"
+step "native tests and fuzz (waited for)"
 echo "timings: ${report}total $(( $(date +%s) - t0 )) s"
+if [ "$e2e_rc" != 0 ]; then echo "the e2e tests failed" >&2; fi
+if [ "$native_rc" != 0 ]; then echo "the native tests or the fuzzing failed" >&2; fi
+if [ "$e2e_rc" != 0 ] || [ "$native_rc" != 0 ]; then exit 1; fi

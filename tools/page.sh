@@ -17,7 +17,7 @@ export PATH="${CARGO_HOME:-$HOME/.cargo}/bin:$HOME/.cargo/bin:$PATH"
 
 build() {
   bash tests/setup.sh tools
-  cargo build --lib --target wasm32-unknown-unknown --profile page --no-default-features
+  cargo rustc --lib --crate-type cdylib --target wasm32-unknown-unknown --profile page --no-default-features
   local target_dir
   target_dir=$(cargo metadata --format-version 1 --no-deps | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
   local wasm="$target_dir/wasm32-unknown-unknown/page/terrain.wasm"

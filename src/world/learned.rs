@@ -1419,34 +1419,50 @@ mod shipped_tests {
         (across / n as f64) / (inside / (8 * n) as f64)
     }
 
-    /// Real terrain pinned into the learned world: 2 × 2 tiles of three real DEMs (Mount St
-    /// Helens 10 m around the crater, Monte Perdido 20 m, the Pyrenees 30 m; area-averaged to
-    /// 32 m) each pinned at tiles (0, 0)–(1, 1) of seed 1's world, and the 6 × 6 tiles −2..=3
-    /// made around them. The pinned tiles are the pin's heights bit for bit; the seam figure of
-    /// the pin's border (8 edges) has a mean ≤ 1.2, and so has that of the world's own tile
-    /// edges in the region (a join that moved a tile's other edges made it 1.29); for St
-    /// Helens, refined to 16 m by the shipped TEM with the pin's own 16 m detail, the seam
-    /// figures of the pin's border and of the world's tile edges at 16 m have means ≤ 1.2
-    /// (0.95 and 1.08 measured), a source that makes the tiles in the reverse order gives the
-    /// same tiles, and tiles one beyond the pins' reach ([`PIN_REACH_TILES`] for 32 m tiles,
+    /// Real terrain pinned into the learned world: 2 × 2 tiles of Mount St Helens at 10 m
+    /// around the crater (area-averaged to 32 m) pinned at tiles (0, 0)–(1, 1) of seed 1's
+    /// world, and the 6 × 6 tiles −2..=3 made around them. The pinned tiles are the pin's
+    /// heights bit for bit; the seam figure of the pin's border (8 edges) has a mean ≤ 1.2, and
+    /// so has that of the world's own tile edges in the region (a join that moved a tile's
+    /// other edges made it 1.29); refined to 16 m by the shipped TEM with the pin's own 16 m
+    /// detail, the seam figures of the pin's border and of the world's tile edges at 16 m have
+    /// means ≤ 1.2, a source that makes the tiles in the reverse order gives the same tiles,
+    /// and tiles one beyond the pin's reach ([`PIN_REACH_TILES`] for 32 m tiles,
     /// [`PIN_COARSE_REACH_TILES`] for 128 m tiles) are the world's without pins.
     #[test]
-    fn pinned_dems_are_kept_exactly_the_world_grows_around_them_without_a_seam_and_is_unchanged_beyond_their_reach() {
+    fn a_pinned_10_m_dem_is_kept_exactly_refined_to_16_m_without_a_seam_and_the_world_is_unchanged_beyond_its_reach() {
+        pinned_dem("glaciers_sthelens_10m", 10.0, (566, 972, 820), true);
+    }
+
+    /// Monte Perdido at 20 m pinned as in
+    /// [`a_pinned_10_m_dem_is_kept_exactly_refined_to_16_m_without_a_seam_and_the_world_is_unchanged_beyond_its_reach`]:
+    /// the pinned tiles bit for bit, the pin's border and the world's own edges with seam
+    /// figures of mean ≤ 1.2.
+    #[test]
+    fn a_pinned_20_m_dem_is_kept_exactly_and_the_world_grows_around_it_without_a_seam() {
+        pinned_dem("glaciers_mtperdu_20m", 20.0, (300, 300, 410), false);
+    }
+
+    /// The Pyrenees at 30 m, checked as Monte Perdido is.
+    #[test]
+    fn a_pinned_30_m_dem_is_kept_exactly_and_the_world_grows_around_it_without_a_seam() {
+        pinned_dem("orometry_pyrenees_30m", 30.0, (800, 500, 274), false);
+    }
+
+    /// Pins the `side`² window at (`x0`, `y0`) of the shared DEM `id` (`spacing` m) at tile
+    /// (0, 0) of the shipped weights' world, where it covers 2 × 2 tiles, and checks the
+    /// region around it ([`pinned_region`]; `all`: every check).
+    fn pinned_dem(id: &str, spacing: f64, (x0, y0, side): (usize, usize, usize), all: bool) {
         let root = crate::repo_root();
         let models = Arc::new(LearnedModels::load_dir(&root.join("weights")).expect("the shipped weights"));
         let free = LearnedSource::new(models, crate::models::cpu::default_threads());
-        for (id, spacing, x0, y0, side) in
-            [("glaciers_sthelens_10m", 10.0, 566, 972, 820), ("glaciers_mtperdu_20m", 20.0, 300, 300, 410), ("orometry_pyrenees_30m", 30.0, 800, 500, 274)]
-        {
-            let dem = crate::dem::Heightfield::read_path(&root.join(format!("../shared/dem/{id}.tif")), Some(spacing), crate::dem::PngScale::default()).unwrap();
-            let mut pins = Pins::new();
-            assert_eq!(pins.add(&dem.window(x0, y0, side, side), TileCoord::new(0, 0)).unwrap().tiles.len(), 4, "{id}");
-            pinned_region(&free, &pins, id, id == "glaciers_sthelens_10m");
-        }
+        let dem = crate::dem::Heightfield::read_path(&root.join(format!("../shared/dem/{id}.tif")), Some(spacing), crate::dem::PngScale::default()).unwrap();
+        let mut pins = Pins::new();
+        assert_eq!(pins.add(&dem.window(x0, y0, side, side), TileCoord::new(0, 0)).unwrap().tiles.len(), 4, "{id}");
+        pinned_region(&free, &pins, id, all);
     }
 
-    /// The checks of [`pinned_dems_are_kept_exactly_the_world_grows_around_them_without_a_seam_and_is_unchanged_beyond_their_reach`]
-    /// for one set of `pins` (`id` names them); `all`: also the visit order and a far tile.
+    /// The checks of the pinned-DEM tests for one set of `pins` (`id` names them); `all`: also the visit order and a far tile.
     fn pinned_region(free: &LearnedSource, pins: &Pins, id: &str, all: bool) {
         let pinned = free.with_pins(pins.clone());
         let (k, n) = (6usize, TILE_SAMPLES);
