@@ -92,6 +92,8 @@ native_rc=0
 wait "$native_pid" || native_rc=$?
 cat "$native_log"
 step "native tests and fuzz (waited for)"
+# Their own times (the last line of their job when it passed) join the others.
+if [ "$native_rc" = 0 ]; then report+="$(tail -1 "$native_log"), "; fi
 echo "timings: ${report}total $(( $(date +%s) - t0 )) s"
 if [ "$e2e_rc" != 0 ]; then echo "the e2e tests failed" >&2; fi
 if [ "$native_rc" != 0 ]; then echo "the native tests or the fuzzing failed" >&2; fi

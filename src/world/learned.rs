@@ -1462,7 +1462,8 @@ mod shipped_tests {
         pinned_region(&free, &pins, id, all);
     }
 
-    /// The checks of the pinned-DEM tests for one set of `pins` (`id` names them); `all`: also the visit order and a far tile.
+    /// The checks of the pinned-DEM tests for one set of `pins` (`id` names them); `all`: also
+    /// the 16 m refinement, the visit order and the tiles beyond the pins' reach.
     fn pinned_region(free: &LearnedSource, pins: &Pins, id: &str, all: bool) {
         let pinned = free.with_pins(pins.clone());
         let (k, n) = (6usize, TILE_SAMPLES);
