@@ -42,7 +42,7 @@ struct Instance {
 }
 
 /// Everything about a frame that is not geometry.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameParams {
     /// The camera.
     pub camera: Camera,

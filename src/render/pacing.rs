@@ -10,6 +10,38 @@
 //!
 //! The shell draws when [`FramePacer::may_draw`] says so, calls [`FramePacer::drawn`] after
 //! submitting, and reports the GPU's "work done" for that frame with [`FramePacer::gpu_done`].
+//!
+//! On a software adapter a view that has not changed is not drawn again ([`SceneKey`]): the
+//! rasteriser runs on the cores that make the world's tiles, and redrawing the same picture
+//! (only the water's ripples move) took one of them. The page then wakes every
+//! [`STILL_FRAME_MS`] to take what came back and to see whether anything changed.
+
+use std::sync::Arc;
+
+use crate::render::FrameParams;
+use crate::world::quadtree::{NodeData, NodeId};
+
+/// How long (milliseconds) a page on a software adapter waits before its next frame when the
+/// last one found the view unchanged and drew nothing: 20 frames a second of the page's own
+/// work (what came back, the camera, the overlay) without the 3-D view's rasterising.
+pub const STILL_FRAME_MS: u64 = 50;
+
+/// What a frame of the 3-D view shows: each node (which one and its content version) and the
+/// frame's parameters but for the water's clock. Two frames with equal keys draw the same
+/// terrain from the same camera in the same light.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneKey {
+    nodes: Vec<(NodeId, u64)>,
+    params: FrameParams,
+}
+
+impl SceneKey {
+    /// The key of a frame drawing `nodes` with `params`.
+    pub fn of(nodes: &[Arc<NodeData>], params: &FrameParams) -> Self {
+        let nodes = nodes.iter().map(|n| (n.id, n.version)).collect();
+        Self { nodes, params: FrameParams { time_s: 0.0, ..*params } }
+    }
+}
 
 /// How long (milliseconds) the pacer waits for the GPU to report a frame done before it
 /// draws the next one anyway: a device that never answers must not freeze the view.
@@ -49,6 +81,12 @@ impl FramePacer {
         (self.drawn, interval)
     }
 
+    /// A frame was not drawn (its view was unchanged): the next frame drawn reports no
+    /// interval, since the time between them is not a frame's time.
+    pub fn skipped(&mut self) {
+        self.last_drawn_ms = None;
+    }
+
     /// The GPU has finished frame `frame` and everything submitted before it. A report about
     /// an older frame than the one awaited changes nothing.
     pub fn gpu_done(&mut self, frame: u64) {
@@ -61,6 +99,48 @@ impl FramePacer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Frame 2 after a frame skipped as unchanged reports no interval; frame 3, drawn right
+    /// after it, reports its 40 ms.
+    #[test]
+    fn a_skipped_frame_leaves_the_next_frame_without_an_interval() {
+        let mut p = FramePacer::default();
+        p.drawn(0.0);
+        p.gpu_done(1);
+        p.skipped();
+        assert_eq!(p.drawn(900.0), (2, None));
+        p.gpu_done(2);
+        assert_eq!(p.drawn(940.0), (3, Some(40.0)));
+    }
+
+    /// The water's clock alone leaves the key equal; a node's new content version, one node
+    /// fewer, or the camera 1 m east each make it differ.
+    #[test]
+    fn a_scene_key_changes_with_nodes_and_camera_but_not_with_the_waters_clock() {
+        use crate::world::quadtree::NodeData;
+        let tile = crate::grid::TileCoord { i: 0, j: 0 };
+        let node =
+            |depth: u8, version: u64| Arc::new(NodeData { id: NodeId { tile, depth, x: 0, y: 0 }, heights: vec![], min_m: 0.0, max_m: 1.0, skirt_m: 1.0, version, stride: 1 });
+        let nodes = vec![node(0, 7), node(1, 8)];
+        let params = FrameParams {
+            camera: crate::render::Camera::default(),
+            size: [480, 300],
+            sun_dir: glam::Vec3::Y,
+            fog_start_m: 1000.0,
+            fog_end_m: 9000.0,
+            water_level_m: 0.0,
+            amplitude_m: 2000.0,
+            show_lod: false,
+            time_s: 1.0,
+        };
+        let key = SceneKey::of(&nodes, &params);
+        assert_eq!(SceneKey::of(&nodes, &FrameParams { time_s: 99.5, ..params }), key);
+        assert_ne!(SceneKey::of(&[node(0, 7), node(1, 9)], &params), key);
+        assert_ne!(SceneKey::of(&nodes[..1], &params), key);
+        let mut moved = params;
+        moved.camera.position_m.x += 1.0;
+        assert_ne!(SceneKey::of(&nodes, &moved), key);
+    }
 
     /// The first frame may be drawn; after it, none until the GPU reports frame 1 done.
     #[test]

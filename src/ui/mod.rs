@@ -45,6 +45,9 @@ pub struct Environment {
     pub triangles: usize,
     /// CPU time of the last frame's streaming, selection and draw encoding (milliseconds).
     pub cpu_ms: f64,
+    /// Frames of the 3-D view drawn since the page started (a software adapter does not draw
+    /// an unchanged view again, so this can stay behind the page's frames).
+    pub views_drawn: u64,
     /// Where the sketch generator runs ("WebGPU" or "CPU worker").
     pub sketch_backend: &'static str,
     /// Where the learned world's networks run ("WebGPU", or "CPU worker" and why).
@@ -162,7 +165,7 @@ pub fn stats_json(
         "world_backend": env.world_backend, "world_probe": env.world_probe, "world_gpu_ms_per_tile": env.world_gpu_ms_per_tile,
         "world_gpu_call_items": env.world_gpu_call_items, "world_gpu_call_halves": env.world_gpu_call_halves,
         "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "link_too_long": link_too_long,
-        "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter,
+        "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter, "views_drawn": env.views_drawn,
         "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
         "overlay_buttons": overlay.buttons.iter().map(|(k, r)| (*k, rect(*r))).collect::<std::collections::BTreeMap<_, _>>(),
         "worker_rest_per_work": env.worker_rest_per_work,

@@ -153,6 +153,11 @@ pub struct PageShell<P: Platform> {
     last_frame_ms: Option<f64>,
     /// Draws a frame of the 3-D view only once the GPU has finished the previous one.
     pacer: crate::render::FramePacer,
+    /// What the 3-D view's last drawn frame showed (a software adapter draws a view again
+    /// only once it changed).
+    drawn_scene: Option<crate::render::pacing::SceneKey>,
+    /// This frame found the view unchanged on a software adapter and drew nothing.
+    still: bool,
     /// The newest frame whose GPU work is done (set by the queue's callback).
     gpu_done: Arc<AtomicU64>,
     /// The main thread's work per frame over the last 120 frames: total, tiles, nodes and
@@ -193,6 +198,8 @@ impl<P: Platform> PageShell<P> {
             texture: None,
             last_frame_ms: None,
             pacer: Default::default(),
+            drawn_scene: None,
+            still: false,
             gpu_done: Arc::default(),
             frame_work: VecDeque::new(),
             link_too_long: 0,
@@ -422,6 +429,7 @@ impl<P: Platform> PageShell<P> {
     /// finished the previous frame).
     fn view(&mut self, ui: &mut egui::Ui, gpu: Option<ViewGpu<'_>>, dt_ms: f64, now: f64, cpu_start: f64) {
         let ctx = ui.ctx().clone();
+        self.still = false;
         let rect = ui.max_rect();
         let resp = ui.allocate_rect(rect, egui::Sense::click_and_drag());
         let size = crate::render::view_size([rect.width(), rect.height()], ctx.pixels_per_point(), self.env.software_adapter);
@@ -437,8 +445,16 @@ impl<P: Platform> PageShell<P> {
         if renderer.ensure_target(gpu.device, size) || self.texture.is_none() {
             let view = renderer.color_view().expect("target just ensured");
             self.texture = Some((gpu.show)(view, self.texture));
+            self.drawn_scene = None;
         }
-        if self.pacer.may_draw(now) {
+        // On a software adapter the picture of an unchanged view is not drawn again: its
+        // rasteriser shares the cores with the world's networks (only the water would move).
+        let scene = self.env.software_adapter.then(|| crate::render::pacing::SceneKey::of(&nodes, &params));
+        self.still = scene.is_some() && scene == self.drawn_scene;
+        if self.still {
+            self.pacer.skipped();
+        } else if self.pacer.may_draw(now) {
+            self.drawn_scene = scene;
             let render_start = ms();
             let stats = renderer.render(gpu.device, gpu.queue, &nodes, &params, MESH_KEEP_FRAMES);
             let render_ms = ms() - render_start;
@@ -449,6 +465,7 @@ impl<P: Platform> PageShell<P> {
                 self.frame_work.pop_front();
             }
             let (frame, interval) = self.pacer.drawn(now);
+            self.env.views_drawn = frame;
             if let Some(ms) = interval {
                 self.core.app.record_frame_time(ms);
                 let mut p = self.probes.borrow_mut();
@@ -516,6 +533,9 @@ impl<P: Platform> PageShell<P> {
         if self.pacer.waiting() {
             // The GPU's "work done" asks for the next frame; this is the fallback.
             ctx.request_repaint_after(std::time::Duration::from_millis(crate::render::pacing::GPU_STALL_MS as u64));
+        } else if self.still {
+            // Nothing to draw: look again shortly (input wakes the page at once).
+            ctx.request_repaint_after(std::time::Duration::from_millis(crate::render::pacing::STILL_FRAME_MS));
         } else {
             repaint_once(&ctx);
         }

@@ -25,13 +25,17 @@ const report = {};
 const MIME = { '.html': 'text/html', '.js': 'text/javascript', '.wasm': 'application/wasm', '.css': 'text/css', '.png': 'image/png', '.json': 'application/json' };
 let server;
 let base;
+/** Where the server also serves dist/ (beside its root). */
+const SUB_PATH = '/sub/terrain/';
 let browser;
 
 function serve() {
   return new Promise((resolve) => {
     server = http.createServer((req, res) => {
       const url = new URL(req.url, 'http://localhost');
-      let file = path.join(dist, decodeURIComponent(url.pathname));
+      // dist/ is also served under a sub-path, as a project site is (https://host/project/).
+      const at = url.pathname.startsWith(SUB_PATH) ? url.pathname.slice(SUB_PATH.length - 1) : url.pathname;
+      let file = path.join(dist, decodeURIComponent(at));
       if (!file.startsWith(dist)) { res.writeHead(403).end(); return; }
       if (fs.existsSync(file) && fs.statSync(file).isDirectory()) file = path.join(file, 'index.html');
       if (!fs.existsSync(file)) { res.writeHead(404).end(); return; }
@@ -76,14 +80,18 @@ after(async () => {
   console.log('E2E REPORT ' + JSON.stringify(report));
 });
 
-/** Opens the page at `fragment`, collecting console errors and uncaught exceptions. */
-async function open(fragment = '', query = '', viewport = { width: 960, height: 600 }) {
+/** Opens the page at `fragment` (from the server's root, or from `at`, a path such as
+ * SUB_PATH), collecting console errors, uncaught exceptions and failed requests. */
+async function open(fragment = '', query = '', viewport = { width: 960, height: 600 }, at = '/') {
   const page = await browser.newPage({ viewport, acceptDownloads: true });
   const errors = [];
+  const failed = [];
   page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
   page.on('pageerror', (e) => errors.push(String(e)));
-  await page.goto(base + query + (fragment ? '#' + fragment : ''));
-  return { page, errors };
+  page.on('response', (r) => { if (r.status() >= 400) failed.push(`${r.status()} ${r.url()}`); });
+  page.on('requestfailed', (r) => failed.push(`${r.failure()?.errorText} ${r.url()}`));
+  await page.goto(new URL(at.slice(1), base).href + query + (fragment ? '#' + fragment : ''));
+  return { page, errors, failed };
 }
 
 const stats = (page) => page.evaluate(() => (window.wasmBindings?.terrain_stats ? JSON.parse(window.wasmBindings.terrain_stats()) : null));
@@ -482,7 +490,7 @@ test('keyboard flight moves the camera', async () => {
   await page.close();
 });
 
-test('a share link reproduces the same view and the same tiles', async () => {
+test('a share link reproduces the same view and the same tiles, opened at the root and under a sub-path (0 failed requests on either)', async () => {
   const a = await open(VIEW);
   // Settled: every tile made and the far field complete.
   const settled = (s) => s.stats.tiles_pending === 0 && s.stats.far_pending === 0 && s.stats.frames > 30;
@@ -491,9 +499,14 @@ test('a share link reproduces the same view and the same tiles', async () => {
   // A is closed before B opens: both settled views are compared, and B does not share the
   // (software) GPU with A meanwhile.
   await a.page.close();
-  const b = await open(link);
+  // B opens the link where a project site would serve the same dist/: every address the page
+  // loads (glue, module, style, worker, weights) is relative to it.
+  const b = await open(link, '', undefined, SUB_PATH);
   const sb = await waitFor(b.page, settled, 'view B to settle');
-  report.share = { link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum };
+  report.share = { link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum, b_at: b.page.url() };
+  assert.ok(b.page.url().includes(SUB_PATH), b.page.url());
+  assert.deepEqual(a.failed, []);
+  assert.deepEqual(b.failed, []);
   // The link carries the camera to the centimetre.
   assert.ok(sb.stats.eye_m.every((v, i) => Math.abs(v - sa2.stats.eye_m[i]) <= 0.01), `${sb.stats.eye_m} vs ${sa2.stats.eye_m}`);
   assert.equal(sb.stats.view_checksum, sa2.stats.view_checksum, 'different tile contents for the same link');
@@ -539,6 +552,19 @@ test('a malformed link shows a message and the default world', async () => {
   assert.equal(s.link.includes('seed=1&'), true, `default seed expected, link ${s.link}`);
   await page.screenshot({ path: path.join(out, 'malformed_link.png') });
   assert.deepEqual(errors, []);
+  await page.close();
+});
+
+test('a module that cannot be had (its .wasm answered 404) is said in the page within 10 s, in place of the loading spinner', async () => {
+  const page = await browser.newPage({ viewport: { width: 960, height: 600 } });
+  await page.route('**/*.wasm', (r) => r.fulfill({ status: 404, body: 'not found' }));
+  const t0 = Date.now();
+  await page.goto(base + '#' + VIEW);
+  const message = page.locator('#message');
+  await message.waitFor({ state: 'visible', timeout: 10_000 });
+  report.start_failure = { message_after_ms: Date.now() - t0, text: await message.textContent() };
+  assert.match(await message.textContent(), /could not start.*files may be missing from this address/);
+  assert.equal(await page.locator('#loading').count(), 0, 'the spinner is still there');
   await page.close();
 });
 
@@ -654,12 +680,20 @@ test('the start-up probe (?tem=probe): once the first view is complete the TEM i
   await page.close();
 });
 
-test('learned detail can start switched off (?tem=off): the 32 m world only', async () => {
+test('learned detail can start switched off (?tem=off): the 32 m world only; once complete, on SwiftShader the page goes on taking frames (at least 5 in 3 s) but draws the unchanged view at most once more', async () => {
   const { page, errors } = await open(LOW_VIEW, '?tem=off');
-  await waitFor(page, (s) => s.tem_ready && s.stats.frames > 30 && s.stats.tiles_pending === 0, 'the unrefined view', 240_000);
+  await waitFor(page, (s) => s.tem_ready && s.stats.frames > 30 && s.stats.tiles_pending === 0 && s.stats.far_pending === 0, 'the unrefined view', 240_000);
   const s = await stats(page);
   assert.equal(s.stats.quads_made, 0);
   assert.ok(s.stats.max_depth_drawn <= 2, `depth ${s.stats.max_depth_drawn}`);
+  // A still view on a software adapter is not drawn again: the rasteriser's cores go to the
+  // world (the page's own frames go on, to take what comes back and see input).
+  assert.equal(s.software_adapter, true);
+  await page.waitForTimeout(3000);
+  const s1 = await stats(page);
+  report.still_view = { frames_in_3_s: s1.stats.frames - s.stats.frames, views_drawn_in_3_s: s1.views_drawn - s.views_drawn };
+  assert.ok(s1.stats.frames - s.stats.frames >= 5, `frames ${s.stats.frames} → ${s1.stats.frames}`);
+  assert.ok(s1.views_drawn - s.views_drawn <= 1, `views drawn ${s.views_drawn} → ${s1.views_drawn} while nothing changed`);
   assert.deepEqual(errors, []);
   await page.close();
 });
