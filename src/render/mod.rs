@@ -44,9 +44,31 @@ pub fn view_size(points: [f32; 2], pixels_per_point: f32, software_adapter: bool
     points.map(|p| (p * scale).round().max(1.0) as u32)
 }
 
+/// The pixels a canvas of `css_px` CSS pixels should hold at device pixel ratio `ratio`, when
+/// its backing store `current` is more than a pixel off them on either axis (`None`: keep it;
+/// the browser's own device-pixel size may differ from the rounded product by one). Headless
+/// Chromium with an emulated ratio reports device-pixel sizes equal to the CSS size, which left
+/// the page's UI drawn `ratio` times too large into a canvas of a `ratio`-th of the pixels.
+pub fn canvas_backing(css_px: [f64; 2], ratio: f64, current: [u32; 2]) -> Option<[u32; 2]> {
+    let want = css_px.map(|c| (c * ratio).round().max(1.0) as u32);
+    let off = want.iter().zip(current).any(|(w, c)| w.abs_diff(c) > 1);
+    off.then_some(want)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 960×600 CSS-pixel canvas at ratio 2 holding 960×600 pixels is made 1920×1200; one
+    /// holding 1919×1200 (the browser's own rounding) is kept, as is 960×600 at ratio 1; a
+    /// 390×844 canvas at ratio 3 is made 1170×2532.
+    #[test]
+    fn a_canvas_holds_its_css_size_times_the_pixel_ratio() {
+        assert_eq!(canvas_backing([960.0, 600.0], 2.0, [960, 600]), Some([1920, 1200]));
+        assert_eq!(canvas_backing([960.0, 600.0], 2.0, [1919, 1200]), None);
+        assert_eq!(canvas_backing([960.0, 600.0], 1.0, [960, 600]), None);
+        assert_eq!(canvas_backing([390.0, 844.0], 3.0, [390, 844]), Some([1170, 2532]));
+    }
 
     /// A 1280×720-point view at 2 pixels per point is 2560×1440 pixels on a GPU and
     /// 1280×720 on a software adapter; an empty view is still 1×1.

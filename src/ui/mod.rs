@@ -166,7 +166,7 @@ pub fn stats_json(
         "world_gpu_call_items": env.world_gpu_call_items, "world_gpu_call_halves": env.world_gpu_call_halves,
         "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "link_too_long": link_too_long,
         "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter, "views_drawn": env.views_drawn,
-        "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
+        "panel": overlay.panel.map(rect), "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
         "overlay_buttons": overlay.buttons.iter().map(|(k, r)| (*k, rect(*r))).collect::<std::collections::BTreeMap<_, _>>(),
         "worker_rest_per_work": env.worker_rest_per_work,
         "sketch_buttons": panel.buttons.iter().map(|(k, r)| (k.clone(), rect(*r))).collect::<std::collections::BTreeMap<_, _>>(),
@@ -228,12 +228,24 @@ pub struct Overlay {
     pub export_level: Option<usize>,
     /// Exports are resampled to 2ⁿ+1 samples a side.
     pub export_pow2: bool,
+    /// Where the panel ("Terrain") was drawn last frame (points), open or collapsed.
+    pub panel: Option<egui::Rect>,
+}
+
+/// Below this width or height (points, which are CSS pixels) the panel starts collapsed to its
+/// title bar, so that the terrain fills a phone's screen (390 × 844 portrait, 844 × 390
+/// landscape); the title bar opens it.
+pub const COMPACT_SCREEN_PT: [f32; 2] = [600.0, 480.0];
+
+/// Whether a screen of `size` points is too small for the open panel ([`COMPACT_SCREEN_PT`]).
+pub fn compact_screen(size: egui::Vec2) -> bool {
+    size.x < COMPACT_SCREEN_PT[0] || size.y < COMPACT_SCREEN_PT[1]
 }
 
 impl Overlay {
     /// An overlay editing `s`.
     pub fn new(s: ShareState) -> Self {
-        Self { draft: s.clone(), applied: s, show_settings: false, show_stats: false, buttons: Default::default(), export_level: None, export_pow2: false }
+        Self { draft: s.clone(), applied: s, show_settings: false, show_stats: false, buttons: Default::default(), export_level: None, export_pow2: false, panel: None }
     }
 
     /// Replaces the draft with settings that came from elsewhere (e.g. a link opened in the
@@ -269,7 +281,8 @@ impl Overlay {
                 });
             });
         }
-        egui::Window::new("Terrain").anchor(egui::Align2::LEFT_TOP, [8.0, 8.0]).resizable(false).default_width(260.0).show(ctx, |ui| {
+        let compact = compact_screen(ctx.content_rect().size());
+        let panel = egui::Window::new("Terrain").anchor(egui::Align2::LEFT_TOP, [8.0, 8.0]).resizable(false).default_width(260.0).default_open(!compact).show(ctx, |ui| {
             // For people: the world, what is being made, the controls. The numbers behind
             // "Statistics" (the tests read them from the statistics JSON either way).
             let seed = if stats.source == SourceKind::Sketch.label() && !env.source.contains("learned") { String::new() } else { format!(" · seed {}", self.applied.seed) };
@@ -403,6 +416,7 @@ impl Overlay {
                 ui.label("Touch: drag to look · two fingers to move · pinch to fly forward/zoom");
             });
         });
+        self.panel = panel.map(|p| p.response.rect);
         act
     }
 
@@ -526,7 +540,12 @@ mod tests {
 
     /// [`overlay_frame`] with the app's `stats` and whether a link was just copied.
     fn overlay_frame_with(ctx: &egui::Context, overlay: &mut Overlay, events: Vec<egui::Event>, stats: &AppStats, link_copied: bool) -> Option<ShareState> {
-        let input = egui::RawInput { screen_rect: Some(egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1280.0, 1600.0))), events, ..Default::default() };
+        overlay_frame_on(ctx, overlay, events, stats, link_copied, egui::vec2(1280.0, 1600.0))
+    }
+
+    /// [`overlay_frame_with`] on a screen of `size` points.
+    fn overlay_frame_on(ctx: &egui::Context, overlay: &mut Overlay, events: Vec<egui::Event>, stats: &AppStats, link_copied: bool, size: egui::Vec2) -> Option<ShareState> {
+        let input = egui::RawInput { screen_rect: Some(egui::Rect::from_min_size(egui::Pos2::ZERO, size)), events, ..Default::default() };
         let (mut speed, mut lod, mut refine) = (100.0, false, true);
         let mut applied = None;
         let out = ctx.run_ui(input, |ui| {
@@ -535,6 +554,28 @@ mod tests {
         let mut delta = out.textures_delta;
         delta.clear();
         applied
+    }
+
+    /// On a phone's screen, 390 × 844 points portrait or 844 × 390 landscape, the panel starts
+    /// as its title bar alone (under 40 pt tall, under 5 % of the screen, no button drawn); on
+    /// 960 × 600 it starts open, with its buttons.
+    #[test]
+    fn the_panel_starts_collapsed_on_a_phones_screen_and_open_on_a_laptops() {
+        for (size, compact) in [(egui::vec2(390.0, 844.0), true), (egui::vec2(844.0, 390.0), true), (egui::vec2(960.0, 600.0), false)] {
+            let ctx = egui::Context::default();
+            let mut overlay = Overlay::new(ShareState::default());
+            for _ in 0..3 {
+                overlay_frame_on(&ctx, &mut overlay, vec![], &AppStats::default(), false, size);
+            }
+            let panel = overlay.panel.expect("the panel is drawn");
+            assert_eq!(compact_screen(size), compact);
+            if compact {
+                assert!(panel.height() < 40.0 && panel.area() < 0.05 * size.x * size.y, "{size:?}: panel {panel:?}");
+                assert!(overlay.buttons.is_empty(), "{size:?}: {:?}", overlay.buttons.keys());
+            } else {
+                assert!(panel.height() > 200.0 && overlay.buttons.contains_key("copy_link"), "{size:?}: panel {panel:?}");
+            }
+        }
     }
 
     /// The overlay's buttons stay where they are (to 0.5 pt) while tiles are being made, the

@@ -63,6 +63,11 @@ impl eframe::App for WebApp {
             wasm_bindgen_futures::spawn_local(super::restart(self.0.core.app.share_state(), self.0.core.kept_pins(), "device lost".into()));
             return;
         }
+        if fit_canvas() {
+            // This frame was laid out for the canvas's old size: the next one, at once, is not.
+            ui.ctx().request_repaint();
+            return;
+        }
         let Some(rs) = frame.wgpu_render_state() else { return };
         let mut show = |view: &wgpu::TextureView, id: Option<egui::TextureId>| {
             let mut r = rs.renderer.write();
@@ -76,4 +81,20 @@ impl eframe::App for WebApp {
         };
         self.0.frame(ui, Some(ViewGpu { device: &rs.device, queue: &rs.queue, show: &mut show }));
     }
+}
+
+/// Keeps the canvas's backing store at its CSS size × the device pixel ratio
+/// ([`crate::render::canvas_backing`]): the UI at its size in CSS pixels, the view sharp.
+/// Returns whether it resized the canvas.
+fn fit_canvas() -> bool {
+    use wasm_bindgen::JsCast;
+    let Some(window) = web_sys::window() else { return false };
+    let Some(canvas) = window.document().and_then(|d| d.get_element_by_id("terrain_canvas")).and_then(|e| e.dyn_into::<web_sys::HtmlCanvasElement>().ok()) else {
+        return false;
+    };
+    let css = [canvas.client_width() as f64, canvas.client_height() as f64];
+    let Some([w, h]) = crate::render::canvas_backing(css, window.device_pixel_ratio(), [canvas.width(), canvas.height()]) else { return false };
+    canvas.set_width(w);
+    canvas.set_height(h);
+    true
 }

@@ -555,6 +555,39 @@ test('a malformed link shows a message and the default world', async () => {
   await page.close();
 });
 
+test('on every screen: at device pixel ratios 1, 2 and 3 the canvas holds the CSS size × the ratio in pixels and the panel is as wide in CSS px at 2 as at 1; on a phone (390×844, ratio 3, touch) the panel starts as its title bar, leaving at least 80 % of the first view to the terrain (screenshots)', async () => {
+  const screens = [
+    { name: 'ratio_1', viewport: { width: 960, height: 600 }, deviceScaleFactor: 1 },
+    { name: 'ratio_2', viewport: { width: 960, height: 600 }, deviceScaleFactor: 2 },
+    { name: 'phone_ratio_3', viewport: { width: 390, height: 844 }, deviceScaleFactor: 3, isMobile: true, hasTouch: true },
+  ];
+  const seen = {};
+  for (const { name, ...options } of screens) {
+    const page = await browser.newPage(options);
+    const errors = [];
+    page.on('pageerror', (e) => errors.push(String(e)));
+    await page.goto(base + '#' + VIEW);
+    const s = await waitFor(page, (q) => q.stats.frames > 5 && q.stats.nodes_drawn > 0 && q.panel, `the first view at ${name}`, 240_000);
+    const canvas = await page.evaluate(() => {
+      const c = document.getElementById('terrain_canvas');
+      return { width: c.width, height: c.height, css: [c.clientWidth, c.clientHeight], ratio: window.devicePixelRatio };
+    });
+    await page.screenshot({ path: path.join(out, `screen_${name}.png`) });
+    const [w, h] = [options.viewport.width, options.viewport.height];
+    seen[name] = { canvas, panel_css_px: s.panel, panel_share_of_view: (s.panel[2] * s.panel[3]) / (w * h) };
+    assert.equal(canvas.ratio, options.deviceScaleFactor);
+    assert.deepEqual(canvas.css, [w, h]);
+    assert.ok(Math.abs(canvas.width - w * canvas.ratio) <= 1 && Math.abs(canvas.height - h * canvas.ratio) <= 1, `${name}: canvas ${canvas.width}×${canvas.height} for ${w}×${h} CSS px at ratio ${canvas.ratio}`);
+    assert.deepEqual(errors, []);
+    await page.close();
+  }
+  report.screens = seen;
+  assert.ok(Math.abs(seen.ratio_2.panel_css_px[2] - seen.ratio_1.panel_css_px[2]) <= 1, `panel ${seen.ratio_1.panel_css_px[2]} CSS px wide at ratio 1, ${seen.ratio_2.panel_css_px[2]} at 2`);
+  assert.ok(seen.ratio_1.panel_css_px[3] > 200, `the panel is open at 960×600: ${seen.ratio_1.panel_css_px}`);
+  assert.ok(seen.phone_ratio_3.panel_css_px[3] < 40, `the panel is open on the phone: ${seen.phone_ratio_3.panel_css_px}`);
+  assert.ok(seen.phone_ratio_3.panel_share_of_view <= 0.2, `the panel covers ${seen.phone_ratio_3.panel_share_of_view} of the phone's view`);
+});
+
 test('a module that cannot be had (its .wasm answered 404) is said in the page within 10 s, in place of the loading spinner', async () => {
   const page = await browser.newPage({ viewport: { width: 960, height: 600 } });
   await page.route('**/*.wasm', (r) => r.fulfill({ status: 404, body: 'not found' }));
