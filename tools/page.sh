@@ -9,7 +9,9 @@
 # www/index.html, www/style.css and weights/ beside it. The glue, module and style sheet carry
 # a hash of their content in their names (a new build is never mixed with a cached old one),
 # and every address in the page is relative, so dist/ can be served from any host and path
-# (the root, or /terrain/ of a project site).
+# (the root, or /terrain/ of a project site). TERRAIN_PAGE_URL, the address the page will be
+# published at (https://host/path, no trailing slash), makes the link preview's picture an
+# absolute address, as Open Graph readers want; without it the address is relative.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 what="${1:-build}"
@@ -28,8 +30,10 @@ build() {
   css_hash=$(sha256sum www/style.css | cut -c1-16)
   cp www/style.css "$stage/style-$css_hash.css"
   cp -r weights "$stage/weights"
+  cp www/preview.jpg "$stage/preview.jpg"
+  local page_url="${TERRAIN_PAGE_URL:-.}"
   sed -e "s/{{glue}}/terrain-$hash.js/g" -e "s/{{wasm}}/terrain-${hash}_bg.wasm/g" -e "s/{{css}}/style-$css_hash.css/g" \
-    www/index.html > "$stage/index.html"
+    -e "s|{{page_url}}|${page_url%/}|g" www/index.html > "$stage/index.html"
   if grep -q '{{' "$stage/index.html"; then echo "www/index.html has a placeholder this script does not fill" >&2; exit 1; fi
   chmod -R a+rX "$stage"
   rm -rf dist.old

@@ -490,7 +490,7 @@ test('keyboard flight moves the camera', async () => {
   await page.close();
 });
 
-test('a share link reproduces the same view and the same tiles, opened at the root and under a sub-path (0 failed requests on either)', async () => {
+test('a share link reproduces the same view and the same tiles, opened at the root and under a sub-path (0 failed requests on either; the link preview\'s picture found there)', async () => {
   const a = await open(VIEW);
   // Settled: every tile made and the far field complete.
   const settled = (s) => s.stats.tiles_pending === 0 && s.stats.far_pending === 0 && s.stats.frames > 30;
@@ -505,6 +505,14 @@ test('a share link reproduces the same view and the same tiles, opened at the ro
   const sb = await waitFor(b.page, settled, 'view B to settle');
   report.share = { link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum, b_at: b.page.url() };
   assert.ok(b.page.url().includes(SUB_PATH), b.page.url());
+  // The link preview's picture is there, from the sub-path too.
+  const preview = await b.page.evaluate(async () => {
+    const src = document.querySelector('meta[property="og:image"]')?.content;
+    const r = await fetch(new URL(src, location.href));
+    return { src, status: r.status, bytes: (await r.arrayBuffer()).byteLength };
+  });
+  assert.equal(preview.status, 200, JSON.stringify(preview));
+  assert.ok(preview.bytes > 10_000, JSON.stringify(preview));
   assert.deepEqual(a.failed, []);
   assert.deepEqual(b.failed, []);
   // The link carries the camera to the centimetre.
