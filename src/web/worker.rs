@@ -121,8 +121,10 @@ pub fn terrain_worker_message(bytes: Uint8Array) {
 
 /// Makes the queued tasks a piece at a time, resting as each asks, and at least yielding
 /// between pieces: other requests (a coarse stand-in, a stroke) are answered meanwhile.
+/// A queue an earlier request left borrowed (it threw inside the module) ends the loop: the
+/// worker script has reported that failure, and the module is not entered again.
 async fn make_tasks() {
-    while let Some((answer, rest_ms)) = QUEUE.with(|q| q.borrow_mut().next_piece()) {
+    while let Some((answer, rest_ms)) = QUEUE.with(|q| q.try_borrow_mut().ok().and_then(|mut q| q.next_piece())) {
         post(answer);
         gloo_timers::future::TimeoutFuture::new(rest_ms.round() as u32).await;
     }

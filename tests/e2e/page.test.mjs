@@ -776,14 +776,19 @@ test('a weight download that fails once is tried again: the learned world loads 
   await page.close();
 });
 
-test('a trap in the CPU worker is said in the page: the procedural world stands in, frames go on, and the address keeps src=tcm', async () => {
+test('a trap in the CPU worker is said in the page, and a request after it gets the same report without a panic: the procedural world stands in, frames go on, and the address keeps src=tcm', async () => {
   const { page, errors } = await open(FAIL_VIEW);
   await waitFor(page, (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.frames > 10, 'the learned view', 300_000);
   const [worker] = page.workers();
   assert.ok(worker, 'no CPU worker');
   // A request whose bytes are null: the module's entry point throws inside wasm while it holds
   // its queue (as a trap would, leaving it borrowed), and the worker script reports it.
-  await worker.evaluate(() => self.onmessage(new MessageEvent('message', { data: { id: 999999, bytes: null } })));
+  // A request the page sent before it heard of the trap: answered with the same report, the
+  // module not entered again (it would find its queue borrowed and panic).
+  await worker.evaluate(() => {
+    self.onmessage(new MessageEvent('message', { data: { id: 999999, bytes: null } }));
+    self.onmessage(new MessageEvent('message', { data: { id: 999998, bytes: new Uint8Array(8) } }));
+  });
   const s = await waitFor(page, (s) => /not available: the CPU worker stopped \(the CPU worker failed/.test(s.message ?? ''), 'the trap said', 60_000);
   const frames = s.stats.frames;
   const after = await waitFor(page, (q) => q.stats.source === 'procedural' && q.stats.tiles_pending === 0 && q.stats.frames > frames + 10, 'the procedural stand-in drawn', 240_000);
