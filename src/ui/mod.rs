@@ -234,7 +234,7 @@ pub struct Overlay {
 
 /// Below this width or height (points, which are CSS pixels) the panel starts collapsed to its
 /// title bar, so that the terrain fills a phone's screen (390 × 844 portrait, 844 × 390
-/// landscape); the title bar opens it.
+/// landscape); its ▶, or a double tap on the title, opens it.
 pub const COMPACT_SCREEN_PT: [f32; 2] = [600.0, 480.0];
 
 /// Whether a screen of `size` points is too small for the open panel ([`COMPACT_SCREEN_PT`]).

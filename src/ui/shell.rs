@@ -156,8 +156,6 @@ pub struct PageShell<P: Platform> {
     /// What the 3-D view's last drawn frame showed (a software adapter draws a view again
     /// only once it changed).
     drawn_scene: Option<crate::render::pacing::SceneKey>,
-    /// This frame found the view unchanged on a software adapter and drew nothing.
-    still: bool,
     /// The newest frame whose GPU work is done (set by the queue's callback).
     gpu_done: Arc<AtomicU64>,
     /// The main thread's work per frame over the last 120 frames: total, tiles, nodes and
@@ -199,7 +197,6 @@ impl<P: Platform> PageShell<P> {
             last_frame_ms: None,
             pacer: Default::default(),
             drawn_scene: None,
-            still: false,
             gpu_done: Arc::default(),
             frame_work: VecDeque::new(),
             link_too_long: 0,
@@ -426,16 +423,16 @@ impl<P: Platform> PageShell<P> {
     }
 
     /// Moves the camera and draws the 3-D view into the panel (when there is a GPU and it has
-    /// finished the previous frame).
-    fn view(&mut self, ui: &mut egui::Ui, gpu: Option<ViewGpu<'_>>, dt_ms: f64, now: f64, cpu_start: f64) {
+    /// finished the previous frame). Returns whether the view was still: unchanged on a
+    /// software adapter, so nothing was drawn.
+    fn view(&mut self, ui: &mut egui::Ui, gpu: Option<ViewGpu<'_>>, dt_ms: f64, now: f64, cpu_start: f64) -> bool {
         let ctx = ui.ctx().clone();
-        self.still = false;
         let rect = ui.max_rect();
         let resp = ui.allocate_rect(rect, egui::Sense::click_and_drag());
         let size = crate::render::view_size([rect.width(), rect.height()], ctx.pixels_per_point(), self.env.software_adapter);
         let input = crate::ui::control_input(&ctx, &resp);
         let (nodes, params) = self.core.app.frame(&input, dt_ms / 1000.0, size);
-        let Some(gpu) = gpu else { return };
+        let Some(gpu) = gpu else { return false };
         let clock = self.clock;
         let ms = move || clock.elapsed().as_secs_f64() * 1e3;
         if self.renderer.is_none() {
@@ -450,8 +447,8 @@ impl<P: Platform> PageShell<P> {
         // On a software adapter the picture of an unchanged view is not drawn again: its
         // rasteriser shares the cores with the world's networks (only the water would move).
         let scene = self.env.software_adapter.then(|| crate::render::pacing::SceneKey::of(&nodes, &params));
-        self.still = scene.is_some() && scene == self.drawn_scene;
-        if self.still {
+        let still = scene.is_some() && scene == self.drawn_scene;
+        if still {
             self.pacer.skipped();
         } else if self.pacer.may_draw(now) {
             self.drawn_scene = scene;
@@ -486,6 +483,7 @@ impl<P: Platform> PageShell<P> {
         if let Some(id) = self.texture {
             ui.painter().image(id, rect, egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)), egui::Color32::WHITE);
         }
+        still
     }
 
     /// One frame of the page in `ui` (the root), drawing the 3-D view with `gpu` where there
@@ -513,7 +511,7 @@ impl<P: Platform> PageShell<P> {
                 p.tile.1 = self.core.app.tile_heights(c).map(<[f32]>::to_vec);
             }
         }
-        egui::CentralPanel::no_frame().show(ui, |ui| self.view(ui, gpu, dt_ms, now, cpu_start));
+        let still = egui::CentralPanel::no_frame().show(ui, |ui| self.view(ui, gpu, dt_ms, now, cpu_start)).inner;
         self.env.take_core(&self.core);
         let asks = self.ui.show(&ctx, &mut self.core, &self.env, now);
         self.sketch_files(asks);
@@ -533,7 +531,7 @@ impl<P: Platform> PageShell<P> {
         if self.pacer.waiting() {
             // The GPU's "work done" asks for the next frame; this is the fallback.
             ctx.request_repaint_after(std::time::Duration::from_millis(crate::render::pacing::GPU_STALL_MS as u64));
-        } else if self.still {
+        } else if still {
             // Nothing to draw: look again shortly (input wakes the page at once).
             ctx.request_repaint_after(std::time::Duration::from_millis(crate::render::pacing::STILL_FRAME_MS));
         } else {

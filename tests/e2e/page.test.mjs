@@ -81,9 +81,10 @@ after(async () => {
 });
 
 /** Opens the page at `fragment` (from the server's root, or from `at`, a path such as
- * SUB_PATH), collecting console errors, uncaught exceptions and failed requests. */
-async function open(fragment = '', query = '', viewport = { width: 960, height: 600 }, at = '/') {
-  const page = await browser.newPage({ viewport, acceptDownloads: true });
+ * SUB_PATH) with Playwright's page `options` (a 960×600 viewport unless they say otherwise),
+ * collecting console errors, uncaught exceptions and failed requests. */
+async function open(fragment = '', query = '', options = {}, at = '/') {
+  const page = await browser.newPage({ viewport: { width: 960, height: 600 }, acceptDownloads: true, ...options });
   const errors = [];
   const failed = [];
   page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
@@ -133,7 +134,7 @@ const VIEW = 'v=2&seed=7&src=procedural&cam=3000,2500,9000,0.9,-0.3&r=3&lod=6';
 test('first impressions: the default world is the learned one, its coarse stand-ins drawn first, the page at +2 s, the view complete with no console errors, the statistics view, a new seed by editing the link (the old picture kept, then the new world) and the sketch world chosen in the settings, framed at once, the learned world grown around it as the native CLI makes it (timings and screenshots)', async () => {
   const t0 = Date.now();
   // The sketch world's screenshot at the size the sketch test uses (its panel beside the view).
-  const { page, errors } = await open('', '', { width: 1280, height: 900 });
+  const { page, errors } = await open('', '', { viewport: { width: 1280, height: 900 } });
   // The screenshot at +2 s, taken while the first terrain is waited for.
   const at2s = (async () => {
     await page.waitForTimeout(Math.max(0, 2000 - (Date.now() - t0)));
@@ -573,10 +574,7 @@ test('on every screen: at device pixel ratios 1, 2 and 3 the canvas holds the CS
   ];
   const seen = {};
   for (const { name, ...options } of screens) {
-    const page = await browser.newPage(options);
-    const errors = [];
-    page.on('pageerror', (e) => errors.push(String(e)));
-    await page.goto(base + '#' + VIEW);
+    const { page, errors } = await open(VIEW, '', options);
     const s = await waitFor(page, (q) => q.stats.frames > 5 && q.stats.nodes_drawn > 0 && q.panel, `the first view at ${name}`, 240_000);
     const canvas = await page.evaluate(() => {
       const c = document.getElementById('terrain_canvas');
@@ -784,9 +782,9 @@ test('a trap in the CPU worker is said in the page, and a request after it gets 
   const [worker] = page.workers();
   assert.ok(worker, 'no CPU worker');
   // A request whose bytes are null: the module's entry point throws inside wasm while it holds
-  // its queue (as a trap would, leaving it borrowed), and the worker script reports it.
-  // A request the page sent before it heard of the trap: answered with the same report, the
-  // module not entered again (it would find its queue borrowed and panic).
+  // its queue (as a trap would, leaving it borrowed), and the worker script reports it. Then a
+  // request as one the page sent before it heard of the trap: answered with the same report,
+  // the module not entered again (it would find its queue borrowed and panic).
   await worker.evaluate(() => {
     self.onmessage(new MessageEvent('message', { data: { id: 999999, bytes: null } }));
     self.onmessage(new MessageEvent('message', { data: { id: 999998, bytes: new Uint8Array(8) } }));
