@@ -164,7 +164,7 @@ pub fn stats_json(
         "sketch_models": format!("{:?}", app.sketch_models()), "sketch_backend": env.sketch_backend,
         "world_backend": env.world_backend, "world_probe": env.world_probe, "world_gpu_ms_per_tile": env.world_gpu_ms_per_tile,
         "world_gpu_call_items": env.world_gpu_call_items, "world_gpu_call_halves": env.world_gpu_call_halves,
-        "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "link_too_long": link_too_long,
+        "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "sketch_blend_chosen": panel.blend_pair().is_some(), "link_too_long": link_too_long,
         "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter, "views_drawn": env.views_drawn,
         "panel": overlay.panel.map(rect), "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
         "overlay_buttons": overlay.buttons.iter().map(|(k, r)| (*k, rect(*r))).collect::<std::collections::BTreeMap<_, _>>(),

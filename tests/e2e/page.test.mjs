@@ -1235,7 +1235,9 @@ test('sketch to terrain: pointer strokes update the 3-D terrain; undo, redo, cle
   // mostly that variant) makes a new sketch from the VAE and its terrain.
   const adopted = sketchCode(s.link);
   await click(page, s, 'blend1');
-  s = await waitFor(page, (q) => q.sketch_buttons.blend_slider, 'the blend slider');
+  // The slider is always drawn (greyed out until ⇄ picks a partner): wait for the page to have
+  // taken the ⇄ click, or the slider's click lands on a disabled slider (CI lost it so).
+  s = await waitFor(page, (q) => q.sketch_blend_chosen && q.sketch_buttons.blend_slider, 'the blend partner chosen');
   const [bx, by, bw, bh] = s.sketch_buttons.blend_slider;
   await page.mouse.click(bx + 0.1 * bw, by + bh / 2);
   s = await waitFor(page, (q) => q.sketch_blends >= 1 && sketchCode(q.link) !== adopted && shownNow(q), 'the blended sketch', 120_000);
