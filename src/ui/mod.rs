@@ -105,6 +105,14 @@ pub fn adapter_name(wgpu_names: [&str; 3], browser: Option<(String, bool)>) -> (
     (format!("WebGPU · {}", if text.is_empty() { label } else { &text }), software)
 }
 
+/// Sets up the page's egui context: a press and release that do not move apart are a click
+/// however long the button is held. egui's default (0.8 s) is measured between the frames that
+/// saw the press and the release, so on a page drawing a frame every second or two (software
+/// WebGPU, a slow phone) a quick click became a long press and was lost.
+pub fn set_up(ctx: &egui::Context) {
+    ctx.options_mut(|o| o.input_options.max_click_duration = f64::INFINITY);
+}
+
 /// The camera input of this frame from egui's pointer, touch and keys over the 3-D view's
 /// response `resp`: two-finger drag moves and pinch zooms, a drag looks, the wheel scrolls,
 /// WASD/arrows/QE/PageUp/PageDown move (unless a text field has the keyboard), Shift boosts.

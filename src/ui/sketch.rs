@@ -380,4 +380,31 @@ mod tests {
         assert_eq!(asked.len(), 1, "blends asked: {asked:?}");
         assert!((asked[0] - 0.7).abs() < 0.01, "blends asked: {asked:?}");
     }
+
+    /// On a page drawing a frame every 2 s, a click on ⇄ whose press and release land in
+    /// frames 2 s apart chooses the partner once the context is set up by `ui::set_up` (and is
+    /// lost with egui's own 0.8 s click bound, which is what lost CI's click).
+    #[test]
+    fn a_click_spread_over_frames_two_seconds_apart_chooses_the_blend_partner_after_set_up() {
+        for set_up in [false, true] {
+            let ctx = egui::Context::default();
+            if set_up {
+                crate::ui::set_up(&ctx);
+            }
+            let mut panel = SketchPanel::default();
+            let mut canvas = Canvas::new(Sketch::filled(1));
+            panel.set_variants(&ctx, vec![(Sketch::filled(2), vec![0.0; SKETCH_PX * SKETCH_PX])]);
+            let mut t = 0.0;
+            for _ in 0..3 {
+                t += 2.0;
+                frame(&ctx, &mut panel, &mut canvas, vec![], t);
+            }
+            let blend = panel.buttons["blend0"].center();
+            for events in [vec![egui::Event::PointerMoved(blend), button(blend, true)], vec![button(blend, false)], vec![]] {
+                t += 2.0;
+                frame(&ctx, &mut panel, &mut canvas, events, t);
+            }
+            assert_eq!(panel.blend_pair().is_some(), set_up, "set up: {set_up}");
+        }
+    }
 }

@@ -170,6 +170,7 @@ async fn run(restart: Option<crate::app::page::Kept>) -> Result<(), String> {
     let web_runner = eframe::WebRunner::new();
     let app = Box::new(move |cc: &eframe::CreationContext<'_>| -> Result<Box<dyn eframe::App>, Box<dyn std::error::Error + Send + Sync>> {
         cc.wgpu_render_state.as_ref().ok_or("eframe started without wgpu")?;
+        crate::ui::set_up(&cc.egui_ctx);
         Ok(Box::new(shell::WebApp(page)))
     });
     web_runner.start(canvas, options, app).await.map_err(|e| format!("The page could not start its renderer: {e:?}"))?;

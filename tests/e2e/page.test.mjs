@@ -1108,7 +1108,8 @@ test('without WebGPU the page says so instead of failing silently', async () => 
 // ---- Sketch to terrain ----
 
 const SKETCH_VIEW = 'v=2&seed=7&src=sketch&cam=0,6000,10500,0,-0.42&r=3&lod=6';
-const BIG = { width: 1280, height: 900 };
+/** Playwright page options for a 1280×900 CSS px viewport. */
+const BIG = { viewport: { width: 1280, height: 900 } };
 const pct = (v, q) => { const s = [...v].sort((a, b) => a - b); return s[Math.min(s.length - 1, Math.floor(q * s.length))]; };
 const sketchCode = (link) => new URLSearchParams(link).get('sk');
 /** Bands and strokes of a sketch code: one nibble per pixel (band | ridge << 2 | valley << 3). */
