@@ -14,7 +14,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
-use cli::{bench::*, sketch::*, tem::*, world::*};
+use cli::{bench::*, render::*, sketch::*, tem::*, world::*};
 use terrain::world::{NoiseParams, ProceduralSource, TileSource, export};
 
 /// Most tiles `terrain world` writes at once (64 × 64 tiles: 8192² samples, 256 MiB).
@@ -148,6 +148,29 @@ enum Command {
         /// Output file (.tif).
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Draw what a share link shows, as the page draws it once its view is whole, into a PNG:
+    /// the page's core driven natively (learned tiles and detail on the CPU) and its renderer
+    /// on a native Vulkan adapter. Prints the frames it took and each draw's milliseconds.
+    Render {
+        /// The link: a whole address (`…?tem=off#v=2&seed=…`) or only its fragment.
+        #[arg(long)]
+        link: String,
+        /// Picture size in pixels, WIDTHxHEIGHT.
+        #[arg(long, default_value = "1280x900", value_parser = picture_size)]
+        size: [u32; 2],
+        /// Output PNG.
+        #[arg(long)]
+        out: PathBuf,
+        /// Folder of the weights (default: ./weights, else the crate's).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+        /// Threads of the CPU kernels.
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// Draws of the finished view, each timed (the first includes uploading its meshes).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100))]
+        repeats: u32,
     },
     /// Hillshade DEMs side by side into one grey PNG, each area-averaged to one spacing and
     /// cut to the same square around its centre (e.g. a region of the world beside real ranges).
@@ -751,6 +774,7 @@ fn main() -> ExitCode {
         Command::World { region } => world(&region),
         Command::Export { region, spacing, format } => export(&region, spacing, format),
         Command::RangeField { seed, side, out } => range_field(seed, side as usize, &out),
+        Command::Render { link, size, out, weights, threads, repeats } => render(&link, size, &out, weights, threads, repeats as usize),
         Command::Hillshade { input, spacing_m, side, out } => hillshade(&input, spacing_m, side as usize, &out),
         Command::Enhance { input, input_res, output_res, out, weights, batch } => enhance(&input, input_res, output_res, &out, weights, batch as usize),
         Command::TemProbe { weights } => tem_probe(weights),

@@ -10,6 +10,8 @@ use glam::DVec3;
 pub mod coarse;
 pub mod heightmap;
 pub mod loads;
+#[cfg(not(target_arch = "wasm32"))]
+pub mod native;
 pub mod page;
 pub mod probe;
 pub mod runners;

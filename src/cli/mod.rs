@@ -1,6 +1,7 @@
 //! What each command does, grouped by what it drives; `main.rs` only wires arguments to them.
 
 pub mod bench;
+pub mod render;
 pub mod sketch;
 pub mod tem;
 pub mod world;

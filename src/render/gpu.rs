@@ -85,6 +85,7 @@ pub struct RenderStats {
 
 struct Target {
     size: [u32; 2],
+    color_texture: wgpu::Texture,
     color: wgpu::TextureView,
     depth: wgpu::TextureView,
 }
@@ -239,23 +240,23 @@ impl TerrainRenderer {
             return false;
         }
         let make = |format, usage, label| {
-            device
-                .create_texture(&wgpu::TextureDescriptor {
-                    label: Some(label),
-                    size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format,
-                    usage,
-                    view_formats: &[],
-                })
-                .create_view(&Default::default())
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: &[],
+            })
         };
+        let color_texture = make(COLOR_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_SRC, "terrain colour");
         self.target = Some(Target {
             size,
-            color: make(COLOR_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING, "terrain colour"),
-            depth: make(DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, "terrain depth"),
+            color: color_texture.create_view(&Default::default()),
+            color_texture,
+            depth: make(DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, "terrain depth").create_view(&Default::default()),
         });
         true
     }
@@ -263,6 +264,41 @@ impl TerrainRenderer {
     /// The offscreen colour target (after `ensure_target`).
     pub fn color_view(&self) -> Option<&wgpu::TextureView> {
         self.target.as_ref().map(|t| &t.color)
+    }
+
+    /// The offscreen target's pixels after the work submitted so far: `width × height` RGBA
+    /// values (sRGB, 8 bits each), rows top to bottom. Blocks until the GPU is done (native
+    /// only: a browser cannot wait on its GPU).
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn read_target(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<(u32, u32, Vec<u8>), String> {
+        let t = self.target.as_ref().ok_or("nothing drawn yet")?;
+        let [w, h] = t.size;
+        let row = (w * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read terrain colour"),
+            size: (row * h) as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("read terrain colour") });
+        enc.copy_texture_to_buffer(
+            t.color_texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo { buffer: &buffer, layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row), rows_per_image: Some(h) } },
+            wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+        );
+        queue.submit([enc.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        buffer.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        device.poll(wgpu::PollType::Wait { submission_index: None, timeout: None }).map_err(|e| format!("waiting for the GPU: {e}"))?;
+        rx.recv().map_err(|e| e.to_string())?.map_err(|e| format!("reading the picture back: {e}"))?;
+        let mapped = buffer.slice(..).get_mapped_range().map_err(|e| format!("reading the picture back: {e:?}"))?;
+        let mut out = Vec::with_capacity((w * h * 4) as usize);
+        for r in 0..h as usize {
+            out.extend_from_slice(&mapped[r * row as usize..][..w as usize * 4]);
+        }
+        Ok((w, h, out))
     }
 
     /// Draws `nodes` for `params` into the offscreen target and submits the work. Node meshes
