@@ -7,10 +7,18 @@ struct Globals {
     eye: vec4<f32>,              // eye position in world metres (x, y, z), w unused
     sun: vec4<f32>,              // unit vector towards the sun, w unused
     fog: vec4<f32>,              // x fog start (m), y fog end (m), z water level (m), w terrain amplitude (m)
-    params: vec4<f32>,           // x: colour nodes by depth (0/1), y: time (s)
+    params: vec4<f32>,           // x: colour nodes by depth (0/1), y: time (s), z: full shading (0 plain / 1)
+    shadow: array<mat4x4<f32>, 2>, // camera-relative metres to each shadow cascade's clip space
+    shadow_info: vec4<f32>,      // x: near cascade's far end (m), y: far cascade's (m), z, w: their texel sizes (m)
 };
 
 @group(0) @binding(0) var<uniform> g: Globals;
+@group(0) @binding(1) var shadow_map: texture_depth_2d_array;
+@group(0) @binding(2) var shadow_sampler: sampler_comparison;
+
+fn full_shading() -> bool {
+    return g.params.z > 0.5;
+}
 
 fn sky_colour(dir: vec3<f32>) -> vec3<f32> {
     let up = clamp(dir.y, 0.0, 1.0);
@@ -51,6 +59,31 @@ fn water_colour(rel: vec3<f32>) -> vec4<f32> {
     return vec4<f32>(c, fresnel);
 }
 
+// Aerial perspective: haze whose density falls off with height (scale height 1.6 km above the
+// water level), so distant valleys fade and summits stay clear; in-scattered light is the sky's
+// horizon tone, warmer towards the sun. The optical depth is integrated along the view ray in
+// closed form. At the view's far end the sky itself takes over (as `apply_fog`).
+fn aerial(c: vec3<f32>, rel: vec3<f32>) -> vec3<f32> {
+    let d = length(rel);
+    let view = rel / max(d, 1e-3);
+    let scale_h = 1600.0;
+    let density = 1.0 / 42000.0; // extinction per metre at the water level
+    let h0 = (g.eye.y - g.fog.z) / scale_h;
+    let dh = rel.y / scale_h;
+    var depth = density * d * exp(-max(h0, -2.0));
+    if (abs(dh) > 1e-3) {
+        depth = density * d * (exp(-max(h0, -2.0)) - exp(-max(h0 + dh, -2.0))) / dh;
+    }
+    let t = exp(-depth);
+    let sun_side = pow(max(dot(view, g.sun.xyz), 0.0), 6.0);
+    let sky = sky_colour(view);
+    let haze = mix(sky * 0.95, vec3<f32>(0.98, 0.86, 0.68), sun_side * 0.45);
+    let hazed = mix(haze, c, t);
+    let e = clamp((d - g.fog.y * 0.7) / max(g.fog.y * 0.3, 1.0), 0.0, 1.0);
+    return mix(hazed, sky, e * e * (3.0 - 2.0 * e));
+}
+
+// The plain shading's fog: one haze from `g.fog.x` to `g.fog.y` metres, the sky at its end.
 fn apply_fog(c: vec3<f32>, rel: vec3<f32>) -> vec3<f32> {
     let d = length(rel);
     let t = clamp((d - g.fog.x) / max(g.fog.y - g.fog.x, 1.0), 0.0, 1.0);

@@ -19,5 +19,11 @@ fn vs_main(@builtin(vertex_index) i: u32) -> WaterOut {
 @fragment
 fn fs_main(i: WaterOut) -> @location(0) vec4<f32> {
     let w = water_colour(i.rel);
-    return vec4<f32>(apply_fog(w.rgb, i.rel), mix(0.80, 1.0, w.a));
+    var c: vec3<f32>;
+    if (full_shading()) {
+        c = aerial(w.rgb, i.rel);
+    } else {
+        c = apply_fog(w.rgb, i.rel);
+    }
+    return vec4<f32>(c, mix(0.80, 1.0, w.a));
 }

@@ -67,6 +67,9 @@ pub struct ShareState {
     /// Extent of a sketch world's sketch (metres across,
     /// [`crate::world::sketched::EXTENT_M`]).
     pub extent_m: f64,
+    /// Plain shading (`shade=plain`: colours by elevation and slope, no shadows or detail),
+    /// for slow devices; the full shading otherwise.
+    pub plain_shading: bool,
 }
 
 impl Default for ShareState {
@@ -86,6 +89,7 @@ impl Default for ShareState {
             sketch: None,
             relief_m: crate::world::sketched::DEFAULT_RELIEF_M,
             extent_m: crate::world::sketched::SKETCH_EXTENT_M,
+            plain_shading: false,
         }
     }
 }
@@ -184,8 +188,10 @@ impl ShareState {
             }
             weights.push_str(&format!("&relief={}&extent={}", self.relief_m, self.extent_m));
         }
+        // Only the plain shading is said: links made before it existed read as they always did.
+        let shade = if self.plain_shading { "&shade=plain" } else { "" };
         format!(
-            "v={LINK_VERSION}&seed={}&src={}{weights}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}",
+            "v={LINK_VERSION}&seed={}&src={}{weights}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}{shade}",
             self.seed,
             self.source.key(),
             yaw,
@@ -304,6 +310,13 @@ impl ShareState {
                         return Err(ShareError(format!("sketch extent {e} m is outside {}..{} m", range.start(), range.end())));
                     }
                     s.extent_m = e;
+                }
+                "shade" => {
+                    s.plain_shading = match value {
+                        "plain" => true,
+                        "full" => false,
+                        _ => return Err(ShareError(format!("unknown shading '{}' (expected plain or full)", quoted(value)))),
+                    }
                 }
                 "auto" => {
                     let [v] = numbers::<1>(key, value)?;
@@ -441,9 +454,10 @@ mod tests {
             sketch: None,
             relief_m: crate::world::sketched::DEFAULT_RELIEF_M,
             extent_m: crate::world::sketched::SKETCH_EXTENT_M,
+            plain_shading: true,
         };
         let link = s.to_fragment();
-        assert!(link.contains("&cam=-123456.79,1234.5,0.3,-2.12346,0.33333&"), "{link}");
+        assert!(link.contains("&cam=-123456.79,1234.5,0.3,-2.12346,0.33333&") && link.ends_with("&shade=plain"), "{link}");
         let back = ShareState::from_fragment(&format!("#{link}")).unwrap();
         assert!(back.position_m.iter().zip(&s.position_m).all(|(a, b)| (a - b).abs() <= 0.005), "{:?}", back.position_m);
         assert!((back.yaw - s.yaw).abs() <= 6e-6 && (back.pitch - s.pitch).abs() <= 6e-6);
@@ -465,6 +479,18 @@ mod tests {
         let v2 = ShareState::from_fragment("v=2&seed=42&src=tcm&w=00FF12").unwrap();
         assert_eq!((v2.link_version, v2.source, v2.weights.as_deref()), (2, SourceKind::Learned, Some("00ff12")));
         assert_eq!(ShareState::default().source, SourceKind::Learned, "a page without a link starts on the learned world");
+    }
+
+    /// The full shading is the default and is not written into links (links made before the
+    /// setting read as they did); `shade=plain` and `shade=full` are read, anything else is
+    /// refused with the two it takes.
+    #[test]
+    fn the_shading_is_in_a_link_only_when_plain() {
+        assert!(!ShareState::default().plain_shading && !ShareState::default().to_fragment().contains("shade"));
+        assert!(ShareState::from_fragment("v=2&shade=plain").unwrap().plain_shading);
+        assert!(!ShareState::from_fragment("v=2&shade=full").unwrap().plain_shading);
+        let e = ShareState::from_fragment("v=2&shade=flat").unwrap_err();
+        assert!(e.0.contains("'flat'") && e.0.contains("plain or full"), "{e}");
     }
 
     #[test]

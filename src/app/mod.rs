@@ -54,6 +54,10 @@ pub const NODE_BUILD_BUDGET: usize = 24;
 /// Refined patches (quads) asked of the TEM per batch at most.
 pub const REFINE_BATCH: usize = 4;
 
+/// The sun's elevation (radians, 19°): a morning sun, low enough that ridges cast shadows
+/// into the valleys beside them and the forms read from above.
+pub const SUN_ELEVATION: f32 = 0.33;
+
 /// Frames a node mesh stays on the GPU after it was last drawn.
 pub const MESH_KEEP_FRAMES: u64 = 240;
 
@@ -764,7 +768,7 @@ impl TerrainApp {
         let params = FrameParams {
             camera: self.camera,
             size: size_px,
-            sun_dir: sun_direction(2.3, 0.45),
+            sun_dir: sun_direction(2.3, SUN_ELEVATION),
             fog_start_m,
             fog_end_m,
             // The sketch's plain lies at 0 m and is drawn as water by the terrain itself (level
@@ -778,6 +782,7 @@ impl TerrainApp {
             },
             show_lod: self.show_lod,
             time_s: self.time_s as f32,
+            plain_shading: self.settings.plain_shading,
         };
         (nodes, params)
     }

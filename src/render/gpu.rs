@@ -11,6 +11,7 @@ use super::MESH_BYTES;
 use super::camera::Camera;
 use super::mesh::{NODE_VERTICES, Vertex, node_indices_strided, node_vertices};
 use super::resident::{ResidentMeshes, Slots};
+use super::shadow::{CASCADES, SHADOW_MAP_PX, cascades};
 use crate::world::quadtree::{DRAW_STRIDES, NodeData};
 
 /// Colour format of the offscreen target (linear values, stored sRGB).
@@ -22,6 +23,7 @@ const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
 const SKY_WGSL: &str = include_str!("../../shaders/sky.wgsl");
 const TERRAIN_WGSL: &str = include_str!("../../shaders/terrain.wgsl");
 const WATER_WGSL: &str = include_str!("../../shaders/water.wgsl");
+const SHADOW_WGSL: &str = include_str!("../../shaders/shadow.wgsl");
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -32,6 +34,8 @@ struct Globals {
     sun: [f32; 4],
     fog: [f32; 4],
     params: [f32; 4],
+    shadow: [[[f32; 4]; 4]; CASCADES],
+    shadow_info: [f32; 4],
 }
 
 #[repr(C)]
@@ -62,7 +66,12 @@ pub struct FrameParams {
     pub show_lod: bool,
     /// Seconds since start (animates the water).
     pub time_s: f32,
+    /// Plain shading (colours by elevation and slope, no shadows or detail): for slow devices.
+    pub plain_shading: bool,
 }
+
+/// Farthest distance from the eye (metres) that terrain shadows reach.
+pub const SHADOW_FAR_M: f32 = 40_000.0;
 
 /// What one frame drew.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -95,8 +104,17 @@ pub struct TerrainRenderer {
     globals: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     sky: wgpu::RenderPipeline,
+    /// The terrain in the full shading.
     terrain: wgpu::RenderPipeline,
+    /// The terrain in the plain shading.
+    terrain_plain: wgpu::RenderPipeline,
     water: wgpu::RenderPipeline,
+    /// Draws node meshes as depth from the sun into one shadow cascade.
+    shadow: wgpu::RenderPipeline,
+    /// Each cascade's view-projection, and its bind group.
+    cascade_uniforms: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    /// Each cascade's layer of the shadow map, as a render target.
+    cascade_layers: Vec<wgpu::TextureView>,
     indices: wgpu::Buffer,
     /// The index ranges of each stride of [`DRAW_STRIDES`] in `indices`.
     index_ranges: Vec<(u8, std::ops::Range<u32>)>,
@@ -119,14 +137,29 @@ const _: () = assert!(MESH_BYTES.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT));
 impl TerrainRenderer {
     /// Creates pipelines and shared buffers on `device`.
     pub fn new(device: &wgpu::Device) -> Self {
+        let uniform_entry = |visibility| wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility,
+            ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
+            count: None,
+        };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("terrain globals"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
-                count: None,
-            }],
+            entries: &[
+                uniform_entry(wgpu::ShaderStages::VERTEX_FRAGMENT),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture { sample_type: wgpu::TextureSampleType::Depth, view_dimension: wgpu::TextureViewDimension::D2Array, multisampled: false },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                    count: None,
+                },
+            ],
         });
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("terrain globals"),
@@ -134,41 +167,97 @@ impl TerrainRenderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        let shadow_map = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("shadow cascades"),
+            size: wgpu::Extent3d { width: SHADOW_MAP_PX, height: SHADOW_MAP_PX, depth_or_array_layers: CASCADES as u32 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: DEPTH_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let cascade_layers = (0..CASCADES as u32)
+            .map(|layer| {
+                shadow_map.create_view(&wgpu::TextureViewDescriptor {
+                    label: Some("shadow cascade"),
+                    dimension: Some(wgpu::TextureViewDimension::D2),
+                    base_array_layer: layer,
+                    array_layer_count: Some(1),
+                    ..Default::default()
+                })
+            })
+            .collect();
+        let shadow_view = shadow_map.create_view(&wgpu::TextureViewDescriptor { dimension: Some(wgpu::TextureViewDimension::D2Array), ..Default::default() });
+        let shadow_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("shadow compare"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            compare: Some(wgpu::CompareFunction::LessEqual),
+            ..Default::default()
+        });
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("terrain globals"),
             layout: &layout,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: globals.as_entire_binding() }],
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: globals.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&shadow_view) },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::Sampler(&shadow_sampler) },
+            ],
         });
+        let cascade_layout =
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("shadow cascade"), entries: &[uniform_entry(wgpu::ShaderStages::VERTEX)] });
+        let cascade_uniforms = (0..CASCADES)
+            .map(|_| {
+                let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("shadow cascade"),
+                    size: 64,
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("shadow cascade"),
+                    layout: &cascade_layout,
+                    entries: &[wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() }],
+                });
+                (buffer, group)
+            })
+            .collect();
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("terrain"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
         let module = |name: &str, src: &str| {
             device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(name), source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{src}").into()) })
         };
-        let pipeline =
-            |name: &str, src: &str, buffers: &[Option<wgpu::VertexBufferLayout<'_>>], depth_write: bool, compare: wgpu::CompareFunction, blend: Option<wgpu::BlendState>| {
-                let m = module(name, src);
-                device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                    label: Some(name),
-                    layout: Some(&pipeline_layout),
-                    vertex: wgpu::VertexState { module: &m, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers },
-                    primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, cull_mode: None, ..Default::default() },
-                    depth_stencil: Some(wgpu::DepthStencilState {
-                        format: DEPTH_FORMAT,
-                        depth_write_enabled: Some(depth_write),
-                        depth_compare: Some(compare),
-                        stencil: Default::default(),
-                        bias: Default::default(),
-                    }),
-                    multisample: Default::default(),
-                    fragment: Some(wgpu::FragmentState {
-                        module: &m,
-                        entry_point: Some("fs_main"),
-                        compilation_options: Default::default(),
-                        targets: &[Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend, write_mask: wgpu::ColorWrites::ALL })],
-                    }),
-                    multiview_mask: None,
-                    cache: None,
-                })
-            };
+        let pipeline = |name: &str,
+                        src: &str,
+                        fs: &str,
+                        buffers: &[Option<wgpu::VertexBufferLayout<'_>>],
+                        depth_write: bool,
+                        compare: wgpu::CompareFunction,
+                        blend: Option<wgpu::BlendState>| {
+            let m = module(name, src);
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(name),
+                layout: Some(&pipeline_layout),
+                vertex: wgpu::VertexState { module: &m, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers },
+                primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, cull_mode: None, ..Default::default() },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH_FORMAT,
+                    depth_write_enabled: Some(depth_write),
+                    depth_compare: Some(compare),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &m,
+                    entry_point: Some(fs),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend, write_mask: wgpu::ColorWrites::ALL })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
         let vertex_layout = wgpu::VertexBufferLayout {
             array_stride: std::mem::size_of::<Vertex>() as u64,
             step_mode: wgpu::VertexStepMode::Vertex,
@@ -179,9 +268,36 @@ impl TerrainRenderer {
             step_mode: wgpu::VertexStepMode::Instance,
             attributes: &wgpu::vertex_attr_array![2 => Float32x3, 3 => Float32],
         };
-        let sky = pipeline("sky", SKY_WGSL, &[], false, wgpu::CompareFunction::Always, None);
-        let terrain = pipeline("terrain", TERRAIN_WGSL, &[Some(vertex_layout), Some(instance_layout)], true, wgpu::CompareFunction::Greater, None);
-        let water = pipeline("water", WATER_WGSL, &[], true, wgpu::CompareFunction::Greater, Some(wgpu::BlendState::ALPHA_BLENDING));
+        let sky = pipeline("sky", SKY_WGSL, "fs_main", &[], false, wgpu::CompareFunction::Always, None);
+        let terrain_buffers = [Some(vertex_layout.clone()), Some(instance_layout.clone())];
+        let terrain = pipeline("terrain", TERRAIN_WGSL, "fs_full", &terrain_buffers, true, wgpu::CompareFunction::Greater, None);
+        let terrain_plain = pipeline("terrain plain", TERRAIN_WGSL, "fs_plain", &terrain_buffers, true, wgpu::CompareFunction::Greater, None);
+        let water = pipeline("water", WATER_WGSL, "fs_main", &[], true, wgpu::CompareFunction::Greater, Some(wgpu::BlendState::ALPHA_BLENDING));
+        let shadow_module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("shadow"), source: wgpu::ShaderSource::Wgsl(SHADOW_WGSL.into()) });
+        let shadow_layout =
+            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("shadow"), bind_group_layouts: &[Some(&cascade_layout)], immediate_size: 0 });
+        let shadow = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("shadow"),
+            layout: Some(&shadow_layout),
+            vertex: wgpu::VertexState {
+                module: &shadow_module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[Some(vertex_layout.clone()), Some(instance_layout.clone())],
+            },
+            primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, cull_mode: None, ..Default::default() },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: wgpu::DepthBiasState { constant: 0, slope_scale: 1.5, clamp: 0.0 },
+            }),
+            multisample: Default::default(),
+            fragment: None,
+            multiview_mask: None,
+            cache: None,
+        });
         let mut idx = Vec::new();
         let mut index_ranges = Vec::new();
         for stride in DRAW_STRIDES {
@@ -201,7 +317,11 @@ impl TerrainRenderer {
             bind_group,
             sky,
             terrain,
+            terrain_plain,
             water,
+            shadow,
+            cascade_uniforms,
+            cascade_layers,
             indices,
             index_ranges,
             instances,
@@ -310,16 +430,26 @@ impl TerrainRenderer {
         let cam = &params.camera;
         let aspect = params.size[0].max(1) as f32 / params.size[1].max(1) as f32;
         let vp = cam.view_proj(aspect);
+        let sun = params.sun_dir.normalize();
+        let shadow_far_m = params.fog_end_m.min(SHADOW_FAR_M);
+        let cs = cascades(cam, aspect, sun, shadow_far_m);
         let g = Globals {
             view_proj: vp.to_cols_array_2d(),
             inv_view_proj: vp.inverse().to_cols_array_2d(),
             eye: [cam.position_m.x as f32, cam.position_m.y as f32, cam.position_m.z as f32, 0.0],
-            sun: params.sun_dir.normalize().extend(0.0).to_array(),
+            sun: sun.extend(0.0).to_array(),
             fog: [params.fog_start_m, params.fog_end_m, params.water_level_m, params.amplitude_m],
-            params: [if params.show_lod { 1.0 } else { 0.0 }, params.time_s, 0.0, 0.0],
+            params: [if params.show_lod { 1.0 } else { 0.0 }, params.time_s, if params.plain_shading { 0.0 } else { 1.0 }, 0.0],
+            shadow: cs.map(|c| c.view_proj.to_cols_array_2d()),
+            shadow_info: [cs[0].far_m, cs[1].far_m, cs[0].texel_m, cs[1].texel_m],
         };
         let t0 = web_time::Instant::now();
         queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&g));
+        if !params.plain_shading {
+            for (c, (buffer, _)) in cs.iter().zip(&self.cascade_uniforms) {
+                queue.write_buffer(buffer, 0, bytemuck::cast_slice(&c.view_proj.to_cols_array()));
+            }
+        }
 
         // Never more nodes than the device's mesh buffer can hold (the app keeps its view
         // within half of that by raising its LOD target).
@@ -376,6 +506,33 @@ impl TerrainRenderer {
         let t1 = web_time::Instant::now();
         let target = self.target.as_ref().expect("target ensured above");
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("terrain") });
+        // The shadow cascades: every drawn node at a quarter of its vertices per side (the
+        // shapes that cast shadows over tens of metres and more).
+        let coarse = self.index_ranges.iter().find(|(s, _)| *s == DRAW_STRIDES[DRAW_STRIDES.len() - 1]).map_or(self.index_ranges[0].1.clone(), |(_, r)| r.clone());
+        for (layer, (_, group)) in self.cascade_layers.iter().zip(&self.cascade_uniforms).take(if params.plain_shading { 0 } else { CASCADES }) {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("shadow cascade"),
+                color_attachments: &[],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: layer,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Store }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.shadow);
+            pass.set_bind_group(0, group, &[]);
+            pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
+            pass.set_vertex_buffer(1, self.instances.slice(..));
+            pass.set_vertex_buffer(0, self.slab.slice(..));
+            for (k, n) in nodes.iter().enumerate() {
+                if let Some(&slot) = self.meshes.get(&n.id) {
+                    pass.draw_indexed(coarse.clone(), (slot as usize * NODE_VERTICES) as i32, k as u32..k as u32 + 1);
+                }
+            }
+        }
         {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("terrain"),
@@ -397,7 +554,7 @@ impl TerrainRenderer {
             pass.set_bind_group(0, &self.bind_group, &[]);
             pass.set_pipeline(&self.sky);
             pass.draw(0..3, 0..1);
-            pass.set_pipeline(&self.terrain);
+            pass.set_pipeline(if params.plain_shading { &self.terrain_plain } else { &self.terrain });
             pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
             pass.set_vertex_buffer(1, self.instances.slice(..));
             pass.set_vertex_buffer(0, self.slab.slice(..));
@@ -428,17 +585,24 @@ pub fn sun_direction(azimuth: f32, elevation: f32) -> Vec3 {
 mod tests {
     use super::*;
 
-    /// Every render shader, as the renderer builds it (the shared part first), parses and
+    /// Every render shader, as the renderer builds it (the shared part first but for the shadow
+    /// pass's, which stands alone), parses and
     /// passes naga's validation (the checks wgpu runs when it creates the module), and has
-    /// the entry points the pipelines name.
+    /// the entry points the pipelines name (the shadow pass only a vertex stage, the terrain one
+    /// fragment stage per shading).
     #[test]
     fn each_render_shader_parses_and_validates_with_its_entry_points() {
-        for (name, src) in [("sky", SKY_WGSL), ("terrain", TERRAIN_WGSL), ("water", WATER_WGSL)] {
-            let code = format!("{COMMON_WGSL}\n{src}");
+        for (name, src) in [("sky", SKY_WGSL), ("terrain", TERRAIN_WGSL), ("water", WATER_WGSL), ("shadow", "")] {
+            let code = if name == "shadow" { SHADOW_WGSL.to_string() } else { format!("{COMMON_WGSL}\n{src}") };
             let module = naga::front::wgsl::parse_str(&code).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&code)));
             naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty()).validate(&module).unwrap_or_else(|e| panic!("{name}: {e:?}"));
             let entries: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
-            assert_eq!(entries, ["vs_main", "fs_main"], "{name}");
+            let want: &[&str] = match name {
+                "shadow" => &["vs_main"],
+                "terrain" => &["vs_main", "fs_full", "fs_plain"],
+                _ => &["vs_main", "fs_main"],
+            };
+            assert_eq!(entries, want, "{name}");
         }
     }
 }

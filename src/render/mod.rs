@@ -6,6 +6,7 @@ pub mod gpu;
 pub mod mesh;
 pub mod pacing;
 pub mod resident;
+pub mod shadow;
 
 pub use camera::{Camera, CameraController, CameraMode, ControlInput};
 pub use gpu::{FrameParams, RenderStats, TerrainRenderer};

@@ -132,6 +132,7 @@ mod tests {
             amplitude_m: 2000.0,
             show_lod: false,
             time_s: 1.0,
+            plain_shading: false,
         };
         let key = SceneKey::of(&nodes, &params);
         assert_eq!(SceneKey::of(&nodes, &FrameParams { time_s: 99.5, ..params }), key);

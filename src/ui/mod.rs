@@ -487,6 +487,14 @@ impl Overlay {
             ui.label("LOD target (px)");
             ui.add(egui::Slider::new(&mut d.lod_px, crate::share::LOD_PX).logarithmic(true));
             ui.end_row();
+            ui.label("Shading");
+            ui.horizontal(|ui| {
+                for (plain, text, name) in [(false, "Full", "shade_full"), (true, "Plain (faster)", "shade_plain")] {
+                    let r = ui.selectable_value(&mut d.plain_shading, plain, text);
+                    self.buttons.insert(name, r.rect);
+                }
+            });
+            ui.end_row();
             ui.label("World");
             ui.horizontal(|ui| {
                 for (kind, name) in [(SourceKind::Learned, "world_tcm"), (SourceKind::Procedural, "world_procedural"), (SourceKind::Sketch, "world_sketch")] {
