@@ -76,10 +76,16 @@ fn aerial(c: vec3<f32>, rel: vec3<f32>) -> vec3<f32> {
     }
     let t = exp(-depth);
     let sun_side = pow(max(dot(view, g.sun.xyz), 0.0), 6.0);
-    let sky = sky_colour(view);
-    let haze = mix(sky * 0.95, vec3<f32>(0.98, 0.86, 0.68), sun_side * 0.45);
+    // The haze's own light: the sky's gradient near the horizon (without the sun's disc).
+    let up = clamp(view.y, 0.0, 1.0);
+    let horizon = mix(vec3<f32>(0.68, 0.78, 0.90), vec3<f32>(0.16, 0.36, 0.72), sqrt(up) * 0.9);
+    let haze = mix(horizon * 0.95, vec3<f32>(0.98, 0.86, 0.68), sun_side * 0.45);
     let hazed = mix(haze, c, t);
     let e = clamp((d - g.fog.y * 0.7) / max(g.fog.y * 0.3, 1.0), 0.0, 1.0);
+    if (e <= 0.0) {
+        return hazed;
+    }
+    let sky = sky_colour(view);
     return mix(hazed, sky, e * e * (3.0 - 2.0 * e));
 }
 

@@ -198,7 +198,9 @@ fn ground_albedo(ns: vec3<f32>, nd: vec3<f32>, h: f32, w: vec2<f32>, dn: f32, co
 fn full_colour(i: VertexOut) -> vec3<f32> {
     let ns = normalize(i.normal);
     let w = i.rel.xz + g.eye.xz;
-    let footprint = max(length(dpdx(i.rel)), length(dpdy(i.rel)));
+    let dx = dpdx(i.rel);
+    let dy = dpdy(i.rel);
+    let footprint = max(length(dx), length(dy));
     let d = detail(w, footprint);
     // Rougher where it is steep (rock) than on meadows.
     let rough = mix(0.07, 0.3, smoothstep(0.15, 0.4, 1.0 - ns.y));
@@ -214,7 +216,7 @@ fn full_colour(i: VertexOut) -> vec3<f32> {
     let cavity = clamp(0.75 + d.x * 0.5, 0.45, 1.0);
     let sky_light = mix(vec3<f32>(0.16, 0.15, 0.12), vec3<f32>(0.40, 0.50, 0.66), nd.y * 0.5 + 0.5) * cavity;
     var c = albedo * (vec3<f32>(1.0, 0.93, 0.80) * lit_sun * 1.45 + sky_light * 0.75);
-    let lake = (1.0 - smoothstep(2e-6, 1e-5, 1.0 - ns.y)) * (1.0 - smoothstep(2e-6, 1e-5, 1.0 - abs(normalize(cross(dpdx(i.rel), dpdy(i.rel))).y)));
+    let lake = (1.0 - smoothstep(2e-6, 1e-5, 1.0 - ns.y)) * (1.0 - smoothstep(2e-6, 1e-5, 1.0 - abs(normalize(cross(dx, dy)).y)));
     if (lake > 0.0) {
         c = mix(c, water_colour(i.rel).rgb, lake);
     }

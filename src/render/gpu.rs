@@ -16,6 +16,8 @@ use crate::world::quadtree::{DRAW_STRIDES, NodeData};
 
 /// Colour format of the offscreen target (linear values, stored sRGB).
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+/// The colour target's format as the UI samples it: the same bytes, not decoded from sRGB.
+pub const SHOWN_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 /// Depth format (reverse-Z: 1 at the near plane, 0 at infinity).
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
@@ -94,8 +96,14 @@ pub struct RenderStats {
 
 struct Target {
     size: [u32; 2],
+    /// Read back by [`TerrainRenderer::read_target`], natively only.
+    #[cfg_attr(target_arch = "wasm32", allow(dead_code))]
     color_texture: wgpu::Texture,
     color: wgpu::TextureView,
+    /// The same texels as plain 8-bit values: egui takes a user texture's values as sRGB-encoded
+    /// (it samples without decoding), so it is shown through this view; through `color` it
+    /// would see the decoded, linear values and show them too dark.
+    shown: wgpu::TextureView,
     depth: wgpu::TextureView,
 }
 
@@ -359,7 +367,7 @@ impl TerrainRenderer {
         if self.target.as_ref().is_some_and(|t| t.size == size) {
             return false;
         }
-        let make = |format, usage, label| {
+        let make = |format, usage, label, view_formats: &[wgpu::TextureFormat]| {
             device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
                 size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
@@ -368,22 +376,25 @@ impl TerrainRenderer {
                 dimension: wgpu::TextureDimension::D2,
                 format,
                 usage,
-                view_formats: &[],
+                view_formats,
             })
         };
-        let color_texture = make(COLOR_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_SRC, "terrain colour");
+        let color_usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_SRC;
+        let color_texture = make(COLOR_FORMAT, color_usage, "terrain colour", &[SHOWN_FORMAT]);
         self.target = Some(Target {
             size,
             color: color_texture.create_view(&Default::default()),
+            shown: color_texture.create_view(&wgpu::TextureViewDescriptor { format: Some(SHOWN_FORMAT), ..Default::default() }),
             color_texture,
-            depth: make(DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, "terrain depth").create_view(&Default::default()),
+            depth: make(DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, "terrain depth", &[]).create_view(&Default::default()),
         });
         true
     }
 
-    /// The offscreen colour target (after `ensure_target`).
+    /// The offscreen colour target as the UI shows it (after `ensure_target`): its sRGB-encoded
+    /// values, read without decoding.
     pub fn color_view(&self) -> Option<&wgpu::TextureView> {
-        self.target.as_ref().map(|t| &t.color)
+        self.target.as_ref().map(|t| &t.shown)
     }
 
     /// The offscreen target's pixels after the work submitted so far: `width × height` RGBA

@@ -478,6 +478,57 @@ test('a 60-second autopilot flight with a full tile cache streams new tiles with
   await page.close();
 });
 
+// The full shading beside the plain one (`shade=plain`), in one run on this machine: the same
+// view's picture in each, then 20 s of flight (W held) with its frame times. The goal, full
+// frames within 1.3 × the plain ones, is reported here, not asserted (no test asserts this
+// machine's speed).
+const SHADE_VIEW = 'v=2&seed=7&src=procedural&cam=3000,2500,9000,0.9,-0.3&r=1&lod=6';
+const SHADE_FLIGHT_S = 20;
+
+/** Mean colour [r, g, b] of a PNG's pixels in [x0, x1) × [y0, y1). */
+function meanColour(png, x0, x1, y0, y1) {
+  const sum = [0, 0, 0];
+  for (let y = y0; y < y1; y++) for (let x = x0; x < x1; x++) for (let c = 0; c < 3; c++) sum[c] += png.data[(y * png.width + x) * 4 + c];
+  return sum.map((v) => v / ((x1 - x0) * (y1 - y0)));
+}
+
+test('the full and the plain shading side by side: only the plain one\'s link says shade=plain, the pictures of one view differ by more than 4 levels a pixel, the page shows the sky the renderer made (within 6 levels of `terrain render`\'s), and each draws frames in a 20 s flight (frame times of each reported)', async () => {
+  const run = {};
+  const pictures = {};
+  for (const [name, extra] of [['plain', '&shade=plain'], ['full', '']]) {
+    const { page, errors } = await open(SHADE_VIEW + extra, '?tem=off');
+    await waitFor(page, (s) => s.stats.frames > 10 && s.stats.nodes_drawn > 0 && s.stats.tiles_pending === 0 && s.stats.tiles_uncovered === 0, `the ${name} view`);
+    await page.waitForTimeout(2000);
+    pictures[name] = PNG.sync.read(await page.screenshot({ path: path.join(out, `shading_${name}.png`) }));
+    const link = (await stats(page)).link;
+    // The same view drawn natively: the page must show the colours the renderer made (an sRGB
+    // target shown as if its decoded values were encoded ones is much darker).
+    const nativePng = path.join(out, `shading_${name}_native.png`);
+    execFileSync(nativeBin, ['render', '--link', `?tem=off#${SHADE_VIEW}${extra}`, '--size', '960x600', '--out', nativePng, '--weights', path.join(repo, 'weights')]);
+    const sky = meanColour(pictures[name], 700, 950, 2, 20);
+    const nativeSky = meanColour(PNG.sync.read(fs.readFileSync(nativePng)), 700, 950, 2, 20);
+    await page.mouse.click(700, 300);
+    await page.evaluate(() => window.wasmBindings.terrain_frame_intervals());
+    await page.keyboard.down('w');
+    await page.waitForTimeout(SHADE_FLIGHT_S * 1000);
+    await page.keyboard.up('w');
+    const frames = (await page.evaluate(() => Array.from(window.wasmBindings.terrain_frame_intervals()))).sort((a, b) => a - b);
+    run[name] = { sky, native_sky: nativeSky, link_says_plain: link.includes('shade=plain'), frames: frames.length, frame_ms_median: frames[Math.floor(frames.length / 2)], frame_ms_p95: frames[Math.floor(frames.length * 0.95)], frame_ms_worst: frames[frames.length - 1] };
+    assert.deepEqual(errors, []);
+    await page.close();
+  }
+  const [a, b] = [pictures.plain.data, pictures.full.data];
+  let diff = 0;
+  for (let i = 0; i < a.length; i += 4) diff += (Math.abs(a[i] - b[i]) + Math.abs(a[i + 1] - b[i + 1]) + Math.abs(a[i + 2] - b[i + 2])) / 3;
+  const meanDiff = diff / (a.length / 4);
+  report.shading = { ...run, picture_mean_abs_diff: meanDiff, full_over_plain_median: run.full.frame_ms_median / run.plain.frame_ms_median, full_over_plain_worst: run.full.frame_ms_worst / run.plain.frame_ms_worst };
+  console.log('SHADING ' + JSON.stringify(report.shading));
+  assert.ok(run.plain.link_says_plain && !run.full.link_says_plain, JSON.stringify(run));
+  assert.ok(run.plain.frames >= 5 && run.full.frames >= 5, JSON.stringify(run));
+  assert.ok(meanDiff > 4, `the two shadings differ by only ${meanDiff} levels a pixel`);
+  for (const r of Object.values(run)) assert.ok(r.sky.every((v, c) => Math.abs(v - r.native_sky[c]) <= 6), `the page's sky ${r.sky} is not the renderer's ${r.native_sky}`);
+});
+
 test('keyboard flight moves the camera', async () => {
   const { page, errors } = await open(VIEW);
   const s0 = await waitFor(page, (s) => s.stats.frames > 10 && s.stats.nodes_drawn > 0, 'the view');
