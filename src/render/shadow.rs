@@ -89,7 +89,7 @@ mod tests {
     /// the view); the near cascade's texels are finer than the far one's.
     #[test]
     fn each_cascade_holds_its_slice_of_the_view_and_the_casters_towards_the_sun() {
-        let sun = crate::render::gpu::sun_direction(2.3, 0.45);
+        let sun = crate::render::gpu::sun_direction(2.3, crate::app::SUN_ELEVATION);
         for pitch in [-0.3, -1.2] {
             let cam = camera(pitch);
             let cs = cascades(&cam, 1.6, sun, 30_000.0);
@@ -117,7 +117,7 @@ mod tests {
     /// by a whole number of texels (0 or 1), never a fraction: the map does not shimmer.
     #[test]
     fn a_cascade_moves_by_whole_texels() {
-        let sun = crate::render::gpu::sun_direction(2.3, 0.45);
+        let sun = crate::render::gpu::sun_direction(2.3, crate::app::SUN_ELEVATION);
         let cam = camera(-0.3);
         let a = cascades(&cam, 1.6, sun, 30_000.0)[0];
         let step = Vec3::new(a.texel_m / 3.0, 0.0, 0.0);
