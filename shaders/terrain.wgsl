@@ -52,6 +52,13 @@ fn terrain_albedo(h: f32, n: vec3<f32>, face_slope: f32) -> vec3<f32> {
     return c;
 }
 
+// Level ground is water: a lake the drainage left (level to 1 mm a sample) or the sketch's
+// plain. Slopes under ~0.1° are water, over ~0.25° ground (1 − n.y ≈ slope² / 2), by the
+// interpolated normal `n` (a smooth shore) and by the triangle's own, `face_slope` = 1 − |y| of
+// it (a lone level vertex on a slope is no pond). 1 water, 0 ground.
+fn lake_mask(n: vec3<f32>, face_slope: f32) -> f32 {
+    return (1.0 - smoothstep(2e-6, 1e-5, 1.0 - n.y)) * (1.0 - smoothstep(2e-6, 1e-5, face_slope));
+}
 
 // The colour a node of quadtree `depth` is tinted with when nodes are coloured by depth.
 fn depth_tint(depth: f32) -> vec3<f32> {
@@ -216,7 +223,7 @@ fn full_colour(i: VertexOut) -> vec3<f32> {
     let cavity = clamp(0.75 + d.x * 0.5, 0.45, 1.0);
     let sky_light = mix(vec3<f32>(0.16, 0.15, 0.12), vec3<f32>(0.40, 0.50, 0.66), nd.y * 0.5 + 0.5) * cavity;
     var c = albedo * (vec3<f32>(1.0, 0.93, 0.80) * lit_sun * 1.45 + sky_light * 0.75);
-    let lake = (1.0 - smoothstep(2e-6, 1e-5, 1.0 - ns.y)) * (1.0 - smoothstep(2e-6, 1e-5, 1.0 - abs(normalize(cross(dx, dy)).y)));
+    let lake = lake_mask(ns, 1.0 - abs(normalize(cross(dx, dy)).y));
     if (lake > 0.0) {
         c = mix(c, water_colour(i.rel).rgb, lake);
     }
@@ -234,12 +241,7 @@ fn plain_colour(i: VertexOut) -> vec3<f32> {
     let sun = max(dot(n, g.sun.xyz), 0.0);
     let sky_light = mix(vec3<f32>(0.20, 0.18, 0.15), vec3<f32>(0.45, 0.55, 0.70), n.y * 0.5 + 0.5);
     let lit = albedo * (vec3<f32>(1.0, 0.95, 0.85) * sun * 1.1 + sky_light * 0.55);
-    // Level ground is water: a lake the drainage left (level to 1 mm a sample) or the sketch's
-    // plain. Slopes under ~0.1° are water, over ~0.25° ground (1 − n.y ≈ slope² / 2), by the
-    // interpolated normal (a smooth shore) and by the triangle's own (a lone level vertex on
-    // a slope is no pond).
-    let lake = (1.0 - smoothstep(2e-6, 1e-5, 1.0 - n.y)) * (1.0 - smoothstep(2e-6, 1e-5, face_slope));
-    return mix(lit, water_colour(i.rel).rgb, lake);
+    return mix(lit, water_colour(i.rel).rgb, lake_mask(n, face_slope));
 }
 
 // Two entry points, one pipeline each: with both shadings behind one branch a software

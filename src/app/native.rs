@@ -10,6 +10,7 @@ use super::page::{Delivery, Effect, PageCore, PageStart};
 use crate::jobs::runner::Runner;
 use crate::render::camera::ControlInput;
 use crate::render::gpu::FrameParams;
+use crate::render::pacing::SceneKey;
 use crate::share::{PageOptions, ShareState};
 use crate::world::quadtree::NodeData;
 
@@ -83,15 +84,16 @@ impl NativeShell {
         out
     }
 
-    /// Frames until the view is whole: no tile, far tile or request pending and the same nodes
-    /// (ids and versions) drawn three frames running; an error after `max_frames`.
+    /// Frames until the view is whole: no tile, far tile or request pending and the same scene
+    /// ([`SceneKey`]: nodes, their versions, the frame's parameters) three frames running; an
+    /// error after `max_frames`.
     pub fn settle(&mut self, core: &mut PageCore, size: [u32; 2], max_frames: usize) -> Result<Settled, String> {
         self.carry_out(core);
         let mut same = 0;
-        let mut last: Vec<(crate::world::quadtree::NodeId, u64)> = Vec::new();
+        let mut last = None;
         for frames in 1..=max_frames {
             let (nodes, params) = self.frame(core, size);
-            let key: Vec<_> = nodes.iter().map(|n| (n.id, n.version)).collect();
+            let key = Some(SceneKey::of(&nodes, &params));
             let s = core.app.stats();
             let idle = s.tiles_pending == 0 && s.tiles_uncovered == 0 && s.far_pending == 0 && core.in_flight() == 0;
             same = if idle && key == last && !nodes.is_empty() { same + 1 } else { 0 };

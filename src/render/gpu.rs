@@ -517,9 +517,9 @@ impl TerrainRenderer {
         let t1 = web_time::Instant::now();
         let target = self.target.as_ref().expect("target ensured above");
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("terrain") });
-        // The shadow cascades: every drawn node at a quarter of its vertices per side (the
-        // shapes that cast shadows over tens of metres and more).
-        let coarse = self.index_ranges.iter().find(|(s, _)| *s == DRAW_STRIDES[DRAW_STRIDES.len() - 1]).map_or(self.index_ranges[0].1.clone(), |(_, r)| r.clone());
+        // The shadow cascades: every drawn node at the coarsest stride (a quarter of its
+        // vertices per side: the shapes that cast shadows over tens of metres and more).
+        let coarsest = DRAW_STRIDES[DRAW_STRIDES.len() - 1];
         for (layer, (_, group)) in self.cascade_layers.iter().zip(&self.cascade_uniforms).take(if params.plain_shading { 0 } else { CASCADES }) {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("shadow cascade"),
@@ -535,14 +535,7 @@ impl TerrainRenderer {
             });
             pass.set_pipeline(&self.shadow);
             pass.set_bind_group(0, group, &[]);
-            pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
-            pass.set_vertex_buffer(1, self.instances.slice(..));
-            pass.set_vertex_buffer(0, self.slab.slice(..));
-            for (k, n) in nodes.iter().enumerate() {
-                if let Some(&slot) = self.meshes.get(&n.id) {
-                    pass.draw_indexed(coarse.clone(), (slot as usize * NODE_VERTICES) as i32, k as u32..k as u32 + 1);
-                }
-            }
+            self.draw_nodes(&mut pass, nodes, |_| coarsest);
         }
         {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -566,22 +559,34 @@ impl TerrainRenderer {
             pass.set_pipeline(&self.sky);
             pass.draw(0..3, 0..1);
             pass.set_pipeline(if params.plain_shading { &self.terrain_plain } else { &self.terrain });
-            pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
-            pass.set_vertex_buffer(1, self.instances.slice(..));
-            pass.set_vertex_buffer(0, self.slab.slice(..));
-            for (k, n) in nodes.iter().enumerate() {
-                let range = self.index_ranges.iter().find(|(s, _)| *s == n.stride).map_or(self.index_ranges[0].1.clone(), |(_, r)| r.clone());
-                if let Some(&slot) = self.meshes.get(&n.id) {
-                    stats.triangles += range.len() / 3;
-                    pass.draw_indexed(range, (slot as usize * NODE_VERTICES) as i32, k as u32..k as u32 + 1);
-                }
-            }
+            stats.triangles = self.draw_nodes(&mut pass, nodes, |n| n.stride);
             pass.set_pipeline(&self.water);
             pass.draw(0..6, 0..1);
         }
         queue.submit([enc.finish()]);
         stats.submit_ms = t1.elapsed().as_secs_f64() * 1e3;
         stats
+    }
+}
+
+impl TerrainRenderer {
+    /// Draws each of `nodes` whose mesh is resident (node `k` with instance `k`) at the index
+    /// stride `stride` gives it (the first of [`DRAW_STRIDES`] for one not among them), in a
+    /// pass whose pipeline and bind group are set. Returns the triangles drawn.
+    fn draw_nodes(&self, pass: &mut wgpu::RenderPass<'_>, nodes: &[Arc<NodeData>], stride: impl Fn(&NodeData) -> u8) -> usize {
+        pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
+        pass.set_vertex_buffer(1, self.instances.slice(..));
+        pass.set_vertex_buffer(0, self.slab.slice(..));
+        let mut triangles = 0;
+        for (k, n) in nodes.iter().enumerate() {
+            let want = stride(n);
+            let range = self.index_ranges.iter().find(|(s, _)| *s == want).map_or(self.index_ranges[0].1.clone(), |(_, r)| r.clone());
+            if let Some(&slot) = self.meshes.get(&n.id) {
+                triangles += range.len() / 3;
+                pass.draw_indexed(range, (slot as usize * NODE_VERTICES) as i32, k as u32..k as u32 + 1);
+            }
+        }
+        triangles
     }
 }
 
@@ -603,16 +608,17 @@ mod tests {
     /// fragment stage per shading).
     #[test]
     fn each_render_shader_parses_and_validates_with_its_entry_points() {
-        for (name, src) in [("sky", SKY_WGSL), ("terrain", TERRAIN_WGSL), ("water", WATER_WGSL), ("shadow", "")] {
-            let code = if name == "shadow" { SHADOW_WGSL.to_string() } else { format!("{COMMON_WGSL}\n{src}") };
+        let shared = |src: &str| format!("{COMMON_WGSL}\n{src}");
+        let shaders: [(&str, String, &[&str]); 4] = [
+            ("sky", shared(SKY_WGSL), &["vs_main", "fs_main"]),
+            ("terrain", shared(TERRAIN_WGSL), &["vs_main", "fs_full", "fs_plain"]),
+            ("water", shared(WATER_WGSL), &["vs_main", "fs_main"]),
+            ("shadow", SHADOW_WGSL.to_string(), &["vs_main"]),
+        ];
+        for (name, code, want) in shaders {
             let module = naga::front::wgsl::parse_str(&code).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&code)));
             naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty()).validate(&module).unwrap_or_else(|e| panic!("{name}: {e:?}"));
             let entries: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
-            let want: &[&str] = match name {
-                "shadow" => &["vs_main"],
-                "terrain" => &["vs_main", "fs_full", "fs_plain"],
-                _ => &["vs_main", "fs_main"],
-            };
             assert_eq!(entries, want, "{name}");
         }
     }
