@@ -16,6 +16,25 @@ struct Globals {
 @group(0) @binding(1) var shadow_map: texture_depth_2d_array;
 @group(0) @binding(2) var shadow_sampler: sampler_comparison;
 
+// Whether the fragment shaders write sRGB-encoded values (a plain 8-bit target, where the
+// device has no sRGB views: WebGL2) instead of linear ones (an sRGB target the GPU encodes).
+override ENCODE_SRGB: bool = false;
+
+// The sRGB transfer function (IEC 61966-2-1) of linear values in 0..1.
+fn srgb_encode(c: vec3<f32>) -> vec3<f32> {
+    let l = clamp(c, vec3<f32>(0.0), vec3<f32>(1.0));
+    let hi = 1.055 * pow(l, vec3<f32>(1.0 / 2.4)) - 0.055;
+    return select(hi, l * 12.92, l <= vec3<f32>(0.0031308));
+}
+
+// A fragment's linear colour as the view's target stores it.
+fn to_target(c: vec4<f32>) -> vec4<f32> {
+    if ENCODE_SRGB {
+        return vec4<f32>(srgb_encode(c.rgb), c.a);
+    }
+    return c;
+}
+
 fn full_shading() -> bool {
     return g.params.z > 0.5;
 }

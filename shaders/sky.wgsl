@@ -18,5 +18,5 @@ fn vs_main(@builtin(vertex_index) i: u32) -> SkyOut {
 fn fs_main(i: SkyOut) -> @location(0) vec4<f32> {
     let p = g.inv_view_proj * vec4<f32>(i.ndc, 0.5, 1.0);
     let dir = normalize(p.xyz / p.w);
-    return vec4<f32>(sky_colour(dir), 1.0);
+    return to_target(vec4<f32>(sky_colour(dir), 1.0));
 }

@@ -248,10 +248,10 @@ fn plain_colour(i: VertexOut) -> vec3<f32> {
 // rasteriser paid for both (the plain frame took twice as long on llvmpipe).
 @fragment
 fn fs_full(i: VertexOut) -> @location(0) vec4<f32> {
-    return vec4<f32>(aerial(full_colour(i), i.rel), 1.0);
+    return to_target(vec4<f32>(aerial(full_colour(i), i.rel), 1.0));
 }
 
 @fragment
 fn fs_plain(i: VertexOut) -> @location(0) vec4<f32> {
-    return vec4<f32>(apply_fog(plain_colour(i), i.rel), 1.0);
+    return to_target(vec4<f32>(apply_fog(plain_colour(i), i.rel), 1.0));
 }

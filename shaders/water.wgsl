@@ -25,5 +25,5 @@ fn fs_main(i: WaterOut) -> @location(0) vec4<f32> {
     } else {
         c = apply_fog(w.rgb, i.rel);
     }
-    return vec4<f32>(c, mix(0.80, 1.0, w.a));
+    return to_target(vec4<f32>(c, mix(0.80, 1.0, w.a)));
 }

@@ -32,6 +32,9 @@ pub const RADIUS_TILES: std::ops::RangeInclusive<f64> = 1.0..=16.0;
 pub const LOD_PX: std::ops::RangeInclusive<f64> = 0.5..=64.0;
 /// Autopilot speed (m/s) a link may carry and the settings panel offers.
 pub const AUTOPILOT_MPS: std::ops::RangeInclusive<f64> = 0.0..=5000.0;
+/// Render scales a link may ask for (`scale=`): the 3-D view's resolution per axis as a
+/// fraction of the screen's.
+pub const RENDER_SCALE: std::ops::RangeInclusive<f32> = 0.25..=1.0;
 
 /// Everything a link carries.
 #[derive(Clone, Debug, PartialEq)]
@@ -70,6 +73,10 @@ pub struct ShareState {
     /// Plain shading (`shade=plain`: colours by elevation and slope, no shadows or detail),
     /// for slow devices; the full shading otherwise.
     pub plain_shading: bool,
+    /// The 3-D view's resolution per axis as a fraction of the screen's (`scale=`, within
+    /// [`RENDER_SCALE`]), for slow devices; `None` for the page's own choice
+    /// ([`crate::render::view_size`]).
+    pub render_scale: Option<f32>,
 }
 
 impl Default for ShareState {
@@ -90,6 +97,7 @@ impl Default for ShareState {
             relief_m: crate::world::sketched::DEFAULT_RELIEF_M,
             extent_m: crate::world::sketched::SKETCH_EXTENT_M,
             plain_shading: false,
+            render_scale: None,
         }
     }
 }
@@ -189,7 +197,10 @@ impl ShareState {
             weights.push_str(&format!("&relief={}&extent={}", self.relief_m, self.extent_m));
         }
         // Only the plain shading is said: links made before it existed read as they always did.
-        let shade = if self.plain_shading { "&shade=plain" } else { "" };
+        let mut shade = if self.plain_shading { "&shade=plain".to_string() } else { String::new() };
+        if let Some(scale) = self.render_scale {
+            shade.push_str(&format!("&scale={scale}"));
+        }
         format!(
             "v={LINK_VERSION}&seed={}&src={}{weights}&cam={x},{y},{z},{},{}&r={}&lod={}&noise={kind},{},{},{},{},{},{}&auto={}{shade}",
             self.seed,
@@ -317,6 +328,14 @@ impl ShareState {
                         "full" => false,
                         _ => return Err(ShareError(format!("unknown shading '{}' (expected plain or full)", quoted(value)))),
                     }
+                }
+                "scale" => {
+                    let [v] = numbers::<1>(key, value)?;
+                    let v = v as f32;
+                    if !RENDER_SCALE.contains(&v) {
+                        return Err(ShareError(format!("render scale {v} is outside {}..{}", RENDER_SCALE.start(), RENDER_SCALE.end())));
+                    }
+                    s.render_scale = Some(v);
                 }
                 "auto" => {
                     let [v] = numbers::<1>(key, value)?;
@@ -455,9 +474,10 @@ mod tests {
             relief_m: crate::world::sketched::DEFAULT_RELIEF_M,
             extent_m: crate::world::sketched::SKETCH_EXTENT_M,
             plain_shading: true,
+            render_scale: Some(0.75),
         };
         let link = s.to_fragment();
-        assert!(link.contains("&cam=-123456.79,1234.5,0.3,-2.12346,0.33333&") && link.ends_with("&shade=plain"), "{link}");
+        assert!(link.contains("&cam=-123456.79,1234.5,0.3,-2.12346,0.33333&") && link.ends_with("&shade=plain&scale=0.75"), "{link}");
         let back = ShareState::from_fragment(&format!("#{link}")).unwrap();
         assert!(back.position_m.iter().zip(&s.position_m).all(|(a, b)| (a - b).abs() <= 0.005), "{:?}", back.position_m);
         assert!((back.yaw - s.yaw).abs() <= 6e-6 && (back.pitch - s.pitch).abs() <= 6e-6);
@@ -491,6 +511,18 @@ mod tests {
         assert!(!ShareState::from_fragment("v=2&shade=full").unwrap().plain_shading);
         let e = ShareState::from_fragment("v=2&shade=flat").unwrap_err();
         assert!(e.0.contains("'flat'") && e.0.contains("plain or full"), "{e}");
+    }
+
+    /// The page's own render scale is the default and is not written into links; `scale=0.5`
+    /// is read back as 0.5 and written again; a scale outside 0.25..1 is refused with the range.
+    #[test]
+    fn the_render_scale_is_in_a_link_only_when_chosen() {
+        assert!(ShareState::default().render_scale.is_none() && !ShareState::default().to_fragment().contains("scale"));
+        let half = ShareState::from_fragment("v=2&scale=0.5").unwrap();
+        assert_eq!(half.render_scale, Some(0.5));
+        assert!(half.to_fragment().ends_with("&scale=0.5"), "{}", half.to_fragment());
+        let e = ShareState::from_fragment("v=2&scale=2").unwrap_err();
+        assert!(e.0.contains("0.25..1"), "{e}");
     }
 
     #[test]

@@ -34,6 +34,26 @@ pub async fn open(backends: wgpu::Backends) -> Result<Opened, String> {
     Ok(Opened { instance, adapter, device, queue })
 }
 
+/// Opens a WebGL2 adapter on `canvas` (wgpu's GL backend, for a browser without WebGPU) and a
+/// device with the adapter's limits. The adapter is bound to the canvas's WebGL2 context, which
+/// the renderer's surface then shares; the error says which step failed.
+#[cfg(target_arch = "wasm32")]
+pub async fn open_webgl(canvas: &web_sys::HtmlCanvasElement) -> Result<Opened, String> {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::GL;
+    let instance = wgpu::Instance::new(desc);
+    let surface = instance.create_surface(wgpu::SurfaceTarget::Canvas(canvas.clone())).map_err(|e| format!("no WebGL2 context on the canvas ({e})"))?;
+    let adapter = instance
+        .request_adapter(&wgpu::RequestAdapterOptions { compatible_surface: Some(&surface), ..Default::default() })
+        .await
+        .map_err(|e| format!("no WebGL2 adapter ({e})"))?;
+    let (device, queue) = adapter
+        .request_device(&wgpu::DeviceDescriptor { label: Some("terrain"), required_features: adapter.features(), required_limits: adapter.limits(), ..Default::default() })
+        .await
+        .map_err(|e| format!("Could not open the WebGL2 device: {e}"))?;
+    Ok(Opened { instance, adapter, device, queue })
+}
+
 /// The page's devices one after the other, and the loss of the current one. The device-lost
 /// callback (any thread) reports its device's generation; the next frame takes a loss of the
 /// current device exactly once. A late report about an older device changes nothing.

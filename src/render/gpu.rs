@@ -14,10 +14,31 @@ use super::resident::{ResidentMeshes, Slots};
 use super::shadow::{CASCADES, SHADOW_MAP_PX, cascades};
 use crate::world::quadtree::{DRAW_STRIDES, NodeData};
 
-/// Colour format of the offscreen target (linear values, stored sRGB).
+/// Colour format of the offscreen target where the GPU encodes sRGB ([`TargetEncoding::Gpu`]):
+/// the shaders write linear values, stored sRGB.
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
-/// The colour target's format as the UI samples it: the same bytes, not decoded from sRGB.
+/// The colour target's format as the UI samples it: the same bytes, not decoded from sRGB (and
+/// the target's own format where the shaders encode, [`TargetEncoding::Shader`]).
 pub const SHOWN_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+
+/// Who turns the shaders' linear colours into the sRGB-encoded bytes of the 3-D view's target.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TargetEncoding {
+    /// The GPU: an sRGB target ([`COLOR_FORMAT`]), which the UI reads through a plain 8-bit
+    /// view of the same texels ([`SHOWN_FORMAT`]). Needs view formats (WebGPU, Vulkan).
+    Gpu,
+    /// The fragment shaders (the `ENCODE_SRGB` override): a plain 8-bit target holding the
+    /// same bytes. For devices without view formats (WebGL2, OpenGL ES), where a texture is
+    /// read in its own format only. Water is blended in encoded values there.
+    Shader,
+}
+
+impl TargetEncoding {
+    /// The encoding `adapter` allows: [`Self::Gpu`] where it has view formats.
+    pub fn for_adapter(adapter: &wgpu::Adapter) -> Self {
+        if adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::VIEW_FORMATS) { Self::Gpu } else { Self::Shader }
+    }
+}
 /// Depth format (reverse-Z: 1 at the near plane, 0 at infinity).
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
@@ -135,6 +156,7 @@ pub struct TerrainRenderer {
     slab: wgpu::Buffer,
     /// Most slots the mesh buffer may have on this device.
     slot_limit: u32,
+    encoding: TargetEncoding,
     target: Option<Target>,
 }
 
@@ -143,8 +165,9 @@ const FIRST_SLOTS: u32 = 64;
 const _: () = assert!(MESH_BYTES.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT));
 
 impl TerrainRenderer {
-    /// Creates pipelines and shared buffers on `device`.
-    pub fn new(device: &wgpu::Device) -> Self {
+    /// Creates pipelines and shared buffers on `device`, whose view target is encoded as
+    /// `encoding` says ([`TargetEncoding::for_adapter`]).
+    pub fn new(device: &wgpu::Device, encoding: TargetEncoding) -> Self {
         let uniform_entry = |visibility| wgpu::BindGroupLayoutEntry {
             binding: 0,
             visibility,
@@ -231,6 +254,14 @@ impl TerrainRenderer {
                 (buffer, group)
             })
             .collect();
+        let target_format = match encoding {
+            TargetEncoding::Gpu => COLOR_FORMAT,
+            TargetEncoding::Shader => SHOWN_FORMAT,
+        };
+        let encode_constants: &[(&str, f64)] = match encoding {
+            TargetEncoding::Gpu => &[],
+            TargetEncoding::Shader => &[("ENCODE_SRGB", 1.0)],
+        };
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("terrain"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
         let module = |name: &str, src: &str| {
             device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(name), source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{src}").into()) })
@@ -259,8 +290,8 @@ impl TerrainRenderer {
                 fragment: Some(wgpu::FragmentState {
                     module: &m,
                     entry_point: Some(fs),
-                    compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend, write_mask: wgpu::ColorWrites::ALL })],
+                    compilation_options: wgpu::PipelineCompilationOptions { constants: encode_constants, ..Default::default() },
+                    targets: &[Some(wgpu::ColorTargetState { format: target_format, blend, write_mask: wgpu::ColorWrites::ALL })],
                 }),
                 multiview_mask: None,
                 cache: None,
@@ -338,6 +369,7 @@ impl TerrainRenderer {
             slots,
             slab,
             slot_limit: super::mesh_slots(device.limits().max_buffer_size).max(FIRST_SLOTS),
+            encoding,
             target: None,
         }
     }
@@ -380,7 +412,10 @@ impl TerrainRenderer {
             })
         };
         let color_usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_SRC;
-        let color_texture = make(COLOR_FORMAT, color_usage, "terrain colour", &[SHOWN_FORMAT]);
+        let color_texture = match self.encoding {
+            TargetEncoding::Gpu => make(COLOR_FORMAT, color_usage, "terrain colour", &[SHOWN_FORMAT]),
+            TargetEncoding::Shader => make(SHOWN_FORMAT, color_usage, "terrain colour", &[]),
+        };
         self.target = Some(Target {
             size,
             color: color_texture.create_view(&Default::default()),
@@ -573,17 +608,23 @@ impl TerrainRenderer {
     /// Draws each of `nodes` whose mesh is resident (node `k` with instance `k`) at the index
     /// stride `stride` gives it (the first of [`DRAW_STRIDES`] for one not among them), in a
     /// pass whose pipeline and bind group are set. Returns the triangles drawn.
+    ///
+    /// Each draw binds its node's slot of the mesh buffer and its instance at their offsets
+    /// rather than passing a base vertex and a first instance, which WebGL2 does not have.
     fn draw_nodes(&self, pass: &mut wgpu::RenderPass<'_>, nodes: &[Arc<NodeData>], stride: impl Fn(&NodeData) -> u8) -> usize {
+        const VERTEX_BYTES: u64 = std::mem::size_of::<Vertex>() as u64;
+        const INSTANCE_BYTES: u64 = std::mem::size_of::<Instance>() as u64;
         pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
-        pass.set_vertex_buffer(1, self.instances.slice(..));
-        pass.set_vertex_buffer(0, self.slab.slice(..));
         let mut triangles = 0;
         for (k, n) in nodes.iter().enumerate() {
             let want = stride(n);
             let range = self.index_ranges.iter().find(|(s, _)| *s == want).map_or(self.index_ranges[0].1.clone(), |(_, r)| r.clone());
             if let Some(&slot) = self.meshes.get(&n.id) {
                 triangles += range.len() / 3;
-                pass.draw_indexed(range, (slot as usize * NODE_VERTICES) as i32, k as u32..k as u32 + 1);
+                let first_vertex = slot as u64 * NODE_VERTICES as u64 * VERTEX_BYTES;
+                pass.set_vertex_buffer(0, self.slab.slice(first_vertex..first_vertex + NODE_VERTICES as u64 * VERTEX_BYTES));
+                pass.set_vertex_buffer(1, self.instances.slice(k as u64 * INSTANCE_BYTES..(k as u64 + 1) * INSTANCE_BYTES));
+                pass.draw_indexed(range, 0, 0..1);
             }
         }
         triangles
@@ -620,6 +661,42 @@ mod tests {
             naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty()).validate(&module).unwrap_or_else(|e| panic!("{name}: {e:?}"));
             let entries: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
             assert_eq!(entries, want, "{name}");
+        }
+    }
+
+    /// Every entry point of every render shader, with the target encoded by the shaders
+    /// (`ENCODE_SRGB` set, as on WebGL2) and without, translates to GLSL ES 3.00 as wgpu's
+    /// WebGL2 backend translates it (overrides replaced first, clip space adjusted); the
+    /// encoding changes each fragment stage's code and no vertex stage's (the shadow pass has
+    /// no fragment stage and no override).
+    #[test]
+    fn each_render_shader_translates_to_glsl_es_300_for_webgl2() {
+        use naga::back::glsl;
+        let shared = |src: &str| format!("{COMMON_WGSL}\n{src}");
+        for (name, code) in [("sky", shared(SKY_WGSL)), ("terrain", shared(TERRAIN_WGSL)), ("water", shared(WATER_WGSL)), ("shadow", SHADOW_WGSL.to_string())] {
+            let module = naga::front::wgsl::parse_str(&code).unwrap();
+            let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty()).validate(&module).unwrap();
+            let mut code_of = std::collections::HashMap::new();
+            for encode in [false, true] {
+                let overridden = encode && !module.overrides.is_empty();
+                let constants: naga::back::PipelineConstants = if overridden { [("ENCODE_SRGB".to_string(), 1.0)].into_iter().collect() } else { Default::default() };
+                for ep in &module.entry_points {
+                    let (m, i) = naga::back::pipeline_constants::process_overrides(&module, &info, Some((ep.stage, &ep.name)), &constants)
+                        .unwrap_or_else(|e| panic!("{name} {}: {e:?}", ep.name));
+                    let options = glsl::Options { version: glsl::Version::new_gles(300), ..Default::default() };
+                    let pipeline = glsl::PipelineOptions { shader_stage: ep.stage, entry_point: ep.name.clone(), multiview: None };
+                    let mut out = String::new();
+                    glsl::Writer::new(&mut out, &m, &i, &options, &pipeline, naga::proc::BoundsCheckPolicies::default())
+                        .and_then(|mut w| w.write())
+                        .unwrap_or_else(|e| panic!("{name} {} (encode {encode}): {e:?}", ep.name));
+                    assert!(out.starts_with("#version 300 es"), "{name} {}", ep.name);
+                    code_of.insert((ep.name.clone(), encode), out);
+                }
+            }
+            for ep in &module.entry_points {
+                let changed = code_of[&(ep.name.clone(), false)] != code_of[&(ep.name.clone(), true)];
+                assert_eq!(changed, ep.stage == naga::ShaderStage::Fragment && !module.overrides.is_empty(), "{name} {}: changed by the encoding", ep.name);
+            }
         }
     }
 }

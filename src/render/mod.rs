@@ -9,7 +9,7 @@ pub mod resident;
 pub mod shadow;
 
 pub use camera::{Camera, CameraController, CameraMode, ControlInput};
-pub use gpu::{FrameParams, RenderStats, TerrainRenderer};
+pub use gpu::{FrameParams, RenderStats, TargetEncoding, TerrainRenderer};
 pub use pacing::FramePacer;
 
 /// Fraction of the screen's resolution (per axis) at which the 3-D view is drawn on a
@@ -38,11 +38,19 @@ pub fn node_budget(max_buffer_size: u64) -> usize {
     mesh_slots(max_buffer_size) as usize / 2
 }
 
+/// Most pixels the 3-D view's target holds (2560 × 1600): a larger view (a 4K screen, a
+/// phone's at ratio 3 held sideways) is drawn at the largest resolution under it.
+pub const VIEW_MAX_PIXELS: u32 = 2560 * 1600;
+
 /// Size (pixels) of the 3-D view's target for a view of `points` (egui points) at
-/// `pixels_per_point`, drawn at [`SOFTWARE_VIEW_SCALE`] on a software adapter; at least 1×1.
-pub fn view_size(points: [f32; 2], pixels_per_point: f32, software_adapter: bool) -> [u32; 2] {
-    let scale = pixels_per_point * if software_adapter { SOFTWARE_VIEW_SCALE } else { 1.0 };
-    points.map(|p| (p * scale).round().max(1.0) as u32)
+/// `pixels_per_point`: at the render scale `scale` per axis where one is chosen, else at
+/// [`SOFTWARE_VIEW_SCALE`] on a software adapter and at full resolution on others; scaled
+/// down to at most [`VIEW_MAX_PIXELS`]; at least 1×1.
+pub fn view_size(points: [f32; 2], pixels_per_point: f32, software_adapter: bool, scale: Option<f32>) -> [u32; 2] {
+    let scale = pixels_per_point * scale.unwrap_or(if software_adapter { SOFTWARE_VIEW_SCALE } else { 1.0 });
+    let full = points.map(|p| (p * scale).max(1.0));
+    let cap = (VIEW_MAX_PIXELS as f32 / (full[0] * full[1])).sqrt().min(1.0);
+    full.map(|p| if cap < 1.0 { (p * cap).floor() } else { p.round() }.max(1.0) as u32)
 }
 
 /// The pixels a canvas of `css_px` CSS pixels should hold at device pixel ratio `ratio`, when
@@ -72,11 +80,17 @@ mod tests {
     }
 
     /// A 1280×720-point view at 2 pixels per point is 2560×1440 pixels on a GPU and
-    /// 1280×720 on a software adapter; an empty view is still 1×1.
+    /// 1280×720 on a software adapter; an empty view is still 1×1; a chosen scale of 0.75
+    /// holds on either; a 3840×2160 view is drawn at 2560×1600 pixels or fewer, the shape kept.
     #[test]
-    fn view_size_is_halved_per_axis_on_software_adapters() {
-        assert_eq!(view_size([1280.0, 720.0], 2.0, false), [2560, 1440]);
-        assert_eq!(view_size([1280.0, 720.0], 2.0, true), [1280, 720]);
-        assert_eq!(view_size([0.0, 0.3], 1.0, true), [1, 1]);
+    fn view_size_is_halved_per_axis_on_software_adapters_scaled_when_chosen_and_capped() {
+        assert_eq!(view_size([1280.0, 720.0], 2.0, false, None), [2560, 1440]);
+        assert_eq!(view_size([1280.0, 720.0], 2.0, true, None), [1280, 720]);
+        assert_eq!(view_size([0.0, 0.3], 1.0, true, None), [1, 1]);
+        assert_eq!(view_size([1280.0, 720.0], 2.0, true, Some(0.75)), [1920, 1080]);
+        assert_eq!(view_size([1280.0, 720.0], 2.0, false, Some(0.75)), [1920, 1080]);
+        let [w, h] = view_size([1920.0, 1080.0], 2.0, false, None);
+        assert!(w * h <= VIEW_MAX_PIXELS && w * h > VIEW_MAX_PIXELS * 99 / 100, "{w}×{h}");
+        assert!((w as f32 / h as f32 - 16.0 / 9.0).abs() < 0.01, "{w}×{h}");
     }
 }

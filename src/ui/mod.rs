@@ -21,6 +21,11 @@ pub struct Environment {
     /// Whether the adapter rasterises on the CPU (the 3-D view is then drawn at
     /// [`crate::render::SOFTWARE_VIEW_SCALE`]).
     pub software_adapter: bool,
+    /// The 3-D view's target (pixels, [`crate::render::view_size`]) and the screen pixels
+    /// it is shown on.
+    pub view_px: [u32; 2],
+    /// The screen pixels the 3-D view covers.
+    pub screen_px: [u32; 2],
     /// How long the CPU worker rests per ms of work
     /// ([`crate::models::runtime::worker_rest_per_work`]; 0: it works at full speed).
     pub worker_rest_per_work: f64,
@@ -92,25 +97,46 @@ impl Environment {
     }
 }
 
-/// The overlay's name of a WebGPU adapter and whether it rasterises on the CPU: the browser's
-/// own description (`adapter.info`'s vendor, architecture and description, joined, and its
+/// The overlay's name of the adapter the page draws with through `api` ("WebGPU", "WebGL2")
+/// and whether it rasterises on the CPU: the browser's own description (WebGPU's
+/// `adapter.info`'s vendor, architecture and description, joined, and its
 /// `isFallbackAdapter`) where it gives one, else the first of wgpu's names for it (name,
 /// driver, driver info) that is not empty. SwiftShader and llvmpipe are software rasterisers
 /// whatever the browser says.
-pub fn adapter_name(wgpu_names: [&str; 3], browser: Option<(String, bool)>) -> (String, bool) {
+pub fn adapter_name(api: &str, wgpu_names: [&str; 3], browser: Option<(String, bool)>) -> (String, bool) {
     let label = wgpu_names.into_iter().find(|s| !s.is_empty()).unwrap_or("browser adapter");
     let (text, fallback) = browser.unwrap_or_default();
-    let lower = text.to_ascii_lowercase();
+    let shown = if text.is_empty() { label } else { &text };
+    let lower = shown.to_ascii_lowercase();
     let software = fallback || lower.contains("swiftshader") || lower.contains("llvmpipe");
-    (format!("WebGPU · {}", if text.is_empty() { label } else { &text }), software)
+    (format!("{api} · {shown}"), software)
+}
+
+/// Smallest side (points, which are CSS pixels) of a control on a touch screen: the 44 pt
+/// Apple's and the web's accessibility guidelines give for a finger.
+pub const TOUCH_TARGET_PT: f32 = 44.0;
+
+/// A small button, or on a touch screen ([`touch_screen`]) one a finger can hit.
+pub fn compact_button(ui: &mut egui::Ui, text: impl Into<egui::WidgetText>) -> egui::Response {
+    if touch_screen(ui.ctx()) { ui.button(text) } else { ui.small_button(text) }
+}
+
+/// Whether [`set_up`] set `ctx` up for a touch screen (its controls [`TOUCH_TARGET_PT`] high).
+pub fn touch_screen(ctx: &egui::Context) -> bool {
+    ctx.global_style().spacing.interact_size.y >= TOUCH_TARGET_PT
 }
 
 /// Sets up the page's egui context: a press and release that do not move apart are a click
 /// however long the button is held. egui's default (0.8 s) is measured between the frames that
 /// saw the press and the release, so on a page drawing a frame every second or two (software
-/// WebGPU, a slow phone) a quick click became a long press and was lost.
-pub fn set_up(ctx: &egui::Context) {
+/// WebGPU, a slow phone) a quick click became a long press and was lost. On a `touch` screen
+/// (a coarse pointer) every control, the panel's title bar among them, is at least
+/// [`TOUCH_TARGET_PT`] high.
+pub fn set_up(ctx: &egui::Context, touch: bool) {
     ctx.options_mut(|o| o.input_options.max_click_duration = f64::INFINITY);
+    if touch {
+        ctx.all_styles_mut(|s| s.spacing.interact_size.y = s.spacing.interact_size.y.max(TOUCH_TARGET_PT));
+    }
 }
 
 /// The camera input of this frame from egui's pointer, touch and keys over the 3-D view's
@@ -173,7 +199,7 @@ pub fn stats_json(
         "world_backend": env.world_backend, "world_probe": env.world_probe, "world_gpu_ms_per_tile": env.world_gpu_ms_per_tile,
         "world_gpu_call_items": env.world_gpu_call_items, "world_gpu_call_halves": env.world_gpu_call_halves,
         "sketch_variants": panel.variant_count(), "sketch_blends": core.blends, "sketch_blend_chosen": panel.blend_pair().is_some(), "link_too_long": link_too_long,
-        "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter, "views_drawn": env.views_drawn,
+        "copy_link_button": overlay.buttons.get("copy_link").copied().map(rect), "software_adapter": env.software_adapter, "views_drawn": env.views_drawn, "view_px": env.view_px, "screen_px": env.screen_px,
         "panel": overlay.panel.map(rect), "statistics_shown": overlay.show_stats, "settings_shown": overlay.show_settings,
         "overlay_buttons": overlay.buttons.iter().map(|(k, r)| (*k, rect(*r))).collect::<std::collections::BTreeMap<_, _>>(),
         "worker_rest_per_work": env.worker_rest_per_work,
@@ -238,6 +264,9 @@ pub struct Overlay {
     pub export_pow2: bool,
     /// Where the panel ("Terrain") was drawn last frame (points), open or collapsed.
     pub panel: Option<egui::Rect>,
+    /// On a touch screen, whether the panel is open (it starts so unless the screen is
+    /// compact); elsewhere egui's window keeps that state.
+    touch_panel_open: Option<bool>,
 }
 
 /// Below this width or height (points, which are CSS pixels) the panel starts collapsed to its
@@ -253,7 +282,17 @@ pub fn compact_screen(size: egui::Vec2) -> bool {
 impl Overlay {
     /// An overlay editing `s`.
     pub fn new(s: ShareState) -> Self {
-        Self { draft: s.clone(), applied: s, show_settings: false, show_stats: false, buttons: Default::default(), export_level: None, export_pow2: false, panel: None }
+        Self {
+            draft: s.clone(),
+            applied: s,
+            show_settings: false,
+            show_stats: false,
+            buttons: Default::default(),
+            export_level: None,
+            export_pow2: false,
+            panel: None,
+            touch_panel_open: None,
+        }
     }
 
     /// Replaces the draft with settings that came from elsewhere (e.g. a link opened in the
@@ -290,7 +329,24 @@ impl Overlay {
             });
         }
         let compact = compact_screen(ctx.content_rect().size());
-        let panel = egui::Window::new("Terrain").anchor(egui::Align2::LEFT_TOP, [8.0, 8.0]).resizable(false).default_width(260.0).default_open(!compact).show(ctx, |ui| {
+        // On a touch screen the panel opens and closes with a button a finger can hit: egui's
+        // own ▶ in the title bar is under 20 pt.
+        let touch = touch_screen(ctx);
+        let window = egui::Window::new("Terrain").anchor(egui::Align2::LEFT_TOP, [8.0, 8.0]).resizable(false).default_width(260.0);
+        let window = if touch { window.title_bar(false) } else { window.default_open(!compact) };
+        let panel = window.show(ctx, |ui| {
+            if touch {
+                let open = *self.touch_panel_open.get_or_insert(!compact);
+                let text = if open { "Terrain · close the panel" } else { "Terrain · open the panel" };
+                let r = ui.add(egui::Button::new(egui::RichText::new(text).strong()).min_size(egui::vec2(4.0 * TOUCH_TARGET_PT, TOUCH_TARGET_PT)));
+                self.buttons.insert("panel_toggle", r.rect);
+                if r.clicked() {
+                    self.touch_panel_open = Some(!open);
+                }
+                if !open {
+                    return;
+                }
+            }
             // For people: the world, what is being made, the controls. The numbers behind
             // "Statistics" (the tests read them from the statistics JSON either way).
             let seed = if stats.source == SourceKind::Sketch.label() && !env.source.contains("learned") { String::new() } else { format!(" · seed {}", self.applied.seed) };
@@ -359,7 +415,7 @@ impl Overlay {
                     (Format::GeoTiff, "GeoTIFF", "float32 metres, for GIS"),
                     (Format::Glb, "glTF", "a mesh with normals (Blender, Godot)"),
                 ] {
-                    if ui.small_button(name).on_hover_text(format!("the terrain around the eye: {what}")).clicked() {
+                    if compact_button(ui, name).on_hover_text(format!("the terrain around the eye: {what}")).clicked() {
                         act.export = Some(ExportAsk { format, level: self.export_level, pow2_plus_1: self.export_pow2 });
                     }
                 }
@@ -379,15 +435,14 @@ impl Overlay {
             // follows a progress note.
             ui.horizontal(|ui| {
                 ui.label("Your terrain");
-                let pin = ui.small_button("Pin terrain…").on_hover_text(
+                let pin = compact_button(ui, "Pin terrain…").on_hover_text(
                     "a DEM placed where you are in the learned world, which grows around it: a GeoTIFF stating its pixel size (32 m or finer), or a heightmap PNG (16/8-bit grey or terrain-RGB; its spacing and heights are asked)",
                 );
                 self.buttons.insert("pin_dem", pin.rect);
                 if pin.clicked() {
                     act.pin_dem = true;
                 }
-                let open = ui
-                    .small_button("Open world…")
+                let open = compact_button(ui, "Open world…")
                     .on_hover_text("a world bundle saved with \"Save world\": its link and pinned terrain (or drop it, a GeoTIFF or a sketch PNG on the page)");
                 self.buttons.insert("open_world", open.rect);
                 if open.clicked() {
@@ -396,13 +451,13 @@ impl Overlay {
             });
             if let Some((name, tiles)) = &env.pinned {
                 ui.horizontal(|ui| {
-                    let unpin = ui.small_button("Unpin").on_hover_text(format!("{name} ({tiles} tiles) is pinned: take it out and make the world again without it"));
+                    let unpin = compact_button(ui, "Unpin").on_hover_text(format!("{name} ({tiles} tiles) is pinned: take it out and make the world again without it"));
                     self.buttons.insert("unpin", unpin.rect);
                     if unpin.clicked() {
                         act.unpin = true;
                     }
                     let save =
-                        ui.small_button("Save world").on_hover_text("a file with the link and your pinned terrain, which a link cannot carry: whoever opens it sees this world");
+                        compact_button(ui, "Save world").on_hover_text("a file with the link and your pinned terrain, which a link cannot carry: whoever opens it sees this world");
                     self.buttons.insert("save_world", save.rect);
                     if save.clicked() {
                         act.save_world = true;
@@ -439,11 +494,11 @@ impl Overlay {
         ui.monospace(format!("{} k triangles, {} uploads, CPU {:.1} ms", env.triangles / 1000, env.uploads, env.cpu_ms));
         ui.monospace(format!("eye {:.0}, {:.0}, {:.0} m", stats.eye_m[0], stats.eye_m[1], stats.eye_m[2]));
         ui.label(format!("GPU: {}", env.adapter));
-        if env.software_adapter {
-            ui.label(format!("software GPU: 3-D view at {:.0} % resolution", crate::render::SOFTWARE_VIEW_SCALE * 100.0));
-            if env.worker_rest_per_work > 0.0 {
-                ui.label(format!("CPU worker at 1/{:.0} of a core while flying (smooth frames)", 1.0 + env.worker_rest_per_work));
-            }
+        let share = env.view_px[0] as f64 / env.screen_px[0].max(1) as f64;
+        let software = if env.software_adapter { " (software GPU)" } else { "" };
+        ui.label(format!("3-D view {}×{} px, {:.0} % of the screen's resolution{software}", env.view_px[0], env.view_px[1], share * 100.0));
+        if env.software_adapter && env.worker_rest_per_work > 0.0 {
+            ui.label(format!("CPU worker at 1/{:.0} of a core while flying (smooth frames)", 1.0 + env.worker_rest_per_work));
         }
         ui.label(format!("ML: {}", env.ml_status));
         for probe in [&env.tem_probe, &env.sketch_probe, &env.world_probe].into_iter().flatten() {
@@ -491,6 +546,14 @@ impl Overlay {
             ui.horizontal(|ui| {
                 for (plain, text, name) in [(false, "Full", "shade_full"), (true, "Plain (faster)", "shade_plain")] {
                     let r = ui.selectable_value(&mut d.plain_shading, plain, text);
+                    self.buttons.insert(name, r.rect);
+                }
+            });
+            ui.end_row();
+            ui.label("Resolution");
+            ui.horizontal(|ui| {
+                for (scale, text, name) in [(None, "Auto", "scale_auto"), (Some(1.0), "100 %", "scale_100"), (Some(0.75), "75 %", "scale_75"), (Some(0.5), "50 %", "scale_50")] {
+                    let r = ui.selectable_value(&mut d.render_scale, scale, text);
                     self.buttons.insert(name, r.rect);
                 }
             });
@@ -594,6 +657,38 @@ mod tests {
         }
     }
 
+    /// On a touch screen ([`set_up`] with `touch`) every control of the open panel is at least
+    /// 44 pt high; on a phone's screen the panel starts as one 44 pt button, which opens it
+    /// when tapped (then "copy link" is drawn) and closes it when tapped again.
+    #[test]
+    fn on_a_touch_screen_the_panels_controls_are_a_fingers_size_and_its_button_opens_it() {
+        let size = egui::vec2(390.0, 844.0);
+        let ctx = egui::Context::default();
+        set_up(&ctx, true);
+        assert!(touch_screen(&ctx));
+        let mut overlay = Overlay::new(ShareState::default());
+        for _ in 0..3 {
+            overlay_frame_on(&ctx, &mut overlay, vec![], &AppStats::default(), false, size);
+        }
+        let toggle = overlay.buttons["panel_toggle"];
+        assert_eq!(overlay.buttons.len(), 1, "{:?}", overlay.buttons.keys());
+        assert!(toggle.height() >= TOUCH_TARGET_PT && overlay.panel.unwrap().area() < 0.05 * size.x * size.y, "{toggle:?}");
+        let tap = |overlay: &mut Overlay, at: egui::Pos2| {
+            let press = |pressed| egui::Event::PointerButton { pos: at, button: egui::PointerButton::Primary, pressed, modifiers: Default::default() };
+            overlay_frame_on(&ctx, overlay, vec![egui::Event::PointerMoved(at), press(true)], &AppStats::default(), false, size);
+            overlay_frame_on(&ctx, overlay, vec![press(false)], &AppStats::default(), false, size);
+            overlay_frame_on(&ctx, overlay, vec![], &AppStats::default(), false, size);
+        };
+        tap(&mut overlay, toggle.center());
+        assert!(overlay.buttons.contains_key("copy_link"), "{:?}", overlay.buttons.keys());
+        for (name, r) in &overlay.buttons {
+            assert!(r.height() >= TOUCH_TARGET_PT - 0.5, "{name}: {r:?}");
+        }
+        let toggle = overlay.buttons["panel_toggle"];
+        tap(&mut overlay, toggle.center());
+        assert_eq!(overlay.buttons.len(), 1, "closed again: {:?}", overlay.buttons.keys());
+    }
+
     /// The overlay's buttons stay where they are (to 0.5 pt) while tiles are being made, the
     /// previous world is shown meanwhile, or "copied" is shown: a note that comes and goes
     /// must not move a button from under the user's pointer.
@@ -679,13 +774,16 @@ mod tests {
     }
 
     /// The browser's description names the adapter and SwiftShader in it marks a software
-    /// rasteriser; without one, wgpu's first name stands in and nothing is taken for software.
+    /// rasteriser; without one, wgpu's first name stands in, and SwiftShader in it (WebGL2's
+    /// unmasked renderer) marks software too; the API comes first.
     #[test]
     fn the_adapter_is_named_by_the_browser_and_swiftshader_is_software() {
         let names = ["", "Some driver", "1.2"];
-        assert_eq!(adapter_name(names, Some(("google swiftshader".into(), false))), ("WebGPU · google swiftshader".into(), true));
-        assert_eq!(adapter_name(names, Some(("nvidia ampere".into(), false))), ("WebGPU · nvidia ampere".into(), false));
-        assert_eq!(adapter_name(names, Some(("".into(), true))), ("WebGPU · Some driver".into(), true));
-        assert_eq!(adapter_name(names, None), ("WebGPU · Some driver".into(), false));
+        assert_eq!(adapter_name("WebGPU", names, Some(("google swiftshader".into(), false))), ("WebGPU · google swiftshader".into(), true));
+        assert_eq!(adapter_name("WebGPU", names, Some(("nvidia ampere".into(), false))), ("WebGPU · nvidia ampere".into(), false));
+        assert_eq!(adapter_name("WebGPU", names, Some(("".into(), true))), ("WebGPU · Some driver".into(), true));
+        assert_eq!(adapter_name("WebGPU", names, None), ("WebGPU · Some driver".into(), false));
+        let angle = "ANGLE (Google, Vulkan 1.3.0 (SwiftShader Device (Subzero)), SwiftShader driver)";
+        assert_eq!(adapter_name("WebGL2", [angle, "", ""], None), (format!("WebGL2 · {angle}"), true));
     }
 }

@@ -99,6 +99,8 @@ pub struct ViewGpu<'a> {
     pub device: &'a wgpu::Device,
     /// Its queue.
     pub queue: &'a wgpu::Queue,
+    /// How the view's target is encoded on this device.
+    pub encoding: crate::render::TargetEncoding,
     /// Shows `view` as an egui texture: registers it (`None`) or points the given one at it.
     pub show: &'a mut dyn FnMut(&wgpu::TextureView, Option<egui::TextureId>) -> egui::TextureId,
 }
@@ -429,7 +431,9 @@ impl<P: Platform> PageShell<P> {
         let ctx = ui.ctx().clone();
         let rect = ui.max_rect();
         let resp = ui.allocate_rect(rect, egui::Sense::click_and_drag());
-        let size = crate::render::view_size([rect.width(), rect.height()], ctx.pixels_per_point(), self.env.software_adapter);
+        let size = crate::render::view_size([rect.width(), rect.height()], ctx.pixels_per_point(), self.env.software_adapter, self.core.app.settings().render_scale);
+        self.env.view_px = size;
+        self.env.screen_px = [rect.width(), rect.height()].map(|p| (p * ctx.pixels_per_point()).round().max(1.0) as u32);
         let input = crate::ui::control_input(&ctx, &resp);
         let (nodes, params) = self.core.app.frame(&input, dt_ms / 1000.0, size);
         let Some(gpu) = gpu else { return false };
@@ -438,7 +442,7 @@ impl<P: Platform> PageShell<P> {
         if self.renderer.is_none() {
             self.core.app.set_node_budget(crate::render::node_budget(gpu.device.limits().max_buffer_size));
         }
-        let renderer = self.renderer.get_or_insert_with(|| TerrainRenderer::new(gpu.device));
+        let renderer = self.renderer.get_or_insert_with(|| TerrainRenderer::new(gpu.device, gpu.encoding));
         if renderer.ensure_target(gpu.device, size) || self.texture.is_none() {
             let view = renderer.color_view().expect("target just ensured");
             self.texture = Some((gpu.show)(view, self.texture));

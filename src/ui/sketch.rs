@@ -156,7 +156,7 @@ impl SketchPanel {
             ui.horizontal_wrapped(|ui| {
                 ui.label("Examples:");
                 for (name, s) in examples {
-                    if ui.small_button(*name).clicked() {
+                    if crate::ui::compact_button(ui, *name).clicked() {
                         canvas.load(s.clone());
                     }
                 }
@@ -195,7 +195,7 @@ impl SketchPanel {
                         if r.clicked() {
                             canvas.load(v.sketch.clone());
                         }
-                        let r = ui.small_button("⇄");
+                        let r = crate::ui::compact_button(ui, "⇄");
                         note(&format!("blend{k}"), &r);
                         if r.clicked() {
                             self.partner = Some((v.sketch.clone(), canvas.sketch().clone()));
@@ -389,7 +389,7 @@ mod tests {
         for set_up in [false, true] {
             let ctx = egui::Context::default();
             if set_up {
-                crate::ui::set_up(&ctx);
+                crate::ui::set_up(&ctx, false);
             }
             let mut panel = SketchPanel::default();
             let mut canvas = Canvas::new(Sketch::filled(1));

@@ -1,5 +1,6 @@
-//! The browser shell: checks for WebGPU, opens the one wgpu device that rendering and burn
-//! share, starts the CPU worker, and runs the page ([`PageShell`]) inside eframe. It only
+//! The browser shell: opens the one wgpu device that rendering and burn share (WebGPU, else
+//! WebGL2 for drawing with the networks on the CPU worker), starts the CPU worker, and runs
+//! the page ([`PageShell`]) inside eframe. It only
 //! moves bytes: fetches, posts to the worker or the GPU, and hands back what came of it
 //! ([`shell`]); everything it decides is in the core, tested natively.
 
@@ -21,7 +22,10 @@ use crate::render::device::{self, DeviceWatch, Opened};
 use crate::share::ShareState;
 use crate::ui::shell::PageShell;
 
-const NO_WEBGPU: &str = "This page needs WebGPU, which this browser does not offer. Try a current Chrome, Edge or Safari (or enable WebGPU in the browser's settings).";
+const NO_GPU: &str = "This page needs WebGPU or WebGL2 to draw, and this browser offers neither. Try a current Chrome, Edge, Firefox or Safari, or turn on hardware acceleration in the browser's settings.";
+
+/// What burn is told where the page draws with WebGL2.
+const NO_COMPUTE: &str = "WebGL2 has no compute shaders: the networks run on the CPU worker";
 
 thread_local! {
     /// The running eframe runner and the GPU device it draws with (replaced after a loss).
@@ -137,6 +141,29 @@ fn location_hash() -> String {
     web_sys::window().and_then(|w| w.location().hash().ok()).unwrap_or_default()
 }
 
+/// The device the page draws with, and whether it is WebGPU's: the browser's WebGPU adapter,
+/// else a WebGL2 context on `canvas` (said in the console); the error names why each failed.
+async fn open_device(canvas: &web_sys::HtmlCanvasElement) -> Result<(Opened, bool), String> {
+    let webgpu =
+        if wgpu::util::is_browser_webgpu_supported().await { device::open(wgpu::Backends::BROWSER_WEBGPU).await } else { Err("this browser does not offer it".to_string()) };
+    let why_not = match webgpu {
+        Ok(opened) => return Ok((opened, true)),
+        Err(e) => e,
+    };
+    match device::open_webgl(canvas).await {
+        Ok(opened) => {
+            web_sys::console::info_1(&format!("No WebGPU ({why_not}): drawing with WebGL2, the networks on the CPU worker.").into());
+            Ok((opened, false))
+        }
+        Err(e) => Err(format!("{NO_GPU} (WebGPU: {why_not}; WebGL2: {e})")),
+    }
+}
+
+/// Whether the page's main pointer is coarse (a finger: `(pointer: coarse)`).
+fn coarse_pointer() -> bool {
+    web_sys::window().and_then(|w| w.match_media("(pointer: coarse)").ok().flatten()).is_some_and(|m| m.matches())
+}
+
 /// Starts the page: the view from the link, or `restart` (the view, a note and the pins to keep) after
 /// a lost device. The view starts at once; the models join the core as they load.
 async fn run(restart: Option<crate::app::page::Kept>) -> Result<(), String> {
@@ -144,18 +171,20 @@ async fn run(restart: Option<crate::app::page::Kept>) -> Result<(), String> {
     let document = window.document().ok_or("no document")?;
     let canvas: web_sys::HtmlCanvasElement =
         document.get_element_by_id("terrain_canvas").ok_or("the page has no #terrain_canvas")?.dyn_into().map_err(|_| "#terrain_canvas is not a canvas")?;
-    if !wgpu::util::is_browser_webgpu_supported().await {
-        return Err(NO_WEBGPU.into());
-    }
-    let Opened { instance, adapter, device, queue } = device::open(wgpu::Backends::BROWSER_WEBGPU).await.map_err(|e| format!("{NO_WEBGPU} ({e})"))?;
+    let (Opened { instance, adapter, device, queue }, webgpu) = open_device(&canvas).await?;
     let generation = DEVICES.new_device();
     device.set_device_lost_callback(move |_, _| DEVICES.lost(generation));
     DEVICE.with(|d| *d.borrow_mut() = Some(device.clone()));
     let info = adapter.get_info();
-    let adapter_name = crate::ui::adapter_name([&info.name, &info.driver, &info.driver_info], browser_adapter_info().await);
-    // burn on the same device, if its self-check passes.
-    let setup = models::WgpuSetup { instance: instance.clone(), adapter: adapter.clone(), device: device.clone(), queue: queue.clone(), backend: wgpu::Backend::BrowserWebGpu };
-    let burn = models::start_burn(setup).await;
+    let (api, browser) = if webgpu { ("WebGPU", browser_adapter_info().await) } else { ("WebGL2", None) };
+    let adapter_name = crate::ui::adapter_name(api, [&info.name, &info.driver, &info.driver_info], browser);
+    // burn on the same device, if it has compute shaders and its self-check passes.
+    let burn = if webgpu {
+        let setup = models::WgpuSetup { instance: instance.clone(), adapter: adapter.clone(), device: device.clone(), queue: queue.clone(), backend: wgpu::Backend::BrowserWebGpu };
+        models::start_burn(setup).await
+    } else {
+        Err(NO_COMPUTE.to_string())
+    };
     let query = window.location().search().unwrap_or_default();
     let mut page = PageShell::start(Rc::new(shell::WebPlatform), burn, adapter_name, cpu_worker(), &query, restart);
     page.device_restarts = DEVICES.restarts();
@@ -170,7 +199,7 @@ async fn run(restart: Option<crate::app::page::Kept>) -> Result<(), String> {
     let web_runner = eframe::WebRunner::new();
     let app = Box::new(move |cc: &eframe::CreationContext<'_>| -> Result<Box<dyn eframe::App>, Box<dyn std::error::Error + Send + Sync>> {
         cc.wgpu_render_state.as_ref().ok_or("eframe started without wgpu")?;
-        crate::ui::set_up(&cc.egui_ctx);
+        crate::ui::set_up(&cc.egui_ctx, coarse_pointer());
         Ok(Box::new(shell::WebApp(page)))
     });
     web_runner.start(canvas, options, app).await.map_err(|e| format!("The page could not start its renderer: {e:?}"))?;

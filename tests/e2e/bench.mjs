@@ -1,7 +1,7 @@
 // The page's speed on this machine (a benchmark, not a test: machines differ, so the test suite
 // asserts none of it). Prints each figure as JSON and checks it against its goal; exits 1 when a
 // goal is missed. Run by hand after a page build:
-//   node bench.mjs [DIST]            # default ../../dist
+//   node bench.mjs [DIST] [NAME…]    # default ../../dist; NAME: sustained, gpu_world_frames, screens
 // Measured:
 // - sustained flight: the learned world at the default radius (4 tiles) flown by the autopilot
 //   at 250, 500 and 1000 m/s, each on its own heading from the same start (90° apart, so each
@@ -15,6 +15,10 @@
 //   one item, a ×4 window in two halves), so a frame waits behind one piece at most. Goal:
 //   worst / median ≤ 4 until the first tile (0, 2) is made (1.80–2.12 on the machine where it
 //   was written; a whole 40-tile batch a call held the frames for 21–26 s, ratio 123–144).
+// - screens: frames of one procedural view flown forward for 15 s (SwiftShader) at device pixel
+//   ratio 1 and 2 (960×600 CSS px), at ratio 2 with the render scale at 100 % and 50 % (the
+//   link's scale=), and drawn with WebGL2 (WebGPU off) beside WebGPU at ratio 1: median and worst
+//   frame, and the 3-D view's pixels. Goal: every one draws at least 10 frames.
 import path from 'node:path';
 import { fileURLToPath } from 'node:url';
 import { chromium } from 'playwright-core';
@@ -22,6 +26,7 @@ import { serve, SWIFTSHADER_ARGS as args } from './by_hand.mjs';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const dist = path.resolve(process.argv[2] ?? path.join(here, '../../dist'));
+const only = process.argv.slice(3);
 
 const SUSTAINED_SPEEDS_MPS = [250, 500, 1000];
 const SUSTAINED_GOAL_MPS = 250;
@@ -42,10 +47,11 @@ async function waitFor(page, pred, what, timeoutMs) {
   }
 }
 
-/** Opens `hash` (and `query`) in a fresh browser; returns [browser, page]. */
-async function open(base, hash, query = '') {
-  const browser = await chromium.launch({ executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium', headless: false, args });
-  const page = await browser.newPage({ viewport: { width: 960, height: 600 } });
+/** Opens `hash` (and `query`) in a fresh browser (with `launchArgs`, a page with `pageOptions`);
+ * returns [browser, page]. */
+async function open(base, hash, query = '', pageOptions = {}, launchArgs = args) {
+  const browser = await chromium.launch({ executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium', headless: false, args: launchArgs });
+  const page = await browser.newPage({ viewport: { width: 960, height: 600 }, ...pageOptions });
   await page.goto(base + query + '#' + hash);
   return [browser, page];
 }
@@ -104,8 +110,44 @@ async function gpuWorldFrames(base) {
   return { first_tile_s: (Date.now() - t0) / 1000, frames: frames.length, frame_ms_median: median, frame_ms_worst: frames[frames.length - 1], worst_over_median: ratio, goal_max: GPU_WORLD_FRAME_RATIO_MAX, goal_met: heights !== null && ratio <= GPU_WORLD_FRAME_RATIO_MAX };
 }
 
+// Chromium with WebGPU off (WebGL2 through ANGLE on SwiftShader).
+const WEBGL2_ARGS = args.filter((a) => a !== '--enable-unsafe-webgpu').concat(['--disable-features=WebGPU']);
+const SCREENS_MIN_FRAMES = 10;
+const SCREENS_FLIGHT_S = 15;
+
+async function screens(base) {
+  const view = (scale) => `v=2&seed=7&src=procedural&cam=3000,2500,9000,0.9,-0.3&r=3&lod=6${scale ? `&scale=${scale}` : ''}`;
+  const runs = [
+    ['ratio_1', view(), {}, args],
+    ['ratio_2', view(), { deviceScaleFactor: 2 }, args],
+    ['ratio_2_scale_100', view(1), { deviceScaleFactor: 2 }, args],
+    ['ratio_2_scale_50', view(0.5), { deviceScaleFactor: 2 }, args],
+    ['webgl2_ratio_1', view(), {}, WEBGL2_ARGS],
+  ];
+  const out = {};
+  for (const [name, hash, options, launchArgs] of runs) {
+    const [browser, page] = await open(base, hash, '', options, launchArgs);
+    await waitFor(page, (s) => s.stats.tiles_pending === 0 && s.stats.frames > 20, `the view (${name})`, 600_000);
+    await page.evaluate(() => window.wasmBindings.terrain_frame_intervals());
+    await page.keyboard.down('KeyW');
+    await page.waitForTimeout(SCREENS_FLIGHT_S * 1000);
+    await page.keyboard.up('KeyW');
+    const frames = (await page.evaluate(() => Array.from(window.wasmBindings.terrain_frame_intervals()))).sort((a, b) => a - b);
+    const s = await stats(page);
+    await browser.close();
+    out[name] = { adapter: s.adapter, view_px: s.view_px, screen_px: s.screen_px, frames: frames.length, frame_ms_median: frames[Math.floor(frames.length / 2)], frame_ms_worst: frames[frames.length - 1] };
+  }
+  out.goal_min_frames = SCREENS_MIN_FRAMES;
+  out.goal_met = runs.every(([name]) => out[name].frames >= SCREENS_MIN_FRAMES);
+  return out;
+}
+
 const [server, base] = await serve(dist);
-const results = { sustained: await sustained(base), gpu_world_frames: await gpuWorldFrames(base) };
+const benches = { sustained, gpu_world_frames: gpuWorldFrames, screens };
+const results = {};
+for (const [name, run] of Object.entries(benches)) {
+  if (!only.length || only.includes(name)) results[name] = await run(base);
+}
 server.close();
 console.log('BENCH ' + JSON.stringify(results));
 const missed = Object.entries(results).filter(([, r]) => !r.goal_met).map(([k]) => k);

@@ -617,7 +617,7 @@ test('a malformed link shows a message and the default world', async () => {
   await page.close();
 });
 
-test('on every screen: at device pixel ratios 1, 2 and 3 the canvas holds the CSS size × the ratio in pixels and the panel is as wide in CSS px at 2 as at 1; on a phone (390×844, ratio 3, touch) the panel starts as its title bar, leaving at least 80 % of the first view to the terrain (screenshots)', async () => {
+test('on every screen: at device pixel ratios 1, 2 and 3 the canvas holds the CSS size × the ratio in pixels and the panel is as wide in CSS px at 2 as at 1; on a phone (390×844, ratio 3, touch) the panel starts as one 44 px button, leaving at least 80 % of the first view to the terrain, a tap opens it with every control at least 44 px high, and turned to landscape while flying the canvas follows and frames go on (screenshots)', async () => {
   const screens = [
     { name: 'ratio_1', viewport: { width: 960, height: 600 }, deviceScaleFactor: 1 },
     { name: 'ratio_2', viewport: { width: 960, height: 600 }, deviceScaleFactor: 2 },
@@ -633,17 +633,43 @@ test('on every screen: at device pixel ratios 1, 2 and 3 the canvas holds the CS
     });
     await page.screenshot({ path: path.join(out, `screen_${name}.png`) });
     const [w, h] = [options.viewport.width, options.viewport.height];
-    seen[name] = { canvas, panel_css_px: s.panel, panel_share_of_view: (s.panel[2] * s.panel[3]) / (w * h) };
+    seen[name] = { canvas, panel_css_px: s.panel, panel_share_of_view: (s.panel[2] * s.panel[3]) / (w * h), view_px: s.view_px, screen_px: s.screen_px };
     assert.equal(canvas.ratio, options.deviceScaleFactor);
     assert.deepEqual(canvas.css, [w, h]);
     assert.ok(Math.abs(canvas.width - w * canvas.ratio) <= 1 && Math.abs(canvas.height - h * canvas.ratio) <= 1, `${name}: canvas ${canvas.width}×${canvas.height} for ${w}×${h} CSS px at ratio ${canvas.ratio}`);
+    // The 3-D view covers the screen's pixels at the software adapter's half resolution.
+    assert.ok(s.view_px.every((v, i) => Math.abs(v - s.screen_px[i] / 2) <= 1), `${name}: view ${s.view_px} for ${s.screen_px} screen px`);
+    if (options.hasTouch) {
+      const toggle = s.overlay_buttons.panel_toggle;
+      assert.ok(toggle && toggle[3] >= 44 && toggle[2] >= 44, `the panel's button: ${toggle}`);
+      await page.touchscreen.tap(toggle[0] + toggle[2] / 2, toggle[1] + toggle[3] / 2);
+      const opened = await waitFor(page, (q) => q.overlay_buttons.copy_link, 'the panel to open at a tap', 60_000);
+      await page.screenshot({ path: path.join(out, `screen_${name}_panel_open.png`) });
+      const small = Object.entries(opened.overlay_buttons).filter(([, r]) => r[3] < 43.5);
+      seen[name].open_buttons = Object.keys(opened.overlay_buttons).length;
+      assert.deepEqual(small, [], 'controls under 44 CSS px high');
+      await page.touchscreen.tap(toggle[0] + toggle[2] / 2, toggle[1] + toggle[3] / 2);
+      await waitFor(page, (q) => !q.overlay_buttons.copy_link, 'the panel to close at a second tap', 60_000);
+      // Turned to landscape while flying.
+      await page.keyboard.down('KeyW');
+      const before = await stats(page);
+      await page.setViewportSize({ width: h, height: w });
+      const turned = await waitFor(page, (q) => q.stats.frames > before.stats.frames + 5 && Math.abs(q.screen_px[0] - h * 3) <= 1, 'frames in landscape', 120_000);
+      await page.keyboard.up('KeyW');
+      const c2 = await page.evaluate(() => { const c = document.getElementById('terrain_canvas'); return [c.width, c.height]; });
+      await page.screenshot({ path: path.join(out, `screen_${name}_landscape.png`) });
+      seen[name].landscape = { canvas: c2, view_px: turned.view_px, screen_px: turned.screen_px, moved_m: turned.stats.eye_m.map((v, i) => v - before.stats.eye_m[i]) };
+      assert.ok(Math.abs(c2[0] - h * 3) <= 1 && Math.abs(c2[1] - w * 3) <= 1, `landscape canvas ${c2}`);
+      assert.ok(turned.view_px.every((v, i) => Math.abs(v - turned.screen_px[i] / 2) <= 1), `landscape view ${turned.view_px}`);
+      assert.ok(Math.hypot(...seen[name].landscape.moved_m) > 1, 'the camera flew on');
+    }
     assert.deepEqual(errors, []);
     await page.close();
   }
   report.screens = seen;
   assert.ok(Math.abs(seen.ratio_2.panel_css_px[2] - seen.ratio_1.panel_css_px[2]) <= 1, `panel ${seen.ratio_1.panel_css_px[2]} CSS px wide at ratio 1, ${seen.ratio_2.panel_css_px[2]} at 2`);
   assert.ok(seen.ratio_1.panel_css_px[3] > 200, `the panel is open at 960×600: ${seen.ratio_1.panel_css_px}`);
-  assert.ok(seen.phone_ratio_3.panel_css_px[3] < 40, `the panel is open on the phone: ${seen.phone_ratio_3.panel_css_px}`);
+  assert.ok(seen.phone_ratio_3.panel_css_px[3] < 70, `the panel is open on the phone: ${seen.phone_ratio_3.panel_css_px}`);
   assert.ok(seen.phone_ratio_3.panel_share_of_view <= 0.2, `the panel covers ${seen.phone_ratio_3.panel_share_of_view} of the phone's view`);
 });
 
@@ -1132,14 +1158,55 @@ test('a 4096² GeoTIFF (8 m, 64 MiB) pinned in the page becomes 64 tiles with th
   await page.close();
 });
 
-test('without WebGPU the page says so instead of failing silently', async () => {
+// A browser without WebGPU (Chromium with it off, as Firefox on Linux, older Safari and many
+// Android phones are) that has WebGL2 (ANGLE on SwiftShader here).
+const NO_WEBGPU_ARGS = [
+  '--headless=new', '--no-sandbox', '--disable-features=WebGPU', '--use-angle=swiftshader', '--enable-unsafe-swiftshader',
+  '--disable-background-networking', '--disable-component-update', '--disable-sync', '--no-first-run', '--disable-quic',
+];
+
+test('without WebGPU the page draws with WebGL2: the overlay names it, the networks run on the CPU worker, and the learned view\'s tiles are bit for bit those the page makes with WebGPU on (screenshot)', async () => {
+  const view = LEARNED_STILL_VIEW;
+  const settled = (s) => s.stats.source === 'learned' && s.stats.tiles_pending === 0 && s.stats.far_pending === 0 && s.stats.frames > 30;
+  const a = await open(view, '?tem=off');
+  const sa = await waitFor(a.page, settled, 'the learned view with WebGPU to settle', 300_000);
+  assert.match(sa.adapter, /^WebGPU · /);
+  await a.page.close();
+  const gl = await chromium.launch({ executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium', headless: false, args: NO_WEBGPU_ARGS });
+  try {
+    const page = await gl.newPage({ viewport: { width: 960, height: 600 } });
+    const errors = [];
+    const failed = [];
+    page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
+    page.on('pageerror', (e) => errors.push(String(e)));
+    page.on('response', (r) => { if (r.status() >= 400) failed.push(`${r.status()} ${r.url()}`); });
+    await page.goto(new URL('?tem=off#' + view, base).href);
+    assert.equal(await page.evaluate(async () => Boolean(navigator.gpu && await navigator.gpu.requestAdapter())), false, 'this browser offers a WebGPU adapter');
+    const sb = await waitFor(page, settled, 'the learned view with WebGL2 to settle', 300_000);
+    await page.waitForTimeout(1000);
+    const shot = await page.screenshot({ path: path.join(out, 'webgl2.png') });
+    const later = await stats(page);
+    report.webgl2 = { adapter: sb.adapter, checksum_webgpu: sa.stats.view_checksum, checksum_webgl2: sb.stats.view_checksum, nodes: sb.stats.nodes_drawn, frames: later.stats.frames, spread: imageSpread(shot, 400) };
+    assert.match(sb.adapter, /^WebGL2 · /);
+    assert.match(sb.world_backend, /CPU worker/);
+    assert.equal(sb.stats.view_checksum, sa.stats.view_checksum, 'different learned tiles with WebGL2');
+    assert.notEqual(sb.stats.view_checksum, '0000000000000000');
+    assert.equal(sb.stats.nodes_drawn, sa.stats.nodes_drawn);
+    assert.ok(later.stats.frames > sb.stats.frames, 'frames go on');
+    // Drawn terrain, not a blank canvas: the 3-D view right of the panel has shades.
+    assert.ok(report.webgl2.spread.sd > 8 && report.webgl2.spread.colours > 50, JSON.stringify(report.webgl2.spread));
+    assert.deepEqual(failed, []);
+    assert.deepEqual(errors, []);
+  } finally {
+    await gl.close();
+  }
+});
+
+test('with neither WebGPU nor WebGL2 the page says so, naming both, instead of failing silently', async () => {
   const plain = await chromium.launch({
     executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium',
     headless: false,
-    args: [
-      '--headless=new', '--no-sandbox', '--disable-gpu', '--disable-features=WebGPU', '--disable-background-networking',
-      '--disable-component-update', '--disable-sync', '--no-first-run', '--disable-quic',
-    ],
+    args: [...NO_WEBGPU_ARGS, '--disable-gpu', '--disable-3d-apis', '--disable-webgl'],
   });
   try {
     const page = await plain.newPage();
@@ -1148,8 +1215,8 @@ test('without WebGPU the page says so instead of failing silently', async () => 
     await page.goto(base);
     await page.waitForSelector('#message', { state: 'visible', timeout: 60_000 });
     const text = await page.textContent('#message');
-    assert.match(text, /WebGPU/);
-    await page.screenshot({ path: path.join(out, 'no_webgpu.png') });
+    assert.match(text, /WebGPU or WebGL2/);
+    await page.screenshot({ path: path.join(out, 'no_gpu.png') });
     assert.deepEqual(errors, []);
   } finally {
     await plain.close();
