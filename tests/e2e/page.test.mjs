@@ -544,12 +544,13 @@ test('keyboard flight moves the camera', async () => {
   await page.close();
 });
 
-test('a share link reproduces the same view and the same tiles, opened at the root and under a sub-path (0 failed requests on either; the link preview\'s picture found there)', async () => {
+test('a share link reproduces the same view and the same tiles, opened at the root and under a sub-path (0 failed requests on either; the screenshots within 3 levels a channel on average; the link preview\'s picture found there)', async () => {
   const a = await open(VIEW);
   // Settled: every tile made and the far field complete.
   const settled = (s) => s.stats.tiles_pending === 0 && s.stats.far_pending === 0 && s.stats.frames > 30;
   const sa2 = await waitFor(a.page, settled, 'view A to settle');
   const link = sa2.link;
+  const shotA = PNG.sync.read(await a.page.screenshot({ path: path.join(out, 'share_root.png') }));
   // A is closed before B opens: both settled views are compared, and B does not share the
   // (software) GPU with A meanwhile.
   await a.page.close();
@@ -557,7 +558,20 @@ test('a share link reproduces the same view and the same tiles, opened at the ro
   // loads (glue, module, style, worker, weights) is relative to it.
   const b = await open(link, '', undefined, SUB_PATH);
   const sb = await waitFor(b.page, settled, 'view B to settle');
-  report.share = { link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum, b_at: b.page.url() };
+  // The same picture: the 3-D view right of the panel differs by under 3 levels of 255 a
+  // channel on average (the water's ripples move with the page's clock) between the two.
+  const shotB = PNG.sync.read(await b.page.screenshot({ path: path.join(out, 'share_sub_path.png') }));
+  let diff = 0;
+  let n = 0;
+  for (let y = 0; y < shotA.height; y += 2) {
+    for (let x = 400; x < shotA.width; x += 2) {
+      const i = (y * shotA.width + x) * 4;
+      for (let c = 0; c < 3; c++) diff += Math.abs(shotA.data[i + c] - shotB.data[i + c]);
+      n += 3;
+    }
+  }
+  report.share = { link, checksum_a: sa2.stats.view_checksum, checksum_b: sb.stats.view_checksum, b_at: b.page.url(), screenshot_mean_diff: diff / n };
+  assert.ok(diff / n < 3, `the sub-path's picture differs from the root's by ${diff / n} levels a channel`);
   assert.ok(b.page.url().includes(SUB_PATH), b.page.url());
   // The link preview's picture is there, from the sub-path too.
   const preview = await b.page.evaluate(async () => {
