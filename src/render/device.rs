@@ -26,6 +26,12 @@ pub async fn open(backends: wgpu::Backends) -> Result<Opened, String> {
         .request_adapter(&wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() })
         .await
         .map_err(|e| format!("no GPU adapter ({e})"))?;
+    device_on(instance, adapter).await
+}
+
+/// A device on `adapter` (from `instance`) with every feature of the adapter but mappable
+/// primary buffers, and the adapter's limits.
+async fn device_on(instance: wgpu::Instance, adapter: wgpu::Adapter) -> Result<Opened, String> {
     let features = adapter.features().difference(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
     let (device, queue) = adapter
         .request_device(&wgpu::DeviceDescriptor { label: Some("terrain"), required_features: features, required_limits: adapter.limits(), ..Default::default() })
@@ -35,7 +41,7 @@ pub async fn open(backends: wgpu::Backends) -> Result<Opened, String> {
 }
 
 /// Opens a WebGL2 adapter on `canvas` (wgpu's GL backend, for a browser without WebGPU) and a
-/// device with the adapter's limits. The adapter is bound to the canvas's WebGL2 context, which
+/// device on it as [`open`] does. The adapter is bound to the canvas's WebGL2 context, which
 /// the renderer's surface then shares; the error says which step failed.
 #[cfg(target_arch = "wasm32")]
 pub async fn open_webgl(canvas: &web_sys::HtmlCanvasElement) -> Result<Opened, String> {
@@ -47,11 +53,7 @@ pub async fn open_webgl(canvas: &web_sys::HtmlCanvasElement) -> Result<Opened, S
         .request_adapter(&wgpu::RequestAdapterOptions { compatible_surface: Some(&surface), ..Default::default() })
         .await
         .map_err(|e| format!("no WebGL2 adapter ({e})"))?;
-    let (device, queue) = adapter
-        .request_device(&wgpu::DeviceDescriptor { label: Some("terrain"), required_features: adapter.features(), required_limits: adapter.limits(), ..Default::default() })
-        .await
-        .map_err(|e| format!("Could not open the WebGL2 device: {e}"))?;
-    Ok(Opened { instance, adapter, device, queue })
+    device_on(instance, adapter).await
 }
 
 /// The page's devices one after the other, and the loss of the current one. The device-lost

@@ -38,6 +38,22 @@ impl TargetEncoding {
     pub fn for_adapter(adapter: &wgpu::Adapter) -> Self {
         if adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::VIEW_FORMATS) { Self::Gpu } else { Self::Shader }
     }
+
+    /// The target's format, and the other formats it is viewed in ([`SHOWN_FORMAT`] for the UI).
+    fn formats(self) -> (wgpu::TextureFormat, &'static [wgpu::TextureFormat]) {
+        match self {
+            Self::Gpu => (COLOR_FORMAT, &[SHOWN_FORMAT]),
+            Self::Shader => (SHOWN_FORMAT, &[]),
+        }
+    }
+
+    /// The fragment shaders' pipeline constants.
+    fn constants(self) -> &'static [(&'static str, f64)] {
+        match self {
+            Self::Gpu => &[],
+            Self::Shader => &[("ENCODE_SRGB", 1.0)],
+        }
+    }
 }
 /// Depth format (reverse-Z: 1 at the near plane, 0 at infinity).
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -254,14 +270,7 @@ impl TerrainRenderer {
                 (buffer, group)
             })
             .collect();
-        let target_format = match encoding {
-            TargetEncoding::Gpu => COLOR_FORMAT,
-            TargetEncoding::Shader => SHOWN_FORMAT,
-        };
-        let encode_constants: &[(&str, f64)] = match encoding {
-            TargetEncoding::Gpu => &[],
-            TargetEncoding::Shader => &[("ENCODE_SRGB", 1.0)],
-        };
+        let (target_format, _) = encoding.formats();
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("terrain"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
         let module = |name: &str, src: &str| {
             device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(name), source: wgpu::ShaderSource::Wgsl(format!("{COMMON_WGSL}\n{src}").into()) })
@@ -290,7 +299,7 @@ impl TerrainRenderer {
                 fragment: Some(wgpu::FragmentState {
                     module: &m,
                     entry_point: Some(fs),
-                    compilation_options: wgpu::PipelineCompilationOptions { constants: encode_constants, ..Default::default() },
+                    compilation_options: wgpu::PipelineCompilationOptions { constants: encoding.constants(), ..Default::default() },
                     targets: &[Some(wgpu::ColorTargetState { format: target_format, blend, write_mask: wgpu::ColorWrites::ALL })],
                 }),
                 multiview_mask: None,
@@ -412,10 +421,8 @@ impl TerrainRenderer {
             })
         };
         let color_usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_SRC;
-        let color_texture = match self.encoding {
-            TargetEncoding::Gpu => make(COLOR_FORMAT, color_usage, "terrain colour", &[SHOWN_FORMAT]),
-            TargetEncoding::Shader => make(SHOWN_FORMAT, color_usage, "terrain colour", &[]),
-        };
+        let (format, view_formats) = self.encoding.formats();
+        let color_texture = make(format, color_usage, "terrain colour", view_formats);
         self.target = Some(Target {
             size,
             color: color_texture.create_view(&Default::default()),
@@ -642,6 +649,18 @@ pub fn sun_direction(azimuth: f32, elevation: f32) -> Vec3 {
 mod tests {
     use super::*;
 
+    /// Every render shader as the renderer builds it (the shared part first but for the shadow
+    /// pass's, which stands alone), with the entry points its pipelines name.
+    fn render_shaders() -> [(&'static str, String, &'static [&'static str]); 4] {
+        let shared = |src: &str| format!("{COMMON_WGSL}\n{src}");
+        [
+            ("sky", shared(SKY_WGSL), &["vs_main", "fs_main"]),
+            ("terrain", shared(TERRAIN_WGSL), &["vs_main", "fs_full", "fs_plain"]),
+            ("water", shared(WATER_WGSL), &["vs_main", "fs_main"]),
+            ("shadow", SHADOW_WGSL.to_string(), &["vs_main"]),
+        ]
+    }
+
     /// Every render shader, as the renderer builds it (the shared part first but for the shadow
     /// pass's, which stands alone), parses and
     /// passes naga's validation (the checks wgpu runs when it creates the module), and has
@@ -649,14 +668,7 @@ mod tests {
     /// fragment stage per shading).
     #[test]
     fn each_render_shader_parses_and_validates_with_its_entry_points() {
-        let shared = |src: &str| format!("{COMMON_WGSL}\n{src}");
-        let shaders: [(&str, String, &[&str]); 4] = [
-            ("sky", shared(SKY_WGSL), &["vs_main", "fs_main"]),
-            ("terrain", shared(TERRAIN_WGSL), &["vs_main", "fs_full", "fs_plain"]),
-            ("water", shared(WATER_WGSL), &["vs_main", "fs_main"]),
-            ("shadow", SHADOW_WGSL.to_string(), &["vs_main"]),
-        ];
-        for (name, code, want) in shaders {
+        for (name, code, want) in render_shaders() {
             let module = naga::front::wgsl::parse_str(&code).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&code)));
             naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty()).validate(&module).unwrap_or_else(|e| panic!("{name}: {e:?}"));
             let entries: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
@@ -672,8 +684,7 @@ mod tests {
     #[test]
     fn each_render_shader_translates_to_glsl_es_300_for_webgl2() {
         use naga::back::glsl;
-        let shared = |src: &str| format!("{COMMON_WGSL}\n{src}");
-        for (name, code) in [("sky", shared(SKY_WGSL)), ("terrain", shared(TERRAIN_WGSL)), ("water", shared(WATER_WGSL)), ("shadow", SHADOW_WGSL.to_string())] {
+        for (name, code, _) in render_shaders() {
             let module = naga::front::wgsl::parse_str(&code).unwrap();
             let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty()).validate(&module).unwrap();
             let mut code_of = std::collections::HashMap::new();

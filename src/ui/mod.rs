@@ -21,8 +21,7 @@ pub struct Environment {
     /// Whether the adapter rasterises on the CPU (the 3-D view is then drawn at
     /// [`crate::render::SOFTWARE_VIEW_SCALE`]).
     pub software_adapter: bool,
-    /// The 3-D view's target (pixels, [`crate::render::view_size`]) and the screen pixels
-    /// it is shown on.
+    /// The 3-D view's target (pixels, [`crate::render::view_size`]).
     pub view_px: [u32; 2],
     /// The screen pixels the 3-D view covers.
     pub screen_px: [u32; 2],
@@ -130,8 +129,8 @@ pub fn touch_screen(ctx: &egui::Context) -> bool {
 /// however long the button is held. egui's default (0.8 s) is measured between the frames that
 /// saw the press and the release, so on a page drawing a frame every second or two (software
 /// WebGPU, a slow phone) a quick click became a long press and was lost. On a `touch` screen
-/// (a coarse pointer) every control, the panel's title bar among them, is at least
-/// [`TOUCH_TARGET_PT`] high.
+/// (a coarse pointer) every control is at least [`TOUCH_TARGET_PT`] high (the overlay then
+/// opens its panel with a button of that size, [`touch_screen`]).
 pub fn set_up(ctx: &egui::Context, touch: bool) {
     ctx.options_mut(|o| o.input_options.max_click_duration = f64::INFINITY);
     if touch {

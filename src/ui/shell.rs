@@ -99,8 +99,8 @@ pub struct ViewGpu<'a> {
     pub device: &'a wgpu::Device,
     /// Its queue.
     pub queue: &'a wgpu::Queue,
-    /// How the view's target is encoded on this device.
-    pub encoding: crate::render::TargetEncoding,
+    /// Its adapter (what it allows decides how the view's target is encoded).
+    pub adapter: &'a wgpu::Adapter,
     /// Shows `view` as an egui texture: registers it (`None`) or points the given one at it.
     pub show: &'a mut dyn FnMut(&wgpu::TextureView, Option<egui::TextureId>) -> egui::TextureId,
 }
@@ -442,7 +442,7 @@ impl<P: Platform> PageShell<P> {
         if self.renderer.is_none() {
             self.core.app.set_node_budget(crate::render::node_budget(gpu.device.limits().max_buffer_size));
         }
-        let renderer = self.renderer.get_or_insert_with(|| TerrainRenderer::new(gpu.device, gpu.encoding));
+        let renderer = self.renderer.get_or_insert_with(|| TerrainRenderer::new(gpu.device, crate::render::TargetEncoding::for_adapter(gpu.adapter)));
         if renderer.ensure_target(gpu.device, size) || self.texture.is_none() {
             let view = renderer.color_view().expect("target just ensured");
             self.texture = Some((gpu.show)(view, self.texture));

@@ -79,7 +79,7 @@ impl eframe::App for WebApp {
                 None => r.register_native_texture(&rs.device, view, wgpu::FilterMode::Linear),
             }
         };
-        self.0.frame(ui, Some(ViewGpu { device: &rs.device, queue: &rs.queue, encoding: crate::render::TargetEncoding::for_adapter(&rs.adapter), show: &mut show }));
+        self.0.frame(ui, Some(ViewGpu { device: &rs.device, queue: &rs.queue, adapter: &rs.adapter, show: &mut show }));
     }
 }
 
